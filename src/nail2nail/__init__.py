@@ -1,0 +1,7 @@
+"""nail2nail: touchless 3D fingerprint capture with a multi-camera structured-light scanner.
+
+The pipeline runs one way: capture → decode → reconstruct → merge → unroll → report.
+Conventions (pixel centres, frames, units): ``docs/conventions.md``.
+"""
+
+__version__ = "0.1.0"

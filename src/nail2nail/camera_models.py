@@ -1,0 +1,228 @@
+"""Projection models of cameras and projectors: the OpenCV pinhole model and its DLT matrix.
+
+The DLT matrix of the thesis (eq. 3.1–3.6) is a 3×4 array; this module holds the physical
+pinhole model (intrinsics ``K``, OpenCV distortion, pose ``R``, ``t``) that the virtual scanner
+renders with and that calibrations made with OpenCV are read into. Conventions:
+``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from ._validation import as_float_array, as_matrix
+
+__all__ = [
+    "Pinhole",
+    "dlt_from_pinhole",
+    "look_at",
+    "pinhole_from_dlt",
+    "project_dlt",
+]
+
+
+def look_at(eye, target, up) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and translation of a camera at `eye` looking at `target`.
+
+    Parameters
+    ----------
+    eye, target : (3,) float
+        Camera centre and the point on its optical axis, world mm.
+    up : (3,) float
+        World direction that should appear *up* in the image (towards row 0).
+
+    Returns
+    -------
+    R : (3, 3) float64
+        Rotation of ``T_cam_world``: ``x_cam = R @ x_world + t``.
+    t : (3,) float64
+        Translation of ``T_cam_world``, mm.
+
+    Examples
+    --------
+    >>> R, t = look_at([0, 0, 100], [0, 0, 0], [0, 1, 0])
+    >>> np.round(R @ np.array([0, 0, 0]) + t, 6).tolist()
+    [0.0, 0.0, 100.0]
+    """
+    eye = np.asarray(eye, dtype=float)
+    z = np.asarray(target, dtype=float) - eye
+    z /= np.linalg.norm(z)
+    y = -np.asarray(up, dtype=float)  # image y runs down
+    y = y - z * (y @ z)
+    norm = np.linalg.norm(y)
+    if norm < 1e-12:
+        raise ValueError("look_at: `up` is parallel to the viewing direction")
+    y /= norm
+    x = np.cross(y, z)
+    R = np.stack([x, y, z])
+    return R, -R @ eye
+
+
+@dataclass
+class Pinhole:
+    """OpenCV pinhole model of a camera or of a projector.
+
+    Parameters
+    ----------
+    K : (3, 3) float
+        Intrinsic matrix in pixels; ``(K[0, 2], K[1, 2])`` is the principal point with the
+        pixel-centre convention (``(0, 0)`` is the centre of the top-left pixel).
+    R : (3, 3) float
+        Rotation of ``T_cam_world``.
+    t : (3,) float
+        Translation of ``T_cam_world``, mm.
+    dist : (5,) float
+        OpenCV distortion ``(k1, k2, p1, p2, k3)``; zeros for none.
+    size : (2,) int
+        Image size ``(width, height)`` in pixels.
+    """
+
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    size: tuple[int, int] = (1024, 1280)
+
+    def __post_init__(self):
+        self.K = as_matrix(self.K, "K", (3, 3))
+        self.R = as_matrix(self.R, "R", (3, 3))
+        self.t = as_float_array(self.t, "t").reshape(3)
+        dist = as_float_array(self.dist, "dist").ravel()
+        if dist.size > 5:
+            raise ValueError(f"dist: expected at most 5 coefficients (k1, k2, p1, p2, k3), got {dist.size}")
+        self.dist = np.pad(dist, (0, 5 - dist.size))
+        self.size = (int(self.size[0]), int(self.size[1]))
+        if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-9):
+            raise ValueError("R: not a rotation matrix")
+
+    # -- frames ---------------------------------------------------------------------------
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) optical centre in world mm."""
+        return -self.R.T @ self.t
+
+    def to_camera(self, xyz_world) -> np.ndarray:
+        """World points ``(..., 3)`` into the camera frame ``(..., 3)``."""
+        xyz = np.asarray(xyz_world, dtype=float)
+        return xyz @ self.R.T + self.t
+
+    # -- projection -----------------------------------------------------------------------
+    def distort(self, xy_normalized) -> np.ndarray:
+        """Apply the OpenCV distortion to normalised coordinates ``(..., 2)``."""
+        k1, k2, p1, p2, k3 = self.dist
+        if not np.any(self.dist):
+            return np.asarray(xy_normalized, dtype=float)
+        x, y = np.moveaxis(np.asarray(xy_normalized, dtype=float), -1, 0)
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return np.stack([xd, yd], axis=-1)
+
+    def undistort(self, xy_distorted, *, iterations: int = 20) -> np.ndarray:
+        """Invert :meth:`distort` by fixed-point iteration (as OpenCV's ``undistortPoints``)."""
+        xy_d = np.asarray(xy_distorted, dtype=float)
+        if not np.any(self.dist):
+            return xy_d
+        k1, k2, p1, p2, k3 = self.dist
+        xd, yd = np.moveaxis(xy_d, -1, 0)
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            r2 = x * x + y * y
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            x = (xd - dx) / radial
+            y = (yd - dy) / radial
+        return np.stack([x, y], axis=-1)
+
+    def project(self, xyz_world) -> np.ndarray:
+        """Pixel coordinates ``(..., 2)`` of world points ``(..., 3)`` (NaN behind the camera)."""
+        p = self.to_camera(xyz_world)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(p[..., 2] > 0, p[..., 2], np.nan)
+            xy = self.distort(p[..., :2] / z[..., None])
+        return xy @ self.K[:2, :2].T + self.K[:2, 2]
+
+    def rays(self, xy_pixels) -> tuple[np.ndarray, np.ndarray]:
+        """World rays through pixel coordinates ``(..., 2)``.
+
+        Returns
+        -------
+        origin : (3,) float64
+            Optical centre, world mm.
+        direction : (..., 3) float64
+            Unit direction of each ray in the world frame.
+        """
+        xy = np.asarray(xy_pixels, dtype=float)
+        Kinv = np.linalg.inv(self.K)
+        normalized = xy @ Kinv[:2, :2].T + Kinv[:2, 2]
+        normalized = self.undistort(normalized)
+        d_cam = np.concatenate([normalized, np.ones(normalized.shape[:-1] + (1,))], axis=-1)
+        d = d_cam @ self.R  # R.T @ d for each row
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return self.center, d
+
+    # -- serialisation --------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-ready dict (``model: "pinhole"``)."""
+        return {
+            "model": "pinhole",
+            "K": self.K.tolist(),
+            "dist": self.dist.tolist(),
+            "R": self.R.tolist(),
+            "t": self.t.tolist(),
+            "size": list(self.size),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Pinhole:
+        """Inverse of :meth:`to_dict`; raises ``ValueError`` naming a missing key."""
+        missing = [k for k in ("K", "R", "t") if k not in data]
+        if missing:
+            raise ValueError(f"pinhole model: missing key(s) {missing}")
+        return cls(
+            K=data["K"], R=data["R"], t=data["t"],
+            dist=data.get("dist", np.zeros(5)), size=tuple(data.get("size", (1024, 1280))),
+        )
+
+
+def dlt_from_pinhole(model: Pinhole) -> np.ndarray:
+    """DLT matrix ``K [R | t]`` scaled to ``m34 = 1`` (thesis eq. 3.3); ignores distortion.
+
+    Examples
+    --------
+    >>> R, t = look_at([0, 0, 100], [0, 0, 0], [0, 1, 0])
+    >>> M = dlt_from_pinhole(Pinhole(K=np.diag([1000., 1000, 1]), R=R, t=t))
+    >>> float(M[2, 3])
+    1.0
+    """
+    M = model.K @ np.hstack([model.R, model.t[:, None]])
+    if abs(M[2, 3]) < 1e-12:
+        raise ValueError("pinhole model: m34 is zero (world origin on the principal plane)")
+    return M / M[2, 3]
+
+
+def pinhole_from_dlt(matrix, *, size=(1024, 1280)) -> Pinhole:
+    """Decompose a 3×4 DLT matrix into ``K``, ``R``, ``t`` (RQ decomposition, no distortion)."""
+    M = as_matrix(matrix, "matrix", (3, 4))
+    if np.linalg.det(M[:, :3]) < 0:  # M is defined up to scale: pick the sign with det(R) = +1
+        M = -M
+    K, R = scipy.linalg.rq(M[:, :3])
+    signs = np.diag(np.sign(np.diag(K)))
+    K, R = K @ signs, signs @ R
+    t = np.linalg.solve(K, M[:, 3])
+    scale = K[2, 2]
+    return Pinhole(K=K / scale, R=R, t=t, size=size)
+
+
+def project_dlt(matrix, xyz_world) -> np.ndarray:
+    """Image coordinates ``(..., 2)`` of world points ``(..., 3)`` by eq. 3.1–3.2."""
+    M = np.asarray(matrix, dtype=float)
+    xyz = np.asarray(xyz_world, dtype=float)
+    h = xyz @ M[:, :3].T + M[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[..., :2] / h[..., 2:3]
