@@ -20,7 +20,9 @@ def as_float_array(value, name: str, *, dtype=np.float64) -> np.ndarray:
     return array.astype(dtype if dtype is not None else np.float64, copy=False)
 
 
-def as_points(value, name: str, dim: int, *, min_points: int = 0, finite: bool = True) -> np.ndarray:
+def as_points(
+    value, name: str, dim: int, *, min_points: int = 0, finite: bool = True
+) -> np.ndarray:
     """Return `value` as an ``(N, dim)`` float64 array.
 
     Raises

@@ -92,7 +92,9 @@ class Pinhole:
         self.t = as_float_array(self.t, "t").reshape(3)
         dist = as_float_array(self.dist, "dist").ravel()
         if dist.size > 5:
-            raise ValueError(f"dist: expected at most 5 coefficients (k1, k2, p1, p2, k3), got {dist.size}")
+            raise ValueError(
+                f"dist: expected at most 5 coefficients (k1, k2, p1, p2, k3), got {dist.size}"
+            )
         self.dist = np.pad(dist, (0, 5 - dist.size))
         self.size = (int(self.size[0]), int(self.size[1]))
         if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-9):
@@ -161,7 +163,7 @@ class Pinhole:
         Kinv = np.linalg.inv(self.K)
         normalized = xy @ Kinv[:2, :2].T + Kinv[:2, 2]
         normalized = self.undistort(normalized)
-        d_cam = np.concatenate([normalized, np.ones(normalized.shape[:-1] + (1,))], axis=-1)
+        d_cam = np.concatenate([normalized, np.ones((*normalized.shape[:-1], 1))], axis=-1)
         d = d_cam @ self.R  # R.T @ d for each row
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return self.center, d
@@ -185,8 +187,11 @@ class Pinhole:
         if missing:
             raise ValueError(f"pinhole model: missing key(s) {missing}")
         return cls(
-            K=data["K"], R=data["R"], t=data["t"],
-            dist=data.get("dist", np.zeros(5)), size=tuple(data.get("size", (1024, 1280))),
+            K=data["K"],
+            R=data["R"],
+            t=data["t"],
+            dist=data.get("dist", np.zeros(5)),
+            size=tuple(data.get("size", (1024, 1280))),
         )
 
 

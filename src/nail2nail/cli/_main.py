@@ -12,7 +12,16 @@ import importlib
 import sys
 
 # Subcommand modules, in pipeline order.
-COMMANDS = ["calibrate", "crosscheck", "simulate", "patterns", "scan", "distortion", "merge", "demo"]
+COMMANDS = [
+    "calibrate",
+    "crosscheck",
+    "simulate",
+    "patterns",
+    "scan",
+    "distortion",
+    "merge",
+    "demo",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,1 @@
+"""File formats: points tables, calibration files, captures, mat5 scans, PLY."""

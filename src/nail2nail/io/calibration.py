@@ -1,0 +1,154 @@
+"""Calibration files (JSON): per camera a camera model and the projector model seen from it.
+
+Format (``docs/capture-format.md``)::
+
+    {"format": "nail2nail-calibration", "version": 1,
+     "cameras": [{"name": "cam0", "camera": MODEL, "projector": MODEL}, ...],
+     "projector_distortion": {"center": [x, y], "rho": r} | null}
+
+``MODEL`` is ``{"model": "dlt", "matrix": [[...] x3], "size": [W, H]}`` (thesis eq. 3.3/3.6) or
+``{"model": "pinhole", "K": ..., "dist": [k1, k2, p1, p2, k3], "R": ..., "t": ..., "size": ...}``
+(OpenCV). With DLT models each camera carries its own projector matrix, as in the thesis.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..camera_models import Pinhole
+from ._atomic import atomic_path
+
+__all__ = [
+    "CameraCalibration",
+    "RigCalibration",
+    "load_calibration",
+    "model_from_dict",
+    "model_to_dict",
+    "save_calibration",
+]
+
+FORMAT = "nail2nail-calibration"
+
+Model = np.ndarray | Pinhole
+
+
+def model_to_dict(model: Model, *, size=None) -> dict:
+    """JSON-ready dict of a DLT matrix (3×4 array) or a :class:`Pinhole`."""
+    if isinstance(model, Pinhole):
+        return model.to_dict()
+    matrix = np.asarray(model, dtype=float)
+    if matrix.shape != (3, 4):
+        raise ValueError(f"model: expected a 3x4 DLT matrix or a Pinhole, got shape {matrix.shape}")
+    out: dict[str, Any] = {"model": "dlt", "matrix": matrix.tolist()}
+    if size is not None:
+        out["size"] = [int(s) for s in size]
+    return out
+
+
+def model_from_dict(data: dict, *, where: str = "model") -> Model:
+    """Inverse of :func:`model_to_dict`; raises ``ValueError`` naming `where` on bad input."""
+    if not isinstance(data, dict) or "model" not in data:
+        raise ValueError(f"{where}: expected an object with a 'model' key")
+    kind = data["model"]
+    if kind == "dlt":
+        matrix = np.asarray(data.get("matrix"), dtype=float)
+        if matrix.shape != (3, 4) or not np.all(np.isfinite(matrix)):
+            raise ValueError(f"{where}: 'matrix' must be a finite 3x4 array")
+        return matrix
+    if kind == "pinhole":
+        try:
+            return Pinhole.from_dict(data)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{where}: {exc}") from exc
+    raise ValueError(f"{where}: unknown model {kind!r} (expected 'dlt' or 'pinhole')")
+
+
+@dataclass
+class CameraCalibration:
+    """One camera's calibration: its model and the projector model calibrated with it."""
+
+    name: str
+    camera: Model
+    projector: Model
+    size: tuple[int, int] | None = None
+
+
+@dataclass
+class RigCalibration:
+    """All cameras of a rig, plus the projector's radial distortion if it is modelled."""
+
+    cameras: list[CameraCalibration]
+    projector_distortion: dict | None = None
+    extra: dict = field(default_factory=dict)
+
+    def camera(self, name: str) -> CameraCalibration:
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise KeyError(f"calibration has no camera {name!r} (has {[c.name for c in self.cameras]})")
+
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "version": 1,
+            "cameras": [
+                {
+                    "name": c.name,
+                    "camera": model_to_dict(c.camera, size=c.size),
+                    "projector": model_to_dict(c.projector),
+                }
+                for c in self.cameras
+            ],
+            "projector_distortion": self.projector_distortion,
+            **self.extra,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, *, where: str = "calibration") -> RigCalibration:
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ValueError(f"{where}: not a nail2nail calibration file (format != {FORMAT!r})")
+        cams = data.get("cameras")
+        if not isinstance(cams, list) or not cams:
+            raise ValueError(f"{where}: 'cameras' must be a non-empty list")
+        cameras = []
+        for i, c in enumerate(cams):
+            name = c.get("name", f"cam{i}")
+            camera = model_from_dict(c.get("camera"), where=f"{where}: cameras[{i}].camera")
+            projector = model_from_dict(
+                c.get("projector"), where=f"{where}: cameras[{i}].projector"
+            )
+            size = c["camera"].get("size")
+            cameras.append(
+                CameraCalibration(name, camera, projector, tuple(size) if size else None)
+            )
+        dist = data.get("projector_distortion")
+        if dist is not None and not ({"center", "rho"} <= set(dist)):
+            raise ValueError(f"{where}: projector_distortion needs 'center' and 'rho'")
+        extra = {
+            k: v
+            for k, v in data.items()
+            if k not in ("format", "version", "cameras", "projector_distortion")
+        }
+        return cls(cameras=cameras, projector_distortion=dist, extra=extra)
+
+
+def save_calibration(path: str | os.PathLike, calibration: RigCalibration) -> None:
+    """Write `calibration` as JSON (atomically)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(calibration.to_dict(), indent=2) + "\n")
+
+
+def load_calibration(path: str | os.PathLike) -> RigCalibration:
+    """Read a calibration file; ``ValueError`` naming the file on bad content."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    return RigCalibration.from_dict(data, where=str(path))

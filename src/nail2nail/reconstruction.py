@@ -1,0 +1,269 @@
+"""Reconstruction of world points from camera pixels and projector coordinates.
+
+The thesis's linear triangulation (eq. 3.12–3.14) intersects the two camera rays' planes with
+one projector plane; :func:`reconstruct_points_lsq` uses both projector coordinates in a
+least-squares sense; :func:`triangulation_table` precomputes, per camera pixel, the rational
+function of the projector coordinate that eq. 3.14 reduces to, so a whole frame is triangulated
+with a multiply-add and a division per coordinate (the look-up-table idea of Liu et al.,
+Opt. Express 18(5), 2010, doi:10.1364/OE.18.005229).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._validation import as_matrix
+
+__all__ = [
+    "Scan",
+    "TriangulationTable",
+    "pixel_grid",
+    "reconstruct_points",
+    "reconstruct_points_lsq",
+    "triangulate",
+    "triangulation_table",
+]
+
+_AXES = {"x": 0, "y": 1}
+
+
+def _axis_row(axis: str) -> int:
+    if axis not in _AXES:
+        raise ValueError(f"axis: expected 'x' or 'y', got {axis!r}")
+    return _AXES[axis]
+
+
+def pixel_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel-centre coordinates ``(xc, yc)``, each ``(H, W)`` float64, for an image of `shape`."""
+    H, W = shape
+    yc, xc = np.mgrid[0:H, 0:W].astype(np.float64)
+    return xc, yc
+
+
+def _camera_rows(M_c: np.ndarray, xc, yc):
+    """Rows 1–2 of C (eq. 3.12) and D (eq. 3.13) for camera coordinates."""
+    xc = np.asarray(xc, dtype=float)[..., None]
+    yc = np.asarray(yc, dtype=float)[..., None]
+    r0 = M_c[0, :3] - M_c[2, :3] * xc
+    r1 = M_c[1, :3] - M_c[2, :3] * yc
+    d0 = M_c[2, 3] * xc[..., 0] - M_c[0, 3]
+    d1 = M_c[2, 3] * yc[..., 0] - M_c[1, 3]
+    return r0, r1, d0, d1
+
+
+def reconstruct_points(
+    camera_matrix, projector_matrix, xc, yc, p, *, axis: str = "y"
+) -> np.ndarray:
+    """World points from camera coordinates and one projector coordinate (eq. 3.12–3.14).
+
+    Parameters
+    ----------
+    camera_matrix, projector_matrix : (3, 4) float
+        DLT matrices ``M_wc``, ``M_wp`` (eq. 3.3, 3.6).
+    xc, yc : (...) float
+        Camera coordinates, px; any shape, broadcast together with `p`.
+    p : (...) float
+        Projector coordinate ``yp`` (``axis="y"``, the thesis's choice) or ``xp`` (``axis="x"``).
+    axis : {"y", "x"}
+        Which projector coordinate `p` is.
+
+    Returns
+    -------
+    (..., 3) float64
+        ``(Xw, Yw, Zw)`` in mm; NaN where any input is NaN or the system is singular.
+
+    Examples
+    --------
+    >>> Mc = np.array([[900., 0, 0, 500], [0, 900, 0, 600], [0, 0, 0.01, 1]])
+    >>> Mp = np.array([[800., 0, 300, 600], [0, 800, 300, 500], [0, 0, 0.01, 1]])
+    >>> X = np.array([1.0, 2.0, 3.0])
+    >>> from nail2nail.camera_models import project_dlt
+    >>> (xc, yc), (xp, yp) = project_dlt(Mc, X), project_dlt(Mp, X)
+    >>> reconstruct_points(Mc, Mp, xc, yc, yp).round(9).tolist()
+    [1.0, 2.0, 3.0]
+    """
+    M_c = as_matrix(camera_matrix, "camera_matrix", (3, 4))
+    M_p = as_matrix(projector_matrix, "projector_matrix", (3, 4))
+    k = _axis_row(axis)
+    xc, yc, p = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (xc, yc, p)))
+    r0, r1, d0, d1 = _camera_rows(M_c, xc, yc)
+    r2 = M_p[k, :3] - M_p[2, :3] * p[..., None]
+    d2 = M_p[2, 3] * p - M_p[k, 3]
+    # C⁻¹ D by the adjugate: the columns of C⁻¹ are r1×r2, r2×r0, r0×r1 over det C.
+    c12, c20, c01 = np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = np.sum(r0 * c12, axis=-1)
+        num = d0[..., None] * c12 + d1[..., None] * c20 + d2[..., None] * c01
+        return num / det[..., None]
+
+
+def _solve_symmetric3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve batched 3×3 systems by the adjugate; NaN where singular or NaN (no warnings)."""
+    r0, r1, r2 = A[..., 0, :], A[..., 1, :], A[..., 2, :]
+    c12, c20, c01 = np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = np.sum(r0 * c12, axis=-1)
+        num = b[..., 0:1] * c12 + b[..., 1:2] * c20 + b[..., 2:3] * c01
+        return num / det[..., None]
+
+
+def reconstruct_points_lsq(
+    camera_matrix, projector_matrix, xc, yc, xp, yp, *, camera_weight: float = 1.0
+) -> np.ndarray:
+    """World points from camera coordinates and both projector coordinates (least squares).
+
+    The four linear equations of eq. 3.12–3.13 with the rows of both ``xp`` and ``yp`` form an
+    over-determined system ``C P = D`` (4×3); each row is divided by the norm of its ``C`` row so
+    that it measures a distance to its plane, and the system is solved by normal equations.
+
+    Parameters
+    ----------
+    camera_matrix, projector_matrix : (3, 4) float
+        DLT matrices.
+    xc, yc, xp, yp : (...) float
+        Camera px and projector coordinates; broadcast together.
+    camera_weight : float
+        Weight of the two camera equations relative to the projector ones. ``1`` treats all
+        four alike (right for measured points tables, where ``xc, yc`` are noisy too); a large
+        value (e.g. ``1e3``) keeps the point on the camera ray, which is right for scans, where
+        ``xc, yc`` are exact pixel centres and only the decoded projector coordinates are noisy.
+
+    Returns
+    -------
+    (..., 3) float64
+        World points, mm; NaN where any input is NaN.
+    """
+    M_c = as_matrix(camera_matrix, "camera_matrix", (3, 4))
+    M_p = as_matrix(projector_matrix, "projector_matrix", (3, 4))
+    xc, yc, xp, yp = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (xc, yc, xp, yp)))
+    r0, r1, d0, d1 = _camera_rows(M_c, xc, yc)
+    r2 = M_p[0, :3] - M_p[2, :3] * xp[..., None]
+    r3 = M_p[1, :3] - M_p[2, :3] * yp[..., None]
+    d2 = M_p[2, 3] * xp - M_p[0, 3]
+    d3 = M_p[2, 3] * yp - M_p[1, 3]
+    C = np.stack([r0, r1, r2, r3], axis=-2)
+    D = np.stack([d0, d1, d2, d3], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = 1.0 / np.linalg.norm(C, axis=-1)
+    w[..., :2] *= camera_weight
+    C = C * w[..., None]
+    D = D * w
+    CtC = np.einsum("...ki,...kj->...ij", C, C)
+    CtD = np.einsum("...ki,...k->...i", C, D)
+    return _solve_symmetric3(CtC, CtD)
+
+
+@dataclass
+class TriangulationTable:
+    """Per-pixel rational form of eq. 3.14: ``X_k = (n_k0 + n_k1 p) / (d_0 + d_1 p)``.
+
+    Attributes
+    ----------
+    numerator : (H, W, 3, 2) float32
+        ``n_k0, n_k1`` for ``k`` = X, Y, Z.
+    denominator : (H, W, 2) float32
+        ``d_0, d_1``.
+    axis : {"y", "x"}
+        Projector coordinate the table expects.
+    """
+
+    numerator: np.ndarray
+    denominator: np.ndarray
+    axis: str = "y"
+
+
+def triangulation_table(
+    camera_matrix,
+    projector_matrix,
+    shape: tuple[int, int],
+    *,
+    axis: str = "y",
+    dtype=np.float32,
+) -> TriangulationTable:
+    """Precompute :class:`TriangulationTable` for every pixel of an ``(H, W)`` camera image.
+
+    With ``r2 = a + b p`` and ``d2 = e + f p`` (the projector row of eq. 3.12–3.13), Cramer's
+    rule makes numerator and determinant of eq. 3.14 linear in ``p``.
+
+    Examples
+    --------
+    >>> Mc = np.array([[900., 0, 0, 500], [0, 900, 0, 600], [0, 0, 0.01, 1]])
+    >>> Mp = np.array([[800., 0, 300, 600], [0, 800, 300, 500], [0, 0, 0.01, 1]])
+    >>> table = triangulation_table(Mc, Mp, (4, 5), dtype=np.float64)
+    >>> xc, yc = pixel_grid((4, 5)); yp = np.full((4, 5), 700.0)
+    >>> bool(np.allclose(triangulate(table, yp), reconstruct_points(Mc, Mp, xc, yc, yp)))
+    True
+    """
+    M_c = as_matrix(camera_matrix, "camera_matrix", (3, 4))
+    M_p = as_matrix(projector_matrix, "projector_matrix", (3, 4))
+    k = _axis_row(axis)
+    xc, yc = pixel_grid(shape)
+    r0, r1, d0, d1 = _camera_rows(M_c, xc, yc)
+    a, b = M_p[k, :3], -M_p[2, :3]
+    e, f = -M_p[k, 3], M_p[2, 3]
+    c01 = np.cross(r0, r1)
+    n0 = d0[..., None] * np.cross(r1, a) + d1[..., None] * np.cross(a, r0) + e * c01
+    n1 = d0[..., None] * np.cross(r1, b) + d1[..., None] * np.cross(b, r0) + f * c01
+    den = np.stack([np.sum(r0 * np.cross(r1, a), -1), np.sum(r0 * np.cross(r1, b), -1)], -1)
+    # Scale each pixel's coefficients to a unit denominator norm: float32 keeps full precision.
+    scale = 1.0 / np.linalg.norm(den, axis=-1)
+    numerator = np.stack([n0, n1], axis=-1) * scale[..., None, None]
+    return TriangulationTable(
+        numerator=numerator.astype(dtype),
+        denominator=(den * scale[..., None]).astype(dtype),
+        axis=axis,
+    )
+
+
+def triangulate(table: TriangulationTable, p) -> np.ndarray:
+    """World points ``(H, W, 3)`` from a projector-coordinate image `p` ``(H, W)``."""
+    p = np.asarray(p)
+    if p.shape != table.denominator.shape[:2]:
+        raise ValueError(f"p: expected shape {table.denominator.shape[:2]}, got {p.shape}")
+    p = p.astype(table.numerator.dtype, copy=False)[..., None]
+    num = table.numerator[..., 0] + table.numerator[..., 1] * p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = table.denominator[..., 0:1] + table.denominator[..., 1:2] * p
+        return num / den
+
+
+@dataclass
+class Scan:
+    """One camera's 3D scan on its pixel grid (the content of a legacy mat5 set and more).
+
+    Attributes
+    ----------
+    name : str
+        Camera name, e.g. ``"cam0"``.
+    xyz : (H, W, 3) float32
+        World points, mm; NaN where invalid.
+    xp, yp : (H, W) float32
+        Decoded projector coordinates, panel px; NaN where invalid.
+    albedo : (H, W) float32
+        Mean intensity in ``[0, 1]`` (the thesis's C image).
+    intensity : (H, W) float32
+        Fringe modulation image (the thesis's I image; 0 where invalid).
+    modulation : (H, W) float32
+        Fringe amplitude ``B`` in ``[0, 1]``; a quality weight.
+    mask : (H, W) bool
+        Valid pixels.
+    camera_center : (3,) float64 or None
+        Optical centre in world mm (for viewing angles).
+    """
+
+    name: str
+    xyz: np.ndarray
+    xp: np.ndarray
+    yp: np.ndarray
+    albedo: np.ndarray
+    intensity: np.ndarray
+    modulation: np.ndarray
+    mask: np.ndarray
+    camera_center: np.ndarray | None = field(default=None)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return self.mask.shape
