@@ -24,7 +24,10 @@ from .camera_models import project_dlt
 __all__ = [
     "CalibrationReport",
     "CrossCheck",
+    "JointCalibration",
+    "TargetObservations",
     "calibrate_points",
+    "calibrate_rig_joint",
     "check_calibration_points",
     "crosscheck",
     "fit_projection_matrix",
@@ -283,3 +286,155 @@ def crosscheck(
         raise ValueError(f"the two tables share no reference point (within {tolerance_mm} mm)")
     dist = np.linalg.norm(report_a.reconstructed[ia] - report_b.reconstructed[ib], axis=1)
     return CrossCheck(index_a=ia, index_b=ib, xyz_world=xyz_a[ia], distance_mm=dist)
+
+
+@dataclass
+class TargetObservations:
+    """Reference points of the calibration target as seen by one camera.
+
+    Attributes
+    ----------
+    name : str
+        Camera name.
+    xyz_world : (N, 3) float64
+        Ideal world coordinates, mm.
+    xy_camera : (N, 2) float64
+        Camera coordinates, px.
+    xy_projector : (N, 2) float64
+        Decoded projector panel coordinates ``(xp, yp)``, px.
+    size : (2,) int
+        Camera image ``(W, H)``.
+    """
+
+    name: str
+    xyz_world: np.ndarray
+    xy_camera: np.ndarray
+    xy_projector: np.ndarray
+    size: tuple[int, int] = (1024, 1280)
+
+
+@dataclass
+class JointCalibration:
+    """Result of :func:`calibrate_rig_joint`.
+
+    Attributes
+    ----------
+    cameras : list of Pinhole
+        One pinhole model per camera.
+    projector : Pinhole
+        The one projector model shared by every camera.
+    projector_distortion : dict or None
+        ``{"center": [x, y], "rho": ρ}`` (eq. 3.34; centre = the projector's principal point).
+    camera_rms_px, projector_rms_px : list of float
+        RMS reprojection residual per camera, camera px and projector panel px.
+    """
+
+    cameras: list
+    projector: object
+    projector_distortion: dict | None
+    camera_rms_px: list
+    projector_rms_px: list
+
+
+def _pack(model) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    K = model.K
+    return np.r_[
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2], Rotation.from_matrix(model.R).as_rotvec(), model.t
+    ]
+
+
+def _unpack(p: np.ndarray, size) -> object:
+    from scipy.spatial.transform import Rotation
+
+    from .camera_models import Pinhole
+
+    K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
+    return Pinhole(K=K, R=Rotation.from_rotvec(p[4:7]).as_matrix(), t=p[7:10], size=size)
+
+
+def calibrate_rig_joint(
+    observations: list[TargetObservations],
+    *,
+    projector_size=(1280, 1040),
+    distortion: bool = True,
+    initial_rho: float = 0.0,
+) -> JointCalibration:
+    """Calibrate all cameras and **one shared projector** together (bundle adjustment).
+
+    The thesis calibrates each camera with its own projector matrix (eq. 3.11), so each camera's
+    projector matrix absorbs the projector's distortion differently and the scans do not merge.
+    Here every camera's target points constrain the same projector model, a pinhole with the
+    thesis's radial distortion (eq. 3.34; its centre tied to the principal point), and all
+    parameters are refined together by non-linear least squares on the camera residuals (px) and
+    the projector residuals in ideal projector coordinates (px). The linear DLT fits
+    (:func:`fit_projection_matrix`) give the starting point.
+
+    Parameters
+    ----------
+    observations : list of TargetObservations
+        One per camera, at least 6 non-coplanar points each.
+    projector_size : (2,) int
+        Projector panel ``(W, H)``.
+    distortion : bool
+        Estimate the projector's radial distortion ρ (else ρ = 0).
+    initial_rho : float
+        Starting value of ρ (e.g. from :mod:`nail2nail.distortion`'s estimate).
+
+    Returns
+    -------
+    JointCalibration
+    """
+    from scipy.optimize import least_squares
+
+    from .camera_models import pinhole_from_dlt
+    from .distortion import ideal_from_panel
+
+    if not observations:
+        raise ValueError("observations: need at least one camera")
+    for obs in observations:
+        check_calibration_points(obs.xyz_world, obs.xy_camera, name=obs.name)
+        check_calibration_points(obs.xyz_world, obs.xy_projector, name=obs.name)
+    cams0 = [
+        pinhole_from_dlt(
+            fit_projection_matrix(o.xyz_world, o.xy_camera, method="normalized"), size=o.size
+        )
+        for o in observations
+    ]
+    xyz_all = np.concatenate([o.xyz_world for o in observations])
+    panel_all = np.concatenate([o.xy_projector for o in observations])
+    proj0 = pinhole_from_dlt(
+        fit_projection_matrix(xyz_all, panel_all, method="normalized"), size=projector_size
+    )
+    n_cam = len(observations)
+    # The solver works on k = ρ³ (the model is linear in it; dρ³/dρ = 0 at ρ = 0), scaled to O(1).
+    k_scale = 1e8
+    x0 = np.concatenate(
+        [*(_pack(c) for c in cams0), _pack(proj0), [initial_rho**3 * k_scale] if distortion else []]
+    )
+
+    def split(x):
+        cams = [_unpack(x[10 * i : 10 * i + 10], o.size) for i, o in enumerate(observations)]
+        proj = _unpack(x[10 * n_cam : 10 * n_cam + 10], projector_size)
+        rho = float(np.cbrt(x[-1] / k_scale)) if distortion else 0.0
+        return cams, proj, rho
+
+    def residuals(x):
+        cams, proj, rho = split(x)
+        res = []
+        for cam, obs in zip(cams, observations, strict=True):
+            res.append((cam.project(obs.xyz_world) - obs.xy_camera).ravel())
+            ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
+            res.append((proj.project(obs.xyz_world) - ideal).ravel())
+        return np.concatenate(res)
+
+    fit = least_squares(residuals, x0, x_scale="jac", method="lm", max_nfev=4000)
+    cams, proj, rho = split(fit.x)
+    cam_rms, proj_rms = [], []
+    for cam, obs in zip(cams, observations, strict=True):
+        cam_rms.append(float(np.sqrt(np.mean((cam.project(obs.xyz_world) - obs.xy_camera) ** 2))))
+        ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
+        proj_rms.append(float(np.sqrt(np.mean((proj.project(obs.xyz_world) - ideal) ** 2))))
+    dist = {"center": proj.K[:2, 2].tolist(), "rho": float(rho)} if distortion else None
+    return JointCalibration(cams, proj, dist, cam_rms, proj_rms)

@@ -19,11 +19,14 @@ from ._validation import as_matrix
 __all__ = [
     "Scan",
     "TriangulationTable",
+    "model_matrix",
     "pixel_grid",
+    "reconstruct_image",
     "reconstruct_points",
     "reconstruct_points_lsq",
     "triangulate",
     "triangulation_table",
+    "undistorted_pixels",
 ]
 
 _AXES = {"x": 0, "y": 1}
@@ -267,3 +270,92 @@ class Scan:
     def shape(self) -> tuple[int, int]:
         """``(H, W)``."""
         return self.mask.shape
+
+
+def undistorted_pixels(model, xy) -> np.ndarray:
+    """Pixel coordinates ``(..., 2)`` with a pinhole model's lens distortion removed.
+
+    A DLT matrix (3×4 array) has no distortion: `xy` is returned as float64. For a
+    :class:`~nail2nail.camera_models.Pinhole` the OpenCV distortion is inverted
+    (``K · undistort(K⁻¹ x)``), so that the model's DLT matrix
+    (:func:`~nail2nail.camera_models.dlt_from_pinhole`) applies.
+    """
+    from .camera_models import Pinhole
+
+    xy = np.asarray(xy, dtype=float)
+    if not isinstance(model, Pinhole) or not np.any(model.dist):
+        return xy
+    Kinv = np.linalg.inv(model.K)
+    normalized = model.undistort(xy @ Kinv[:2, :2].T + Kinv[:2, 2])
+    return normalized @ model.K[:2, :2].T + model.K[:2, 2]
+
+
+def model_matrix(model) -> np.ndarray:
+    """The 3×4 DLT matrix of a model (a DLT matrix itself, or a pinhole's ``K [R | t]``)."""
+    from .camera_models import Pinhole, dlt_from_pinhole
+
+    if isinstance(model, Pinhole):
+        return dlt_from_pinhole(model)
+    return as_matrix(model, "model", (3, 4))
+
+
+def reconstruct_image(
+    camera,
+    projector,
+    xp,
+    yp,
+    *,
+    projector_distortion: dict | None = None,
+    use: str = "xpyp",
+) -> np.ndarray:
+    """World points for every pixel of a camera image from its decoded projector coordinates.
+
+    Parameters
+    ----------
+    camera, projector : (3, 4) array or Pinhole
+        Camera model and the projector model calibrated with it (DLT or OpenCV pinhole, with
+        its lens distortion if any).
+    xp, yp : (H, W) float
+        Decoded projector panel coordinates; NaN where invalid.
+    projector_distortion : dict, optional
+        ``{"center": (x, y), "rho": ρ}``: the thesis's projector radial distortion (eq. 3.34),
+        removed from the decoded coordinates before triangulation ("compensation in the model").
+        Leave it out when the patterns were pre-distorted with the look-up table.
+    use : {"xpyp", "yp", "xp"}
+        ``"yp"``/``"xp"``: eq. 3.12–3.14 with one projector coordinate (the ray meets the
+        projector's row/column plane). ``"xpyp"``: least squares on the camera ray
+        (:func:`reconstruct_points_lsq` with a large camera weight, since pixel centres are
+        exact). A radial distortion needs both coordinates.
+
+    Returns
+    -------
+    (H, W, 3) float64
+        World points, mm; NaN where the input is NaN.
+    """
+    from .distortion import ideal_from_panel
+
+    xp = np.asarray(xp, dtype=float)
+    yp = np.asarray(yp, dtype=float)
+    if xp.shape != yp.shape or xp.ndim != 2:
+        raise ValueError(f"xp, yp: expected two (H, W) arrays, got {xp.shape} and {yp.shape}")
+    if use not in ("xpyp", "yp", "xp"):
+        raise ValueError(f"use: expected 'xpyp', 'yp' or 'xp', got {use!r}")
+    panel = np.stack([xp, yp], axis=-1)
+    if projector_distortion is not None:
+        panel = ideal_from_panel(panel, projector_distortion["center"], projector_distortion["rho"])
+    panel = undistorted_pixels(projector, panel)
+    xc, yc = pixel_grid(xp.shape)
+    cam_xy = undistorted_pixels(camera, np.stack([xc, yc], axis=-1))
+    M_c, M_p = model_matrix(camera), model_matrix(projector)
+    if use == "xpyp":
+        return reconstruct_points_lsq(
+            M_c,
+            M_p,
+            cam_xy[..., 0],
+            cam_xy[..., 1],
+            panel[..., 0],
+            panel[..., 1],
+            camera_weight=1e3,
+        )
+    p = panel[..., 1] if use == "yp" else panel[..., 0]
+    return reconstruct_points(M_c, M_p, cam_xy[..., 0], cam_xy[..., 1], p, axis=use[0])
