@@ -35,6 +35,9 @@ def add_parser(sub) -> None:
         default="thesis",
         help="least-squares estimator (default: thesis eq. 3.11)",
     )
+    p.add_argument("--model", choices=["dlt", "joint"], default="dlt",
+                   help="capture only: per-camera DLT (thesis) or joint pinhole calibration "
+                   "with one shared, distorted projector (default: dlt)")
     p.add_argument("--json", action="store_true", help="print machine-readable results")
     p.set_defaults(func=run)
 

@@ -51,7 +51,15 @@ def thesis_part(quiet: bool) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    summary = {"thesis": thesis_part(args.json)}
+    from ..pipeline import format_summary, run_demo
+
+    thesis = thesis_part(args.json)
+    if not args.json:
+        print(f"\n== Virtual scanner: the whole pipeline (scale {args.scale}) -> {args.out} ==")
+    result = run_demo(args.out, scale=args.scale, progress=True)
+    result["thesis"] = thesis
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(result, indent=2, default=float))
+    else:
+        print(format_summary(result))
     return 0

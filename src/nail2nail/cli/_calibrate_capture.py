@@ -1,0 +1,52 @@
+"""``nail2nail calibrate CAPTURE_DIR``: calibration from a capture of the cylindrical target."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..io.calibration import save_calibration
+from ..io.capture import read_capture
+from ..io.points import write_points
+from ..markers import TargetGeometry
+from ..scanning import (
+    calibrate_from_observations,
+    cylinder_distance,
+    points_table,
+    target_observations,
+)
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    if args.output is None:
+        raise ValueError("calibrate CAPTURE_DIR: give the calibration file to write with -o")
+    capture = read_capture(args.source)
+    observations = target_observations(capture, progress=not args.json)
+    surface = cylinder_distance(TargetGeometry().radius) if args.model == "joint" else None
+    calib, summary = calibrate_from_observations(
+        observations, model=args.model, method=args.method, use=args.use, surface=surface)
+    out_dir = Path(args.output).parent
+    tables = {}
+    for obs in observations:
+        path = out_dir / f"{Path(args.output).stem}_points_{obs.name}.tsv"
+        write_points(path, points_table(obs))
+        tables[obs.name] = str(path)
+    calib.extra["source"] = str(args.source)
+    save_calibration(args.output, calib)
+    if args.json:
+        print(json.dumps({"output": str(args.output), "model": args.model, "cameras": summary,
+                          "points_tables": tables,
+                          "projector_distortion": calib.projector_distortion}, indent=2))
+    else:
+        for name, s in summary.items():
+            print(f"{name}: {s['points']} marks, " + ", ".join(
+                f"{k} {np.round(v, 4).tolist()}" for k, v in s.items() if k != "points"))
+        if calib.projector_distortion:
+            d = calib.projector_distortion
+            print(f"projector distortion: centre {np.round(d['center'], 2).tolist()} px, "
+                  f"rho {d['rho']:.6f}")
+        print(f"wrote {args.output} and {len(tables)} points tables")
+    return 0

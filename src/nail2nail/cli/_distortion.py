@@ -1,0 +1,139 @@
+"""``nail2nail distortion``: estimate the projector's radial distortion from a flat-plane capture.
+
+Decodes every camera of the capture, estimates the optical centre and ρ by the thesis's method
+(eq. 3.17–3.42, centre camera) and by the joint non-linear fit (all cameras), prints both, and
+optionally writes the grid images of the thesis's Figures 19 (plain grid) and 20 (LUT-corrected
+grid), drawn from the decoded projector coordinates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..distortion import (
+    ProjectorDistortion,
+    estimate_from_decoded,
+    grid_from_decoded,
+)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "distortion",
+        help="estimate the projector's radial distortion (eq. 3.17-3.42) from a plane capture",
+        description="Decode a capture of a flat plane under plain (not pre-distorted) fringe "
+        "patterns, estimate the projector's optical centre and radial distortion ρ by the "
+        "thesis's method and by a joint non-linear fit, and write the grid images of the "
+        "thesis's Figures 19 and 20.",
+    )
+    p.add_argument("capture_dir", type=Path, help="capture directory (capture.json + frames)")
+    p.add_argument("--json", action="store_true", help="print machine-readable results")
+    p.add_argument("--out", type=Path, help="directory for the grid images (PNG)")
+    p.add_argument("--camera", help="camera for the thesis method (default: the middle one)")
+    p.add_argument("--stride", type=int, default=2, help="pixel subsampling (default 2)")
+    p.add_argument("--spacing", type=int, default=64, help="grid spacing, panel px (default 64)")
+    p.add_argument("--line-width", type=int, default=None,
+                   help="grid line width, panel px (default: about two camera pixels)")
+    p.set_defaults(func=run)
+
+
+def _load(capture_dir: Path):
+    """Decoded maps, camera models and ground truth of a capture (if it records them)."""
+    from ..io.capture import read_capture
+    from ..phase import decode
+
+    capture = read_capture(capture_dir, load=False)
+    if capture.pattern_set is None:
+        raise ValueError(f"{capture_dir}: the manifest names no pattern set")
+    manifest = capture.manifest
+    if manifest.get("predistortion") or manifest.get("predistorted"):
+        raise ValueError(
+            f"{capture_dir}: captured with pre-distorted patterns; estimate from plain patterns"
+        )
+    views, albedo = {}, {}
+    for name in capture.camera_names:
+        decoded = decode(capture.load_frames(name), capture.pattern_set)
+        capture.frames.pop(name, None)  # one camera's frames in memory at a time
+        if decoded.xp is None or decoded.yp is None:
+            raise ValueError(f"{capture_dir}: the patterns must encode both xp and yp")
+        views[name] = (decoded.xp, decoded.yp, decoded.mask)
+        albedo[name] = decoded.albedo
+    truth, models = None, {}
+    if isinstance(manifest.get("rig"), dict):
+        rig = capture.rig()
+        models = dict(zip(rig.camera_names, rig.cameras, strict=True))
+        if rig.projector_distortion is not None:
+            truth = ProjectorDistortion.from_dict(rig.projector_distortion)
+    return views, albedo, models, truth, capture.pattern_set.panel_size
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    from PIL import Image
+
+    from ..io._atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG")
+
+
+def run(args: argparse.Namespace) -> int:
+    views, albedo, models, truth, panel_size = _load(args.capture_dir)
+    report = estimate_from_decoded(views, primary=args.camera, cameras=models,
+                                   stride=args.stride)
+    result = report.to_dict(truth=truth)
+
+    if args.out is not None:
+        written = []
+        for name, (xp, yp, mask) in views.items():
+            plain = grid_from_decoded(xp, yp, mask, panel_size=panel_size, spacing=args.spacing,
+                                      width=args.line_width, background=albedo[name])
+            corrected = grid_from_decoded(xp, yp, mask, panel_size=panel_size,
+                                          spacing=args.spacing, width=args.line_width,
+                                          center=report.fit.center, rho=report.fit.rho,
+                                          background=albedo[name])
+            for kind, image in (("distorted", plain), ("corrected", corrected)):
+                path = args.out / f"grid_{kind}_{name}.png"
+                _write_png(path, image)
+                written.append(str(path))
+        estimate = ProjectorDistortion(report.fit.center, report.fit.rho)
+        path = args.out / "projector_distortion.json"
+        from ..io._atomic import atomic_path
+
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps({"projector_distortion": estimate.to_dict()}, indent=2))
+        written.append(str(path))
+        result["written"] = written
+
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    fit, thesis = report.fit, report.thesis
+    print(f"non-linear (all cameras): center = ({fit.center[0]:.2f}, {fit.center[1]:.2f}) px "
+          f"± ({fit.center_std_px[0]:.2f}, {fit.center_std_px[1]:.2f}), rho = {fit.rho:.6f} "
+          f"± {fit.rho_std:.1e}, residual rms {fit.rms_px:.3f} px")
+    if thesis is None:
+        print(f"thesis method ({report.primary}): degenerate fit")
+    else:
+        print(f"thesis method ({report.primary}): center = ({thesis.center[0]:.2f}, "
+              f"{thesis.center[1]:.2f}) px, rho = {thesis.rho:.6f}")
+    for cam in report.cameras:
+        th = "n/a" if cam.thesis is None else (
+            f"({cam.thesis.center[0]:.1f}, {cam.thesis.center[1]:.1f}), {cam.thesis.rho:.6f}")
+        print(f"  {cam.camera}: non-linear ({cam.fit.center[0]:.1f}, {cam.fit.center[1]:.1f}), "
+              f"{cam.fit.rho:.6f}; thesis {th}")
+    if truth is not None:
+        t = result["truth"]
+        line = (f"truth: center ({truth.center[0]:.1f}, {truth.center[1]:.1f}), rho "
+                f"{truth.rho:.6f}; non-linear error {t['nonlinear']['center_error_px']:.2f} px, "
+                f"{t['nonlinear']['rho_error_percent']:.2f} %")
+        if t["thesis"] is not None:
+            line += (f"; thesis error {t['thesis']['center_error_px']:.2f} px, "
+                     f"{t['thesis']['rho_error_percent']:.2f} %")
+        print(line)
+    for path in result.get("written", []):
+        print(f"wrote {path}")
+    return 0

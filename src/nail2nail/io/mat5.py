@@ -1,0 +1,190 @@
+"""The thesis's legacy **mat5** scan format: ``<prefix>C.bmp``, ``I.bmp``, ``X.by`` … ``YP.by``.
+
+Exactly what the appendix MATLAB code reads (thesis appendix, "Matlab Code for finding Error in
+Merging of Scans")::
+
+    c1 = imread([name 'C.bmp']);  [My, Nx, a] = size(c1);     % 24-bit RGB albedo
+    i1 = imread([name 'I.bmp']);                             % intensity, i1(m, n) > 0 = valid
+    fd = fopen([name 'X.by']); xw1 = fread(fd, 'float');     % little-endian float32
+    xw1 = reshape(xw1, Nx, My)';                             % -> My x Nx, row-major on disk
+
+Files
+-----
+``C.bmp``
+    Albedo, 24-bit RGB BMP (grey: R = G = B = ``round(255 albedo)``), ``My x Nx``.
+``I.bmp``
+    Intensity, 8-bit grey BMP, ``round(255 intensity)`` clamped to ``[1, 255]`` on valid pixels and
+    **0 on invalid pixels** (the validity mask of the legacy readers).
+``X.by``, ``Y.by``, ``Z.by``, ``XP.by``, ``YP.by``
+    World ``X, Y, Z`` (mm) and projector ``xp, yp`` (panel px): ``My * Nx`` little-endian
+    ``float32``, row-major (row 0 first), no header. Invalid pixels hold **0** (the legacy readers
+    expect numbers, and test ``I > 0``); valid pixels hold the values exactly (NaN stays NaN, e.g.
+    ``xp`` of a scan decoded from ``y`` patterns only).
+
+Round trip: :func:`read_mat5` returns the float32 arrays bit-exactly on valid pixels and NaN on
+invalid ones; albedo and intensity come back quantised to 8 bits, and ``modulation`` (not stored)
+as ``intensity / 2`` (``intensity = 2 B``, :class:`nail2nail.phase.Decoded`). Writing what was read
+reproduces the files byte for byte.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from ..reconstruction import Scan
+from ._atomic import atomic_path
+
+__all__ = ["MAT5_SUFFIXES", "mat5_paths", "read_mat5", "write_mat5"]
+
+MAT5_SUFFIXES = ("C.bmp", "I.bmp", "X.by", "Y.by", "Z.by", "XP.by", "YP.by")
+_FLOAT = np.dtype("<f4")
+
+
+def mat5_paths(prefix: str | os.PathLike) -> dict[str, Path]:
+    """The seven file paths of a mat5 set, keyed by suffix (``"C.bmp"`` … ``"YP.by"``).
+
+    Examples
+    --------
+    >>> mat5_paths("out/cam0")["XP.by"].as_posix()
+    'out/cam0XP.by'
+    """
+    prefix = os.fspath(prefix)
+    return {suffix: Path(prefix + suffix) for suffix in MAT5_SUFFIXES}
+
+
+def _to_8bit(value: np.ndarray) -> np.ndarray:
+    value = np.nan_to_num(np.asarray(value, dtype=np.float64), nan=0.0)
+    return np.rint(np.clip(value, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _check_scan(scan) -> tuple[int, int]:
+    if not isinstance(scan, Scan):
+        raise TypeError(f"scan: expected a Scan, got {type(scan).__name__}")
+    mask = np.asarray(scan.mask)
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise ValueError(f"scan.mask: expected an (H, W) bool array, got {mask.dtype} {mask.shape}")
+    shape = mask.shape
+    for name in ("xp", "yp", "albedo", "intensity"):
+        if np.shape(getattr(scan, name)) != shape:
+            raise ValueError(f"scan.{name}: expected shape {shape}, got "
+                             f"{np.shape(getattr(scan, name))}")
+    if np.shape(scan.xyz) != (*shape, 3):
+        raise ValueError(f"scan.xyz: expected shape {(*shape, 3)}, got {np.shape(scan.xyz)}")
+    return shape
+
+
+def write_mat5(prefix: str | os.PathLike, scan: Scan) -> list[Path]:
+    """Write `scan` as a mat5 set ``<prefix>C.bmp`` … ``<prefix>YP.by`` (each file atomically).
+
+    Parameters
+    ----------
+    prefix : path-like
+        Path prefix, e.g. ``out/cam0`` for ``out/cam0C.bmp``; its directory is created.
+    scan : Scan
+        ``scan.mask`` decides validity (a valid pixel with non-finite ``xyz`` is written invalid).
+
+    Returns
+    -------
+    list of Path
+        The seven files, in :data:`MAT5_SUFFIXES` order.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If `scan` is not a :class:`~nail2nail.reconstruction.Scan` of consistent shapes.
+    """
+    _check_scan(scan)
+    xyz = np.asarray(scan.xyz, dtype=np.float32)
+    valid = np.asarray(scan.mask) & np.all(np.isfinite(xyz), axis=-1)
+    albedo = _to_8bit(scan.albedo)
+    intensity = np.where(valid, np.maximum(_to_8bit(scan.intensity), 1), 0).astype(np.uint8)
+    planes = {
+        "X.by": xyz[..., 0], "Y.by": xyz[..., 1], "Z.by": xyz[..., 2],
+        "XP.by": np.asarray(scan.xp, dtype=np.float32),
+        "YP.by": np.asarray(scan.yp, dtype=np.float32),
+    }
+    paths = mat5_paths(prefix)
+    with atomic_path(paths["C.bmp"]) as tmp:
+        Image.fromarray(np.repeat(albedo[..., None], 3, axis=-1)).save(tmp, "BMP")
+    with atomic_path(paths["I.bmp"]) as tmp:
+        Image.fromarray(intensity).save(tmp, "BMP")
+    for suffix, plane in planes.items():
+        data = np.where(valid, plane, np.float32(0.0)).astype(_FLOAT)
+        with atomic_path(paths[suffix]) as tmp:
+            tmp.write_bytes(np.ascontiguousarray(data).tobytes())
+    return list(paths.values())
+
+
+def _read_bmp(path: Path) -> np.ndarray:
+    try:
+        with Image.open(path) as image:
+            if image.format != "BMP":
+                raise ValueError(f"{path}: expected a BMP image, got {image.format}")
+            return np.asarray(image.convert("RGB") if image.mode not in ("L", "RGB") else image)
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise ValueError(f"{path}: not a readable BMP ({exc})") from exc
+
+
+def read_mat5(prefix: str | os.PathLike, *, name: str | None = None) -> Scan:
+    """Read a mat5 set written by :func:`write_mat5` (or by the thesis's software).
+
+    Parameters
+    ----------
+    prefix : path-like
+        Path prefix of the set (``out/cam0`` for ``out/cam0C.bmp``).
+    name : str, optional
+        Camera name of the returned scan; the prefix's file name by default.
+
+    Returns
+    -------
+    Scan
+        ``xyz``, ``xp``, ``yp`` float32 (NaN where ``I == 0``), ``albedo`` from the C image's first
+        channel and ``intensity`` from the I image, both ``/ 255``; ``modulation = intensity / 2``;
+        ``mask = I > 0``; ``camera_center = None``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If a file of the set is missing.
+    ValueError
+        If a ``.by`` file does not hold ``Nx * My`` float32 (``Nx``, ``My`` from the C image).
+    """
+    paths = mat5_paths(prefix)
+    color = _read_bmp(paths["C.bmp"])
+    if color.ndim != 3:
+        raise ValueError(f"{paths['C.bmp']}: expected a 24-bit RGB image, got shape {color.shape}")
+    my, nx = color.shape[:2]  # [My, Nx, a] = size(c1)
+    intensity = _read_bmp(paths["I.bmp"])
+    if intensity.ndim == 3:
+        intensity = intensity[..., 0]
+    if intensity.shape != (my, nx):
+        raise ValueError(f"{paths['I.bmp']}: expected {my} x {nx} pixels, got {intensity.shape}")
+    mask = intensity > 0
+    planes = {}
+    for suffix in ("X.by", "Y.by", "Z.by", "XP.by", "YP.by"):
+        raw = paths[suffix].read_bytes()
+        if len(raw) != 4 * nx * my:
+            raise ValueError(
+                f"{paths[suffix]}: expected {nx} x {my} float32 ({4 * nx * my} bytes), "
+                f"got {len(raw)} bytes"
+            )
+        plane = np.frombuffer(raw, dtype=_FLOAT).reshape(my, nx).astype(np.float32)
+        plane[~mask] = np.nan
+        planes[suffix] = plane
+    intensity_f = intensity.astype(np.float32) / np.float32(255.0)
+    return Scan(
+        name=Path(os.fspath(prefix)).name if name is None else name,
+        xyz=np.stack([planes["X.by"], planes["Y.by"], planes["Z.by"]], axis=-1),
+        xp=planes["XP.by"],
+        yp=planes["YP.by"],
+        albedo=color[..., 0].astype(np.float32) / np.float32(255.0),
+        intensity=intensity_f,
+        modulation=intensity_f / np.float32(2.0),
+        mask=mask,
+    )

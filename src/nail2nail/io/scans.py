@@ -1,0 +1,100 @@
+"""Scan directories: what ``nail2nail scan`` writes and ``nail2nail merge`` reads.
+
+Layout (``docs/capture-format.md``)::
+
+    SCAN_DIR/scan.json      manifest: cameras, their files, valid pixel counts
+    SCAN_DIR/cam0.npz       every array of a :class:`~nail2nail.reconstruction.Scan`
+    SCAN_DIR/cam0C.bmp …    the legacy mat5 set of the camera (C, I, X, Y, Z, XP, YP)
+    SCAN_DIR/cam0.ply       binary PLY point cloud with albedo as colour
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..reconstruction import Scan
+from ._atomic import atomic_path
+
+__all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "save_scan_npz", "save_scans"]
+
+SCAN_FORMAT = "nail2nail-scan"
+_ARRAYS = ("xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")
+
+
+def save_scan_npz(path: str | os.PathLike, scan: Scan) -> None:
+    """Write every array of `scan` to one ``.npz`` (atomically)."""
+    arrays = {name: getattr(scan, name) for name in _ARRAYS}
+    if scan.camera_center is not None:
+        arrays["camera_center"] = np.asarray(scan.camera_center, dtype=float)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, name=np.array(scan.name), **arrays)
+
+
+def load_scan_npz(path: str | os.PathLike) -> Scan:
+    """Read a scan written by :func:`save_scan_npz`; ``ValueError`` naming the file if bad."""
+    path = Path(path)
+    try:
+        with np.load(path) as data:
+            missing = [k for k in _ARRAYS if k not in data]
+            if missing:
+                raise ValueError(f"{path}: missing array(s) {missing}")
+            arrays = {k: data[k] for k in _ARRAYS}
+            center = data["camera_center"] if "camera_center" in data else None
+            name = str(data["name"]) if "name" in data else path.stem
+    except (OSError, EOFError) as exc:
+        raise ValueError(f"{path}: not a readable scan file ({exc})") from exc
+    shape = arrays["mask"].shape
+    if arrays["xyz"].shape != (*shape, 3):
+        raise ValueError(f"{path}: xyz has shape {arrays['xyz'].shape}, mask {shape}")
+    return Scan(name=name, camera_center=center, **arrays)
+
+
+def save_scans(
+    out_dir: str | os.PathLike, scans: list[Scan], *, mat5: bool = True, ply: bool = True,
+    extra: dict | None = None,
+) -> dict:
+    """Write a scan directory and return its manifest (also written as ``scan.json``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cameras = []
+    for scan in scans:
+        entry = {"name": scan.name, "npz": f"{scan.name}.npz",
+                 "valid_pixels": int(scan.mask.sum()), "shape": list(scan.shape)}
+        save_scan_npz(out / entry["npz"], scan)
+        if mat5:
+            from .mat5 import write_mat5
+
+            write_mat5(out / scan.name, scan)
+            entry["mat5"] = scan.name
+        if ply:
+            from .ply import write_scan_ply
+
+            write_scan_ply(out / f"{scan.name}.ply", scan)
+            entry["ply"] = f"{scan.name}.ply"
+        if scan.camera_center is not None:
+            entry["camera_center"] = np.asarray(scan.camera_center).tolist()
+        cameras.append(entry)
+    manifest = {"format": SCAN_FORMAT, "version": 1, "cameras": cameras, **(extra or {})}
+    with atomic_path(out / "scan.json") as tmp:
+        tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest
+
+
+def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
+    """Read every camera's scan of a scan directory, in manifest order."""
+    scan_dir = Path(scan_dir)
+    manifest_path = scan_dir / "scan.json"
+    if not manifest_path.exists():
+        raise ValueError(f"{scan_dir}: not a scan directory (no scan.json)")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{manifest_path}: not valid JSON ({exc})") from exc
+    if manifest.get("format") != SCAN_FORMAT:
+        raise ValueError(f"{manifest_path}: not a nail2nail scan manifest")
+    return [load_scan_npz(scan_dir / cam["npz"]) for cam in manifest["cameras"]]

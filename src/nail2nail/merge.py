@@ -1,0 +1,667 @@
+"""Correspondence between cameras in projector space, and the merge error (thesis chapter four).
+
+All cameras of the scanner look at one projector, so a surface point seen by two cameras has the
+same projector coordinates ``(xp, yp)`` in both scans. For every (sampled) pixel of a *parent*
+scan, :func:`correspond` finds the *child* pixel with the nearest ``(xp, yp)`` (a k-d tree over the
+child's valid pixels, instead of the appendix's ``closest_proj_point`` loop over the whole child
+frame), refines it to the sub-pixel position where the child's interpolated projector coordinates
+equal the parent's, and interpolates the child's world point there. The world distance between
+the two points of a pair is the merge error (thesis "Merging in Projector Space", Fig. 32–35).
+
+A nearest neighbour always exists, even where the child never saw the point, so the overlap is
+decided, not assumed: a pair is dropped when the parent pixel lies at the border of the parent's
+valid region, when the child position lies at the border of the child's valid region, or when
+the projector-coordinate residual after refinement exceeds the decoding noise. The counts per
+reason are kept in :attr:`Correspondence.dropped`.
+
+:func:`nearest_bruteforce` is the appendix's search (vectorised over the child for each parent
+pixel), kept as the reference the k-d tree path is tested against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+import scipy.ndimage
+import scipy.spatial
+
+from .reconstruction import Scan
+
+__all__ = [
+    "DROP_REASONS",
+    "Correspondence",
+    "correspond",
+    "merge_statistics",
+    "nearest_bruteforce",
+    "nearest_kdtree",
+    "refine_subpixel",
+    "sample_pixels",
+    "valid_mask",
+]
+
+#: Reasons a sampled parent pixel gets no correspondence, in the order they are tested.
+DROP_REASONS = ("parent_border", "child_border", "residual")
+
+_MAX_SHIFT_PX = 1.5  # a refined position further than this from the nearest pixel is not trusted
+_NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
+
+
+# -- input checks ----------------------------------------------------------------------------
+def _check_scan(scan, name: str) -> Scan:
+    if not isinstance(scan, Scan):
+        raise TypeError(
+            f"{name}: expected a nail2nail.reconstruction.Scan, got {type(scan).__name__}"
+        )
+    mask = np.asarray(scan.mask)
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise ValueError(
+            f"{name}.mask: expected a (H, W) bool array, got {mask.dtype} {mask.shape}"
+        )
+    shape = mask.shape
+    if np.shape(scan.xyz) != (*shape, 3):
+        raise ValueError(f"{name}.xyz: expected shape {(*shape, 3)}, got {np.shape(scan.xyz)}")
+    for attr in ("xp", "yp", "modulation"):
+        if np.shape(getattr(scan, attr)) != shape:
+            raise ValueError(
+                f"{name}.{attr}: expected shape {shape}, got {np.shape(getattr(scan, attr))}"
+            )
+    if min(shape) < 3:
+        raise ValueError(f"{name}: image {shape} is too small (need at least 3 × 3 pixels)")
+    return scan
+
+
+def _check_int(value, name: str, *, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value}")
+    return int(value)
+
+
+def valid_mask(scan: Scan) -> np.ndarray:
+    """Pixels usable for merging: ``scan.mask`` and finite ``xyz``, ``xp``, ``yp``.
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    return (
+        np.asarray(scan.mask, dtype=bool)
+        & np.isfinite(scan.xyz).all(axis=-1)
+        & np.isfinite(scan.xp)
+        & np.isfinite(scan.yp)
+    )
+
+
+def _without_jumps(scan: Scan, valid: np.ndarray, max_jump_px: float) -> np.ndarray:
+    """`valid` less the pixels where ``xp`` or ``yp`` jumps.
+
+    A jump in projector coordinates between neighbouring camera pixels is a depth discontinuity
+    (or a decoding error): interpolating across it would invent surface, so such pixels are
+    treated as the edge of the valid region. A pixel jumps along a row or column when the second
+    difference ``|Δ²f|`` exceeds both `max_jump_px` and the mean of the two one-sided
+    differences ``(|Δ⁺f| + |Δ⁻f|) / 2`` (a step more than twice the local slope; a steep but
+    smooth map, as at grazing views, does not jump).
+    """
+    out = valid.copy()
+    for f in (scan.xp, scan.yp):
+        f = np.asarray(f, dtype=np.float32)
+        for axis in (0, 1):
+            forward = np.diff(f, axis=axis)
+            lo = [slice(None)] * 2
+            hi = [slice(None)] * 2
+            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+            d_minus, d_plus = forward[tuple(lo)], forward[tuple(hi)]
+            second = np.abs(d_plus - d_minus)
+            with np.errstate(invalid="ignore"):
+                jump = (second > max_jump_px) & (second > 0.5 * (np.abs(d_plus) + np.abs(d_minus)))
+            inner = [slice(None)] * 2
+            inner[axis] = slice(1, -1)
+            out[tuple(inner)] &= ~jump
+    return out
+
+
+def _eroded(mask: np.ndarray, border_px: int) -> np.ndarray:
+    if border_px == 0:
+        return mask
+    return scipy.ndimage.binary_erosion(
+        mask, structure=np.ones((3, 3), bool), iterations=border_px, border_value=0
+    )
+
+
+def sample_pixels(mask, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the valid pixels on the every-`stride`-th grid (thesis: 5 and 20).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    stride : int
+        Sampling step along rows and columns, from pixel ``(0, 0)``.
+
+    Returns
+    -------
+    rows, cols : (N,) intp
+        In row-major order.
+
+    Examples
+    --------
+    >>> rows, cols = sample_pixels(np.ones((4, 5), bool), stride=2)
+    >>> rows.tolist(), cols.tolist()
+    ([0, 0, 0, 2, 2, 2], [0, 2, 4, 0, 2, 4])
+    """
+    stride = _check_int(stride, "stride", minimum=1)
+    mask = np.asarray(mask, dtype=bool)
+    grid = np.zeros_like(mask)
+    grid[::stride, ::stride] = True
+    rows, cols = np.nonzero(mask & grid)
+    return rows, cols
+
+
+# -- nearest neighbour in projector space ----------------------------------------------------
+def nearest_bruteforce(
+    parent: Scan, child: Scan, rows, cols
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest child pixel in projector space by exhaustive search (``closest_proj_point``).
+
+    For each parent pixel, the squared projector distance
+    ``(xp - xp2)² + (yp - yp2)²`` to every valid child pixel, and its minimum (first in row-major
+    order on ties, as the appendix loop). A reference for :func:`nearest_kdtree`: its cost grows
+    with the product of the two pixel counts.
+
+    Parameters
+    ----------
+    parent, child : Scan
+    rows, cols : (N,) int
+        Parent pixels to match.
+
+    Returns
+    -------
+    child_rows, child_cols : (N,) intp
+    distance2_px2 : (N,) float64
+        Squared projector distance, panel px².
+    """
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+    cr, cc = np.nonzero(valid_mask(child))
+    if cr.size == 0:
+        raise ValueError("child: no valid pixels")
+    xp2 = np.asarray(child.xp, dtype=np.float64)[cr, cc]
+    yp2 = np.asarray(child.yp, dtype=np.float64)[cr, cc]
+    xp1 = np.asarray(parent.xp, dtype=np.float64)[rows, cols]
+    yp1 = np.asarray(parent.yp, dtype=np.float64)[rows, cols]
+    best = np.empty(rows.size, dtype=np.intp)
+    dist2 = np.empty(rows.size, dtype=np.float64)
+    for i in range(rows.size):  # one parent pixel at a time, as the appendix
+        d = (xp1[i] - xp2) ** 2 + (yp1[i] - yp2) ** 2
+        best[i] = np.argmin(d)
+        dist2[i] = d[best[i]]
+    return cr[best], cc[best], dist2
+
+
+def nearest_kdtree(
+    parent: Scan, child: Scan, rows, cols, *, workers: int = -1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest child pixel in projector space with a k-d tree (same output as the brute force).
+
+    Parameters
+    ----------
+    parent, child : Scan
+    rows, cols : (N,) int
+        Parent pixels to match.
+    workers : int
+        Threads for the query (``-1``: all cores).
+
+    Returns
+    -------
+    child_rows, child_cols : (N,) intp
+    distance2_px2 : (N,) float64
+        Squared projector distance, panel px².
+    """
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+    cr, cc = np.nonzero(valid_mask(child))
+    if cr.size == 0:
+        raise ValueError("child: no valid pixels")
+    child_xy = np.stack([child.xp[cr, cc], child.yp[cr, cc]], axis=-1).astype(np.float64)
+    tree = scipy.spatial.cKDTree(child_xy, leafsize=16, balanced_tree=False, compact_nodes=False)
+    query = np.stack([parent.xp[rows, cols], parent.yp[rows, cols]], axis=-1).astype(np.float64)
+    dist, index = tree.query(query, k=1, workers=workers)
+    return cr[index], cc[index], dist**2
+
+
+# -- sub-pixel refinement --------------------------------------------------------------------
+def _bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
+    """Bilinear value and derivatives of ``image (H, W[, k])`` at float ``(r, c)``."""
+    h, w = image.shape[:2]
+    r0 = np.clip(np.floor(r).astype(np.intp), 0, h - 2)
+    c0 = np.clip(np.floor(c).astype(np.intp), 0, w - 2)
+    fr, fc = r - r0, c - c0
+    if image.ndim == 3:
+        fr, fc = fr[:, None], fc[:, None]
+    f00, f01 = image[r0, c0], image[r0, c0 + 1]
+    f10, f11 = image[r0 + 1, c0], image[r0 + 1, c0 + 1]
+    top = f00 + (f01 - f00) * fc
+    bottom = f10 + (f11 - f10) * fc
+    value = top + (bottom - top) * fr
+    d_dc = (f01 - f00) * (1 - fr) + (f11 - f10) * fr
+    d_dr = bottom - top
+    return value, d_dr, d_dc
+
+
+def refine_subpixel(
+    xp, yp, target_xp, target_yp, rows, cols, *, iterations: int = _NEWTON_STEPS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sub-pixel position where the child's projector coordinates equal a target.
+
+    Starting from the nearest pixel ``(rows, cols)``, one step of the local affine model (central
+    differences) and `iterations` Newton steps on the bilinear interpolant of ``(xp, yp)`` solve
+    ``xp(r, c) = target_xp``, ``yp(r, c) = target_yp``.
+
+    Parameters
+    ----------
+    xp, yp : (H, W) float
+        Child projector coordinates, panel px (NaN invalid).
+    target_xp, target_yp : (N,) float
+        Parent projector coordinates to reach.
+    rows, cols : (N,) int
+        Nearest child pixels; must be at least one pixel inside the image.
+    iterations : int
+        Newton steps on the bilinear model.
+
+    Returns
+    -------
+    row, col : (N,) float64
+        Sub-pixel child position (pixel-centre convention); NaN where the neighbourhood is invalid.
+    residual_px : (N,) float64
+        ``|(xp, yp)(row, col) − target|`` in panel px; NaN where undefined.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:5, 0:5].astype(float)
+    >>> r, c, res = refine_subpixel(2 * cc + 1, 3 * rr, [5.5], [6.3], [2], [2])
+    >>> round(float(r[0]), 6), round(float(c[0]), 6), float(res[0]) < 1e-9
+    (2.1, 2.25, True)
+    """
+    xp = np.asarray(xp, dtype=np.float64)
+    yp = np.asarray(yp, dtype=np.float64)
+    field_ = np.stack([xp, yp], axis=-1)
+    target = np.stack([np.asarray(target_xp, np.float64), np.asarray(target_yp, np.float64)], -1)
+    rows = np.asarray(rows, dtype=np.intp)
+    cols = np.asarray(cols, dtype=np.intp)
+    h, w = xp.shape
+    if rows.size and (rows.min() < 1 or rows.max() > h - 2 or cols.min() < 1 or cols.max() > w - 2):
+        raise ValueError("rows, cols: nearest pixels must lie at least one pixel inside the image")
+    # local affine model from central differences
+    f = field_[rows, cols]
+    d_dc = 0.5 * (field_[rows, cols + 1] - field_[rows, cols - 1])
+    d_dr = 0.5 * (field_[rows + 1, cols] - field_[rows - 1, cols])
+    r, c = rows.astype(np.float64), cols.astype(np.float64)
+    bad = np.zeros(rows.shape, dtype=bool)
+    for k in range(iterations + 1):
+        if k > 0:
+            f, d_dr, d_dc = _bilinear(field_, r, c)
+        e = target - f
+        a, b = d_dc[:, 0], d_dr[:, 0]  # d xp / d(col, row)
+        cc_, d = d_dc[:, 1], d_dr[:, 1]  # d yp / d(col, row)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = a * d - b * cc_
+            step_c = (d * e[:, 0] - b * e[:, 1]) / det
+            step_r = (a * e[:, 1] - cc_ * e[:, 0]) / det
+        bad |= ~(np.isfinite(step_r) & np.isfinite(step_c))
+        # keep the iterate near the seed; a far solution is reported by the residual
+        r = np.where(bad, rows, np.clip(r + step_r, rows - _MAX_SHIFT_PX, rows + _MAX_SHIFT_PX))
+        c = np.where(bad, cols, np.clip(c + step_c, cols - _MAX_SHIFT_PX, cols + _MAX_SHIFT_PX))
+        r = np.clip(r, 0, h - 1)
+        c = np.clip(c, 0, w - 1)
+    f, _, _ = _bilinear(field_, r, c)
+    residual = np.hypot(*(f - target).T)
+    bad |= ~np.isfinite(residual)
+    residual[bad] = np.nan
+    r[bad] = np.nan
+    c[bad] = np.nan
+    return r, c, residual
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, max_shift):
+    """Compiled :func:`refine_subpixel` plus bilinear interpolation of ``xyz`` (same arithmetic)."""
+    n = rows.size
+    h, w = xp.shape
+    out_r = np.empty(n)
+    out_c = np.empty(n)
+    out_res = np.empty(n)
+    out_xyz = np.empty((n, 3))
+    for i in range(n):
+        r0, c0 = rows[i], cols[i]
+        tx, ty = target_xp[i], target_yp[i]
+        fx, fy = xp[r0, c0], yp[r0, c0]
+        ax = 0.5 * (xp[r0, c0 + 1] - xp[r0, c0 - 1])
+        ay = 0.5 * (yp[r0, c0 + 1] - yp[r0, c0 - 1])
+        bx = 0.5 * (xp[r0 + 1, c0] - xp[r0 - 1, c0])
+        by = 0.5 * (yp[r0 + 1, c0] - yp[r0 - 1, c0])
+        r, c = float(r0), float(c0)
+        bad = False
+        for k in range(iterations + 2):
+            if k > 0:
+                ri = min(max(int(np.floor(r)), 0), h - 2)
+                ci = min(max(int(np.floor(c)), 0), w - 2)
+                fr, fc = r - ri, c - ci
+                x00, x01, x10, x11 = xp[ri, ci], xp[ri, ci + 1], xp[ri + 1, ci], xp[ri + 1, ci + 1]
+                y00, y01, y10, y11 = yp[ri, ci], yp[ri, ci + 1], yp[ri + 1, ci], yp[ri + 1, ci + 1]
+                xt = x00 + (x01 - x00) * fc
+                xb = x10 + (x11 - x10) * fc
+                yt = y00 + (y01 - y00) * fc
+                yb = y10 + (y11 - y10) * fc
+                fx = xt + (xb - xt) * fr
+                fy = yt + (yb - yt) * fr
+                if k == iterations + 1:
+                    break
+                ax = (x01 - x00) * (1 - fr) + (x11 - x10) * fr
+                ay = (y01 - y00) * (1 - fr) + (y11 - y10) * fr
+                bx = xb - xt
+                by = yb - yt
+            ex, ey = tx - fx, ty - fy
+            det = ax * by - bx * ay
+            step_c = (by * ex - bx * ey) / det
+            step_r = (ax * ey - ay * ex) / det
+            if not (np.isfinite(step_r) and np.isfinite(step_c)):
+                bad = True
+                break
+            r = min(max(r + step_r, r0 - max_shift), r0 + max_shift)
+            c = min(max(c + step_c, c0 - max_shift), c0 + max_shift)
+            r = min(max(r, 0.0), h - 1.0)
+            c = min(max(c, 0.0), w - 1.0)
+        res = np.hypot(fx - tx, fy - ty)
+        if bad or not np.isfinite(res):
+            out_r[i] = np.nan
+            out_c[i] = np.nan
+            out_res[i] = np.nan
+            out_xyz[i] = np.nan
+            continue
+        out_r[i], out_c[i], out_res[i] = r, c, res
+        ri = min(max(int(np.floor(r)), 0), h - 2)
+        ci = min(max(int(np.floor(c)), 0), w - 2)
+        fr, fc = r - ri, c - ci
+        for j in range(3):
+            top = xyz[ri, ci, j] + (xyz[ri, ci + 1, j] - xyz[ri, ci, j]) * fc
+            bottom = xyz[ri + 1, ci, j] + (xyz[ri + 1, ci + 1, j] - xyz[ri + 1, ci, j]) * fc
+            out_xyz[i, j] = top + (bottom - top) * fr
+    return out_r, out_c, out_res, out_xyz
+
+
+# -- the correspondence ----------------------------------------------------------------------
+@dataclass
+class Correspondence:
+    """Corresponding pixels of a parent and a child scan and their world points.
+
+    Attributes
+    ----------
+    parent_name, child_name : str
+    parent_shape, child_shape : (int, int)
+        ``(H, W)`` of the two scans.
+    parent_rc : (N, 2) intp
+        Parent pixel ``(row, col)`` of each kept pair.
+    child_nearest : (N, 2) intp
+        Nearest child pixel in projector space (the thesis's mapping).
+    child_rc : (N, 2) float64
+        Refined sub-pixel child position ``(row, col)`` (equal to `child_nearest` unrefined).
+    xyz_parent, xyz_child : (N, 3) float64
+        World points, mm; the child's interpolated at `child_rc`.
+    residual_px : (N,) float64
+        Projector-coordinate residual of the pair after refinement, panel px.
+    n_sampled : int
+        Valid parent pixels on the stride grid that were tried.
+    dropped : dict[str, int]
+        Pixels dropped per reason (:data:`DROP_REASONS`).
+    stride : int
+    """
+
+    parent_name: str
+    child_name: str
+    parent_shape: tuple[int, int]
+    child_shape: tuple[int, int]
+    parent_rc: np.ndarray
+    child_nearest: np.ndarray
+    child_rc: np.ndarray
+    xyz_parent: np.ndarray
+    xyz_child: np.ndarray
+    residual_px: np.ndarray
+    n_sampled: int
+    dropped: dict[str, int] = field(default_factory=dict)
+    stride: int = 1
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of kept pairs."""
+        return int(self.parent_rc.shape[0])
+
+    @property
+    def distance_mm(self) -> np.ndarray:
+        """(N,) float64 Euclidean world distance of each pair, mm (the merge error)."""
+        return np.linalg.norm(self.xyz_parent - self.xyz_child, axis=-1)
+
+    @property
+    def squared_mm2(self) -> np.ndarray:
+        """(N,) float64 the thesis's figure: squared world distance, mm² (``p_world_dist``)."""
+        return np.sum((self.xyz_parent - self.xyz_child) ** 2, axis=-1)
+
+    @property
+    def mapping(self) -> np.ndarray:
+        """(H, W, 2) int32 the thesis's mapping matrix: child ``(row, col)`` per parent pixel.
+
+        −1 where the parent pixel has no kept pair.
+        """
+        out = np.full((*self.parent_shape, 2), -1, dtype=np.int32)
+        out[self.parent_rc[:, 0], self.parent_rc[:, 1]] = self.child_nearest
+        return out
+
+    def distance_image(self) -> np.ndarray:
+        """(H, W) float32 merge error on the parent's grid, mm; NaN where no pair."""
+        out = np.full(self.parent_shape, np.nan, dtype=np.float32)
+        out[self.parent_rc[:, 0], self.parent_rc[:, 1]] = self.distance_mm
+        return out
+
+    def statistics(self) -> dict:
+        """Merge-error statistics, see :func:`merge_statistics`, plus the pair counts."""
+        stats = merge_statistics(self.distance_mm)
+        return {
+            "parent": self.parent_name,
+            "child": self.child_name,
+            "stride": self.stride,
+            "sampled": self.n_sampled,
+            "pairs": self.n_pairs,
+            "dropped": dict(self.dropped),
+            **stats,
+        }
+
+
+def merge_statistics(distance_mm) -> dict:
+    """Summary of merge errors: Euclidean (mm) and the thesis's squared figure (mm²).
+
+    Parameters
+    ----------
+    distance_mm : (N,) float
+        World distance of corresponding points, mm.
+
+    Returns
+    -------
+    dict
+        ``{"distance_mm": {median, mean, rms, p90, p95, max, frac_below_0_05},
+        "squared_mm2": {median, mean, max}}``; values are NaN (fractions 0) for no pairs.
+
+    Examples
+    --------
+    >>> s = merge_statistics([0.01, 0.02, 0.03, 0.1])
+    >>> s["distance_mm"]["median"], s["distance_mm"]["frac_below_0_05"]
+    (0.025, 0.75)
+    """
+    d = np.asarray(distance_mm, dtype=np.float64).ravel()
+    if np.any(~np.isfinite(d)) or np.any(d < 0):
+        raise ValueError("distance_mm: expected finite, non-negative distances")
+    if d.size == 0:
+        nan = float("nan")
+        return {
+            "distance_mm": dict.fromkeys(
+                ("median", "mean", "rms", "p90", "p95", "max"), nan
+            ) | {"frac_below_0_05": 0.0},
+            "squared_mm2": dict.fromkeys(("median", "mean", "max"), nan),
+        }
+    sq = d * d
+    p90, p95 = np.percentile(d, [90, 95])
+    return {
+        "distance_mm": {
+            "median": float(np.median(d)),
+            "mean": float(d.mean()),
+            "rms": float(np.sqrt(sq.mean())),
+            "p90": float(p90),
+            "p95": float(p95),
+            "max": float(d.max()),
+            "frac_below_0_05": float(np.mean(d < 0.05)),
+        },
+        "squared_mm2": {
+            "median": float(np.median(sq)),
+            "mean": float(sq.mean()),
+            "max": float(sq.max()),
+        },
+    }
+
+
+def correspond(
+    parent: Scan,
+    child: Scan,
+    *,
+    stride: int = 1,
+    max_residual_px: float = 0.5,
+    border_px: int = 2,
+    max_jump_px: float = 2.0,
+    refine: bool = True,
+    method: str = "kdtree",
+    workers: int = -1,
+) -> Correspondence:
+    """Corresponding pixels of two scans in projector space, and their world points.
+
+    For every valid parent pixel on the `stride` grid, the child pixel with the nearest
+    ``(xp, yp)``, refined to sub-pixel (:func:`refine_subpixel`) with the child's world point
+    interpolated bilinearly there. Pairs are dropped, in this order, when the parent pixel is
+    within `border_px` of the edge of the parent's valid region (``"parent_border"``), the child
+    position is within `border_px` of the edge of the child's valid region or its neighbourhood
+    is invalid (``"child_border"``), or the projector residual exceeds `max_residual_px`
+    (``"residual"``; the decoding noise: a pixel the child never saw has a large residual).
+    Pixels where the projector coordinates jump (depth discontinuities) count as edges of the
+    valid region, so no pair interpolates across one.
+
+    Parameters
+    ----------
+    parent, child : Scan
+    stride : int
+        Sample every `stride`-th row and column of the parent (the thesis used 5 and 20).
+    max_residual_px : float
+        Largest projector-coordinate residual of a kept pair, panel px. Without `refine` the
+        residual is the distance to the nearest child pixel.
+    border_px : int
+        Erosion of both valid regions, px (≥ 1: refinement needs the 3 × 3 neighbourhood).
+    max_jump_px : float
+        Second difference of ``xp`` or ``yp`` between neighbouring pixels above which (and above
+        the local slope) a pixel is a discontinuity, panel px.
+    refine : bool
+        Sub-pixel refinement; ``False`` takes the nearest child pixel as the appendix.
+    method : {"kdtree", "bruteforce"}
+        Nearest-neighbour search; ``"bruteforce"`` is the appendix's, for small inputs only.
+    workers : int
+        Threads for the k-d tree query (``-1``: all cores).
+
+    Returns
+    -------
+    Correspondence
+
+    Raises
+    ------
+    TypeError
+        If a scan is not a :class:`~nail2nail.reconstruction.Scan`.
+    ValueError
+        On inconsistent shapes, a bad option, or a child without valid pixels.
+
+    References
+    ----------
+    Thesis, chapter four, "Merging in Projector Space", steps i–viii; appendix
+    ``closest_proj_point``.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:20, 0:20].astype(np.float32)
+    >>> xyz = np.stack([cc, rr, 0 * rr], -1)
+    >>> one = np.ones((20, 20), np.float32)
+    >>> a = Scan("a", xyz, cc, rr, one, one, one, one > 0)
+    >>> b = Scan("b", xyz + [0, 0, 0.01], cc + 0.25, rr, one, one, one, one > 0)
+    >>> m = correspond(a, b, stride=4)
+    >>> m.n_pairs, round(float(np.median(m.distance_mm)), 4)
+    (16, 0.2502)
+    """
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    stride = _check_int(stride, "stride", minimum=1)
+    border_px = _check_int(border_px, "border_px", minimum=1)
+    for value, label in ((max_residual_px, "max_residual_px"), (max_jump_px, "max_jump_px")):
+        if not np.isfinite(value) or value <= 0:
+            raise ValueError(f"{label}: expected a positive number, got {value}")
+    if method not in ("kdtree", "bruteforce"):
+        raise ValueError(f"method: expected 'kdtree' or 'bruteforce', got {method!r}")
+
+    parent_valid = valid_mask(parent)
+    child_valid = valid_mask(child)
+    if not child_valid.any():
+        raise ValueError(f"child {child.name!r}: no valid pixels")
+    rows, cols = sample_pixels(parent_valid, stride=stride)
+    n_sampled = rows.size
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+
+    keep = _eroded(_without_jumps(parent, parent_valid, max_jump_px), border_px)[rows, cols]
+    dropped["parent_border"] = int(np.count_nonzero(~keep))
+    rows, cols = rows[keep], cols[keep]
+
+    search = nearest_kdtree if method == "kdtree" else nearest_bruteforce
+    kwargs = {"workers": workers} if method == "kdtree" else {}
+    nr, nc, dist2 = search(parent, child, rows, cols, **kwargs)
+
+    child_inner = _eroded(_without_jumps(child, child_valid, max_jump_px), border_px)
+    keep = child_inner[nr, nc]
+    rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
+    if refine:
+        sub_r, sub_c, residual, xyz_child = _refine_kernel(
+            np.ascontiguousarray(child.xp, dtype=np.float64),
+            np.ascontiguousarray(child.yp, dtype=np.float64),
+            np.ascontiguousarray(child.xyz, dtype=np.float64),
+            parent.xp[rows, cols].astype(np.float64),
+            parent.yp[rows, cols].astype(np.float64),
+            nr, nc, _NEWTON_STEPS, _MAX_SHIFT_PX,
+        )
+        finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
+    else:
+        sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
+        xyz_child = np.asarray(child.xyz, dtype=np.float64)[nr, nc]
+        finite = np.ones(nr.size, dtype=bool)
+    dropped["child_border"] = int(np.count_nonzero(~keep) + np.count_nonzero(~finite))
+
+    with np.errstate(invalid="ignore"):
+        good = finite & (residual <= max_residual_px)
+    dropped["residual"] = int(np.count_nonzero(finite & ~good))
+    rows, cols = rows[good], cols[good]
+    return Correspondence(
+        parent_name=str(parent.name),
+        child_name=str(child.name),
+        parent_shape=tuple(parent_valid.shape),
+        child_shape=tuple(child_valid.shape),
+        parent_rc=np.stack([rows, cols], axis=-1),
+        child_nearest=np.stack([nr[good], nc[good]], axis=-1),
+        child_rc=np.stack([sub_r[good], sub_c[good]], axis=-1),
+        xyz_parent=np.asarray(parent.xyz, dtype=np.float64)[rows, cols],
+        xyz_child=xyz_child[good],
+        residual_px=residual[good],
+        n_sampled=int(n_sampled),
+        dropped=dropped,
+        stride=stride,
+    )

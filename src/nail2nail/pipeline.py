@@ -1,0 +1,233 @@
+"""The whole pipeline on the virtual scanner, as ``nail2nail demo`` (and ``make demo``) runs it.
+
+Steps, each written under ``out``:
+
+1. ``captures/``: the virtual scanner renders the cylindrical target, a flat plane and the
+   finger (thesis projector distortion, default multi-frequency patterns).
+2. ``distortion/``: the projector's optical centre and ρ, estimated from the plane (thesis
+   method and non-linear fit, :mod:`nail2nail.distortion`).
+3. The target and the finger are rendered again under patterns pre-distorted with the
+   estimate's look-up table (the thesis's correction, appendix ``distortion2dlut``).
+4. ``calib/``: calibrations from the target captures: the thesis's per-camera DLT on plain
+   patterns ("before"), the same on LUT-corrected patterns ("thesis LUT"), and the joint
+   calibration with one shared projector whose distortion is modelled, refined on the target's
+   surface ("best").
+5. ``scans/`` and ``merge/``: per configuration and object, the per-camera scans (mat5, PLY)
+   and the merge error of camera pairs in projector space (thesis chapter four).
+6. The super scan of the finger from the best configuration (PLY, super mat5, renders).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["CONFIGURATIONS", "run_demo"]
+
+#: Merge configurations compared by the demo (issue 5's table).
+CONFIGURATIONS = ("before", "thesis_lut", "best")
+
+
+class _Progress:
+    """One line per step on stderr, with the elapsed time (quiet when `enabled` is False)."""
+
+    def __init__(self, enabled: bool, n_steps: int):
+        self.enabled, self.n_steps, self.step = enabled, n_steps, 0
+        self.start = time.perf_counter()
+
+    def __call__(self, message: str) -> None:
+        self.step += 1
+        if self.enabled:
+            elapsed = time.perf_counter() - self.start
+            print(
+                f"[{self.step:2d}/{self.n_steps}] {elapsed:6.1f}s  {message}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+
+def _decode_views(capture):
+    from .phase import decode
+
+    views = {}
+    for name in capture.camera_names:
+        d = decode(capture.load_frames(name), capture.pattern_set)
+        capture.frames.pop(name, None)
+        views[name] = (d.xp, d.yp, d.mask)
+    return views
+
+
+def _merge_summary(stats: dict) -> dict:
+    keep = ("median", "p95", "max", "frac_below_0_05", "mean")
+    return {
+        pair: {"pairs": s["pairs"], "distance_mm": {k: s["distance_mm"][k] for k in keep}}
+        for pair, s in stats.items()
+    }
+
+
+def run_demo(
+    out: str | os.PathLike = "demo-output",
+    *,
+    scale: float = 1.0,
+    seed: int = 0,
+    progress: bool = True,
+    super_scan: bool = True,
+    figures: bool = True,
+) -> dict:
+    """Run the pipeline end to end on the virtual scanner; return (and write) a summary.
+
+    Parameters
+    ----------
+    out : path-like
+        Output directory (created).
+    scale : float
+        Camera resolution scale (1 = 1024 × 1280; 0.25 for a quick run).
+    seed : int
+        Fingerprint and noise seed.
+    progress : bool
+        Step lines on stderr.
+    super_scan, figures : bool
+        Build the super scan / write the figures.
+
+    Returns
+    -------
+    dict
+        ``{"merge": {"0-1": …, "1-2": …}`` (the best configuration, finger), ``"comparison"``
+        (merge medians per configuration and object), ``"distortion"``, ``"calibration"``,
+        ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
+    """
+    from .cli._merge import write_merge
+    from .distortion import apply_lut, distortion_lut, estimate_from_decoded
+    from .io.calibration import save_calibration
+    from .io.capture import read_capture
+    from .io.scans import save_scans
+    from .markers import TargetGeometry
+    from .patterns import default_pattern_set, make_patterns
+    from .scanning import (
+        calibrate_from_observations,
+        cylinder_distance,
+        scan_capture,
+        target_observations,
+    )
+    from .simulation.capture import simulate_capture
+    from .simulation.rig import default_rig
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    step = _Progress(progress, 16)
+    rig = default_rig(scale, projector_distortion="thesis")
+    pattern_set = default_pattern_set()
+    patterns = make_patterns(pattern_set)
+    captures = {}
+
+    def simulate(name, scene, pats):
+        step(f"simulate {name} ({len(rig.cameras)} cameras x {len(pats)} frames)")
+        path = out / "captures" / name
+        simulate_capture(path, scene, rig=rig, patterns=pats, pattern_set=pattern_set, seed=seed)
+        captures[name] = str(path)
+        return path
+
+    simulate("plane", "plane", patterns)
+    step("estimate the projector distortion from the plane")
+    plane = read_capture(captures["plane"], load=False)
+    report = estimate_from_decoded(_decode_views(plane))
+    distortion = report.to_dict(truth=None)
+    (out / "distortion").mkdir(exist_ok=True)
+    (out / "distortion" / "projector_distortion.json").write_text(json.dumps(distortion, indent=2))
+    center, rho = report.fit.center, report.fit.rho
+    lut_patterns = apply_lut(patterns, distortion_lut(pattern_set.panel_size, center, rho))
+
+    simulate("target", "target", patterns)
+    simulate("finger", "finger", patterns)
+    simulate("target_lut", "target", lut_patterns)
+    simulate("finger_lut", "finger", lut_patterns)
+
+    step("calibrate: per-camera DLT (before), DLT on LUT patterns, joint (best)")
+    surface = cylinder_distance(TargetGeometry().radius)
+    obs_plain = target_observations(read_capture(captures["target"], load=False))
+    obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
+    calibs = {
+        "before": calibrate_from_observations(obs_plain, model="dlt")[0],
+        "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
+        "best": calibrate_from_observations(
+            obs_plain,
+            model="joint",
+            surface=surface,
+            projector_size=pattern_set.panel_size,
+            initial_distortion={"center": list(center), "rho": rho},
+        )[0],
+    }
+    calib_paths = {}
+    for name, calib in calibs.items():
+        path = out / "calib" / f"rig_{name}.json"
+        save_calibration(path, calib)
+        calib_paths[name] = str(path)
+
+    comparison: dict = {}
+    merges: dict = {}
+    outputs: list[str] = []
+    for config in CONFIGURATIONS:
+        for obj in ("target", "finger"):
+            src = f"{obj}_lut" if config == "thesis_lut" else obj
+            step(f"scan and merge {obj} ({config})")
+            scans = scan_capture(read_capture(captures[src], load=False), calibs[config])
+            scan_dir = out / "scans" / config / obj
+            save_scans(
+                scan_dir,
+                scans,
+                extra={"capture": captures[src], "calibration": calib_paths[config]},
+            )
+            build_super = super_scan and config == "best" and obj == "finger"
+            summary = write_merge(
+                scans,
+                out / "merge" / config / obj,
+                pairs=[(0, 1), (1, 2)],
+                figures=figures,
+                super_scan=build_super,
+            )
+            merges[(config, obj)] = summary
+            comparison.setdefault(config, {})[obj] = _merge_summary(summary["merge"])
+            outputs += summary.get("outputs", [])
+    best = merges[("best", "finger")]
+    result = {
+        "out": str(out),
+        "scale": scale,
+        "merge": _merge_summary(best["merge"]),
+        "comparison": comparison,
+        "distortion": {
+            "center_px": list(map(float, center)),
+            "rho": float(rho),
+            "thesis": distortion.get("thesis"),
+        },
+        "calibration": calib_paths,
+        "captures": captures,
+        "super_scan": best.get("super_scan"),
+        "outputs": outputs,
+    }
+    (out / "summary.json").write_text(json.dumps(result, indent=2, default=float))
+    return result
+
+
+def format_summary(result: dict) -> str:
+    """Human-readable tables of :func:`run_demo`'s result."""
+    lines = [
+        f"Projector distortion estimate: centre ({result['distortion']['center_px'][0]:.1f},"
+        f" {result['distortion']['center_px'][1]:.1f}) px, rho "
+        f"{result['distortion']['rho']:.6f} (thesis: (640, 1000), -0.004)",
+        "",
+        "Merge error, median / p95 (µm), camera pairs 0-1 and 1-2:",
+        f"{'configuration':<14}{'object':<8}{'0-1':>16}{'1-2':>16}",
+    ]
+    for config, objs in result["comparison"].items():
+        for obj, pairs in objs.items():
+            cells = []
+            for pair in ("0-1", "1-2"):
+                d = pairs[pair]["distance_mm"]
+                cells.append(f"{1000 * d['median']:7.1f} / {1000 * d['p95']:6.1f}")
+            lines.append(f"{config:<14}{obj:<8}{cells[0]:>16}{cells[1]:>16}")
+    lines.append("")
+    lines.append(f"outputs under {result['out']} (summary.json lists every file)")
+    return "\n".join(lines)

@@ -1,0 +1,31 @@
+"""The virtual scanner: rig, scenes, rendering and capture writing (``docs/capture-format.md``).
+
+Modules: :mod:`.rig` (cameras, projector, photometry), :mod:`.scenes` (target, finger, plane,
+sphere, coin), :mod:`.fingerprint` (synthetic prints), :mod:`.render` (per-camera geometry and
+frames), :mod:`.capture` (in-memory simulation and capture directories).
+"""
+
+from .capture import SimulatedCapture, load_pattern_dir, simulate, simulate_capture
+from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
+from .rig import Photometry, Rig, default_rig, ideal_calibration, load_rig, save_rig
+from .scenes import SCENES, Scene, make_scene
+
+__all__ = [
+    "SCENES",
+    "CameraGeometry",
+    "Photometry",
+    "Rig",
+    "Scene",
+    "SimulatedCapture",
+    "camera_geometry",
+    "default_rig",
+    "ideal_calibration",
+    "load_pattern_dir",
+    "load_rig",
+    "make_scene",
+    "projector_radiance",
+    "render_frames",
+    "save_rig",
+    "simulate",
+    "simulate_capture",
+]

@@ -1,0 +1,301 @@
+"""Simulated captures: render a scene for every camera and write a capture directory.
+
+:func:`simulate` renders in memory (frames and ground-truth geometry per camera);
+:func:`simulate_capture` also writes the capture directory of ``docs/capture-format.md``
+(manifest, PNG frames, ``truth/``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from ..io._atomic import atomic_path
+from ..io.capture import write_frame, write_manifest
+from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
+from .rig import Rig, default_rig, ideal_calibration, scale_camera
+from .scenes import Finger, Scene, make_scene
+
+__all__ = [
+    "SimulatedCapture",
+    "load_pattern_dir",
+    "simulate",
+    "simulate_capture",
+]
+
+
+@dataclass
+class SimulatedCapture:
+    """Result of :func:`simulate`.
+
+    Attributes
+    ----------
+    frames : dict of str to (n_frames, H, W) uint8/uint16
+        Rendered frames per camera name.
+    geometry : dict of str to CameraGeometry
+        Ground truth per camera name.
+    rig : Rig
+    scene : Scene
+    pattern_set : PatternSet or None
+    """
+
+    frames: dict
+    geometry: dict
+    rig: Rig
+    scene: Scene
+    pattern_set: object = None
+    extra: dict = field(default_factory=dict)
+
+
+def load_pattern_dir(directory: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
+    """Panel images from the PNG files of a directory, in sorted name order.
+
+    Returns
+    -------
+    patterns : (n_frames, Hp, Wp) uint8
+    names : list of str
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ValueError(f"{directory}: not a directory of pattern PNGs")
+    files = sorted(p for p in directory.iterdir() if p.suffix.lower() == ".png")
+    if not files:
+        raise ValueError(f"{directory}: no .png pattern files")
+    images = []
+    for f in files:
+        with Image.open(f) as im:
+            images.append(np.asarray(im.convert("L")))
+    shapes = {im.shape for im in images}
+    if len(shapes) != 1:
+        raise ValueError(f"{directory}: pattern images differ in size ({sorted(shapes)})")
+    return np.stack(images), [f.name for f in files]
+
+
+def _default_patterns():
+    from ..patterns import default_pattern_set, make_patterns
+
+    pattern_set = default_pattern_set()
+    return make_patterns(pattern_set), pattern_set
+
+
+def simulate(
+    scene: Scene | str = "finger",
+    *,
+    rig: Rig | None = None,
+    patterns=None,
+    pattern_set=None,
+    seed: int = 0,
+    cameras: list[int] | None = None,
+    progress: bool = False,
+) -> SimulatedCapture:
+    """Render a scene with every camera of a rig, in memory.
+
+    Parameters
+    ----------
+    scene : Scene or str
+        A scene or its name (:func:`~nail2nail.simulation.scenes.make_scene`, with `seed`).
+    rig : Rig, optional
+        :func:`~nail2nail.simulation.rig.default_rig` by default.
+    patterns : (n_frames, Hp, Wp) uint8, optional
+        Panel images; by default those of `pattern_set`, and by default the pattern set is
+        ``nail2nail.patterns.default_pattern_set()``.
+    pattern_set : PatternSet, optional
+        Recorded with the capture; rendered when `patterns` is not given.
+    seed : int
+        Fingerprint and noise seed.
+    cameras : list of int, optional
+        Camera indices to render (all by default).
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    SimulatedCapture
+    """
+    rig = rig or default_rig()
+    if isinstance(scene, str):
+        scene = make_scene(scene, rig=rig, seed=seed)
+    if patterns is None:
+        if pattern_set is None:
+            patterns, pattern_set = _default_patterns()
+        else:
+            from ..patterns import make_patterns
+
+            patterns = make_patterns(pattern_set)
+    patterns = np.asarray(patterns)
+    if patterns.ndim != 3 or patterns.dtype != np.uint8:
+        raise ValueError(f"patterns: expected (n_frames, Hp, Wp) uint8, got {patterns.dtype} "
+                         f"{patterns.shape}")
+    pw, ph = rig.panel_size
+    if patterns.shape[1:] != (ph, pw):
+        raise ValueError(f"patterns: panel images are {patterns.shape[2]}x{patterns.shape[1]}, "
+                         f"the rig's projector is {pw}x{ph}")
+    indices = list(range(len(rig.cameras))) if cameras is None else list(cameras)
+    radiance = [projector_radiance(p, rig.photometry) for p in patterns]
+    frames, geometry = {}, {}
+    iterator = indices
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(indices, desc="cameras", unit="cam")
+    for i in iterator:
+        geom = camera_geometry(rig, scene, i)
+        name = rig.camera_names[i]
+        geometry[name] = geom
+        frames[name] = render_frames(geom, patterns, rig.photometry, seed=seed, camera_index=i,
+                                     scale=rig.scale, radiance=radiance)
+    return SimulatedCapture(frames=frames, geometry=geometry, rig=rig, scene=scene,
+                            pattern_set=pattern_set)
+
+
+def simulate_capture(
+    out_dir: str | os.PathLike,
+    scene: Scene | str = "finger",
+    *,
+    rig: Rig | None = None,
+    scale: float | None = None,
+    projector_distortion: str | None = None,
+    patterns=None,
+    pattern_set=None,
+    pattern_names: list[str] | None = None,
+    seed: int = 0,
+    write_truth: bool = True,
+    progress: bool = False,
+) -> dict:
+    """Render a scene and write a capture directory (``docs/capture-format.md``).
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Created if needed; existing files of the same names are replaced.
+    scene : Scene or str
+    rig : Rig, optional
+        Default: ``default_rig(scale or 1)``.
+    scale : float, optional
+        Camera resolution scale (applied to the given rig's cameras, or to the default rig).
+    projector_distortion : {"thesis", "none"}, optional
+        Override the rig's projector distortion.
+    patterns, pattern_set
+        As :func:`simulate`; `pattern_names` names the pattern files of a directory source.
+    seed : int
+    write_truth : bool
+        Write ``truth/`` (geometry per camera, rig, ideal calibration, rolled print).
+
+    Returns
+    -------
+    dict
+        The manifest written to ``capture.json``.
+    """
+    rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
+    sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
+                   progress=progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    bits = rig.photometry.bit_depth
+    cameras = []
+    for name, frames in sim.frames.items():
+        files = []
+        for k, frame in enumerate(frames):
+            rel = f"{name}/{k:03d}.png"
+            write_frame(out / rel, frame)
+            files.append(rel)
+        h, w = frames.shape[1:]
+        cameras.append({"name": name, "size": [int(w), int(h)], "frames": files})
+    n_frames = len(next(iter(sim.frames.values())))
+    manifest = {
+        "created_by": "nail2nail simulate",
+        "scene": {**sim.scene.to_dict(), "seed": seed},
+        "bit_depth": bits,
+        "n_frames": n_frames,
+        "pattern_set": None if sim.pattern_set is None else sim.pattern_set.to_dict(),
+        "patterns": (
+            {"source": "pattern_set"} if pattern_names is None
+            else {"source": "directory", "files": list(pattern_names)}
+        ),
+        "projector": {"size": list(rig.panel_size)},
+        "cameras": cameras,
+        "rig": rig.to_dict(),
+    }
+    if write_truth:
+        manifest["truth"] = _write_truth(out, sim)
+    write_manifest(out, manifest)
+    return {"format": "nail2nail-capture", "version": 1, **manifest}
+
+
+def _configure_rig(rig, *, scale, projector_distortion) -> Rig:
+    if rig is None:
+        rig = default_rig(scale or 1.0, projector_distortion=projector_distortion or "thesis")
+    else:
+        if scale is not None and scale != 1:
+            rig = Rig.from_dict(rig.to_dict())
+            rig.cameras = [scale_camera(c, scale) for c in rig.cameras]
+            rig.scale = rig.scale * scale
+        if projector_distortion is not None:
+            rig = Rig.from_dict(rig.to_dict())
+            if projector_distortion == "none":
+                rig.projector_distortion = None
+            elif projector_distortion == "thesis":
+                from ..distortion import THESIS_CENTER, THESIS_RHO
+
+                rig.projector_distortion = {"center": list(THESIS_CENTER), "rho": THESIS_RHO}
+            else:
+                raise ValueError("projector_distortion: expected 'thesis' or 'none', got "
+                                 f"{projector_distortion!r}")
+    return rig
+
+
+def _save_npz(path: Path, arrays: dict) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+
+def _write_json(path: Path, data) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
+    truth = out / "truth"
+    entries: dict = {"cameras": {}}
+    for name, geom in sim.geometry.items():
+        arrays = _truth_arrays(geom)
+        _save_npz(truth / f"{name}.npz", arrays)
+        entries["cameras"][name] = f"truth/{name}.npz"
+    _write_json(truth / "calibration.json", ideal_calibration(sim.rig))
+    entries["calibration"] = "truth/calibration.json"
+    if isinstance(sim.scene, Finger):
+        image, _ = sim.scene.rolled_print()
+        with atomic_path(truth / "rolled_print.png") as tmp:
+            Image.fromarray(image).save(tmp, format="PNG")
+        fp = sim.scene.fingerprint
+        _write_json(truth / "fingerprint.json", {
+            **fp.describe(),
+            "image": "truth/rolled_print.png",
+            "mapping": "column c -> u = u0 + c * pitch; row r -> v = v0 - r * pitch (mm)",
+            "minutiae": [
+                {"u": round(float(m[0]), 4), "v": round(float(m[1]), 4),
+                 "col": int(m[2]), "row": int(m[3]),
+                 "kind": "ending" if m[4] == 1 else "bifurcation",
+                 "orientation_rad": round(float(fp.orientation[int(m[3]), int(m[2])]), 4)}
+                for m in fp.minutiae
+            ],
+        })
+        entries["rolled_print"] = "truth/rolled_print.png"
+        entries["fingerprint"] = "truth/fingerprint.json"
+    return entries
+
+
+def _truth_arrays(geom: CameraGeometry) -> dict:
+    arrays = geom.truth_arrays()
+    for key in ("albedo", "irradiance", "normal"):
+        arrays[key] = arrays[key].astype(np.float32)
+    for key in list(arrays):
+        if key.startswith("param_"):
+            arrays[key] = arrays[key].astype(np.float32)
+    return arrays

@@ -1,0 +1,297 @@
+"""Rendering: per-camera geometry (computed once) and frames for any projector image sequence.
+
+:func:`camera_geometry` casts the ray of every camera pixel (through the pixel centre, OpenCV
+pinhole model with optional distortion), intersects the scene, checks that the projector sees
+the hit point (the first hit along the projector's ray from its centre, and the surface facing
+it), and maps the point into the projector: pinhole → ideal coordinates → thesis distortion
+inverted → panel coordinates (eq. 3.34). It also precomputes the bilinear sampling of the panel
+and the irradiance factor, so that :func:`render_frames` costs a few array operations per frame.
+
+Image formation (fractions of full scale), for a pattern value ``P`` (8-bit) at the panel
+coordinate of a pixel:
+
+    ``E = blur_p((P / 255) ** gamma)``  (projector response and defocus, on the panel),
+    ``s = albedo · (ambient + power · cos(incidence) · (d_ref / d)² · E)``,
+    ``s ← blur_c(s)``  (camera defocus),
+    ``electrons = s · full_well`` + shot noise ``√electrons`` + read noise,
+    quantised to ``bit_depth`` bits (``round``, clipped).
+
+Pixels that see no surface stay black; shadowed pixels get the ambient term only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from ..camera_models import Pinhole
+from .rig import Photometry, Rig
+from .scenes import Scene
+
+__all__ = ["CameraGeometry", "camera_geometry", "projector_radiance", "render_frames"]
+
+#: hit points closer than this to the projector's own first hit count as lit (mm)
+SHADOW_TOLERANCE_MM = 1e-3
+
+
+@dataclass
+class CameraGeometry:
+    """Ground truth of one camera, and what rendering needs from it.
+
+    Attributes
+    ----------
+    xyz : (H, W, 3) float64
+        World point seen by each pixel, mm; NaN where the camera sees no surface.
+    normal : (H, W, 3) float64
+        Unit outward surface normal; NaN where no surface.
+    surface : (H, W) bool
+        The pixel sees the surface.
+    mask : (H, W) bool
+        The pixel sees the surface, the projector lights that point (no shadow, surface facing
+        it) and the panel coordinate lies on the panel: ``xp, yp`` are valid.
+    xp, yp : (H, W) float64
+        True panel coordinates of the projector pixel lighting the point, projector px;
+        NaN outside `mask`.
+    xp_ideal, yp_ideal : (H, W) float64
+        The same in ideal (pinhole) projector coordinates.
+    albedo : (H, W) float32
+        Surface albedo (0 where no surface).
+    irradiance : (H, W) float32
+        ``cos(incidence) · (d_ref / d)²`` of the projector light (0 outside `mask`).
+    params : dict of str to (H, W) float64
+        Scene surface parameters (finger: rolled-print ``u, v`` in mm); NaN where no surface.
+    camera : Pinhole
+    name : str
+    """
+
+    xyz: np.ndarray
+    normal: np.ndarray
+    surface: np.ndarray
+    mask: np.ndarray
+    xp: np.ndarray
+    yp: np.ndarray
+    xp_ideal: np.ndarray
+    yp_ideal: np.ndarray
+    albedo: np.ndarray
+    irradiance: np.ndarray
+    params: dict
+    camera: Pinhole
+    name: str = "cam0"
+    _sampler: tuple = field(default=None, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.surface.shape
+
+    def truth_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays of ``truth/<camera>.npz`` (see ``docs/capture-format.md``)."""
+        out = {
+            "xyz": self.xyz.astype(np.float64), "normal": self.normal.astype(np.float32),
+            "xp": self.xp, "yp": self.yp, "xp_ideal": self.xp_ideal, "yp_ideal": self.yp_ideal,
+            "mask": self.mask, "surface": self.surface, "albedo": self.albedo,
+            "irradiance": self.irradiance,
+        }
+        for key, value in self.params.items():
+            out[f"param_{key}"] = value
+        return out
+
+
+def _pixel_grid(camera: Pinhole) -> np.ndarray:
+    width, height = camera.size
+    cols, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    return np.stack([cols, rows], axis=-1).reshape(-1, 2)
+
+
+def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry:
+    """Intersect every pixel ray of one camera with the scene; shadows; panel coordinates.
+
+    Parameters
+    ----------
+    rig : Rig
+    scene : Scene
+    camera_index : int
+
+    Returns
+    -------
+    CameraGeometry
+    """
+    if not 0 <= camera_index < len(rig.cameras):
+        raise ValueError(f"camera_index: expected 0..{len(rig.cameras) - 1}, got {camera_index}")
+    camera = rig.cameras[camera_index]
+    width, height = camera.size
+    n = width * height
+    origin, dirs = camera.rays(_pixel_grid(camera))
+    t = scene.intersect(origin, dirs)
+    surface = np.isfinite(t)
+    idx = np.flatnonzero(surface)
+    pts = origin + t[idx, None] * dirs[idx]
+    info = scene.surface(pts)
+    normal = info.normal
+    # shadow test: the projector's first hit along its ray to the point must be the point
+    c_p = rig.projector.center
+    to_p = c_p - pts
+    dist = np.linalg.norm(to_p, axis=-1)
+    l_dir = to_p / dist[:, None]
+    cos_inc = np.einsum("ij,ij->i", normal, l_dir)
+    t_proj = scene.intersect(c_p, -l_dir)
+    # lit: the projector's own first hit is this point (earlier: shadow; later: the projector's
+    # ray only grazes the surface here and the marcher stepped over it — counted as unlit)
+    lit = (cos_inc > 0) & (np.abs(t_proj - dist) <= SHADOW_TOLERANCE_MM)
+    ideal = rig.projector.project(pts)
+    panel = rig.panel_from_ideal(ideal)
+    pw, ph = rig.panel_size
+    on_panel = (
+        (panel[:, 0] >= -0.5) & (panel[:, 0] <= pw - 0.5)
+        & (panel[:, 1] >= -0.5) & (panel[:, 1] <= ph - 0.5)
+    )
+    lit &= on_panel & np.all(np.isfinite(panel), axis=-1)
+
+    def full(values, fill, dtype=np.float64):
+        shape = (n, *values.shape[1:])
+        out = np.full(shape, fill, dtype=dtype)
+        out[idx] = values
+        return out.reshape((height, width, *values.shape[1:]))
+
+    xyz = full(pts, np.nan)
+    lit_full = np.zeros(n, dtype=bool)
+    lit_full[idx] = lit
+    panel_lit = np.where(lit[:, None], panel, np.nan)
+    ideal_lit = np.where(lit[:, None], ideal, np.nan)
+    ref = rig.photometry.reference_distance_mm
+    irr = np.where(lit, cos_inc * (ref / dist) ** 2, 0.0)
+    geometry = CameraGeometry(
+        xyz=xyz,
+        normal=full(normal, np.nan),
+        surface=surface.reshape(height, width),
+        mask=lit_full.reshape(height, width),
+        xp=full(panel_lit[:, 0], np.nan), yp=full(panel_lit[:, 1], np.nan),
+        xp_ideal=full(ideal_lit[:, 0], np.nan), yp_ideal=full(ideal_lit[:, 1], np.nan),
+        albedo=full(info.albedo, 0.0, np.float32),
+        irradiance=full(irr, 0.0, np.float32),
+        params={k: full(v, np.nan) for k, v in info.params.items()},
+        camera=camera,
+        name=rig.camera_names[camera_index],
+    )
+    geometry._sampler = _bilinear_plan(geometry, rig.panel_size)
+    return geometry
+
+
+def _bilinear_plan(geometry: CameraGeometry, panel_size) -> tuple:
+    """Flat indices and weights into the panel padded by one pixel (zeros) for lit pixels."""
+    pw, ph = panel_size
+    lit = np.flatnonzero(geometry.mask.ravel())
+    x = geometry.xp.ravel()[lit] + 1.0  # padded coordinates
+    y = geometry.yp.ravel()[lit] + 1.0
+    x0 = np.clip(np.floor(x).astype(np.intp), 0, pw)
+    y0 = np.clip(np.floor(y).astype(np.intp), 0, ph)
+    fx = (x - x0).astype(np.float32)
+    fy = (y - y0).astype(np.float32)
+    stride = pw + 2
+    i00 = y0 * stride + x0
+    w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    return lit, i00, stride, w
+
+
+def projector_radiance(pattern, photometry: Photometry) -> np.ndarray:
+    """Emitted radiance of one panel image: gamma, defocus; padded by a dark 1-px border.
+
+    Parameters
+    ----------
+    pattern : (Hp, Wp) uint8 or float
+        8-bit panel image (floats are taken as values in ``[0, 1]``).
+
+    Returns
+    -------
+    (Hp + 2, Wp + 2) float32
+    """
+    p = np.asarray(pattern)
+    if p.ndim != 2:
+        raise ValueError(f"pattern: expected a 2-D panel image, got shape {p.shape}")
+    if np.issubdtype(p.dtype, np.integer):
+        lut = (np.arange(256, dtype=np.float64) / 255.0) ** photometry.projector_gamma
+        if p.dtype != np.uint8:
+            raise TypeError(f"pattern: expected uint8 or float values, got {p.dtype}")
+        value = lut.astype(np.float32)[p]
+    else:
+        value = np.clip(p.astype(np.float32), 0, 1) ** np.float32(photometry.projector_gamma)
+    value = np.pad(value, 1)
+    if photometry.projector_blur_px > 0:
+        value = ndi.gaussian_filter(value, photometry.projector_blur_px, mode="constant")
+    return value
+
+
+def render_frames(
+    geometry: CameraGeometry,
+    patterns,
+    photometry: Photometry,
+    *,
+    seed: int | None = 0,
+    camera_index: int = 0,
+    scale: float = 1.0,
+    radiance: list[np.ndarray] | None = None,
+) -> np.ndarray:
+    """Render the camera frames of a projector image sequence.
+
+    Parameters
+    ----------
+    geometry : CameraGeometry
+        From :func:`camera_geometry`.
+    patterns : (n_frames, Hp, Wp) uint8
+        Panel images, in order (the simulator does not interpret them).
+    photometry : Photometry
+    seed : int or None
+        Noise seed; frame ``k`` of camera ``i`` draws from ``default_rng([seed, i, k])`` so any
+        subset of frames and cameras renders reproducibly.
+    camera_index : int
+        Used for the noise stream only.
+    scale : float
+        Camera resolution scale: the camera blur (full-resolution px) is scaled by it.
+    radiance : list of (Hp + 2, Wp + 2) float32, optional
+        Precomputed :func:`projector_radiance` of `patterns` (shared between cameras).
+
+    Returns
+    -------
+    frames : (n_frames, H, W) uint8 (8-bit) or uint16 (10/12/16-bit, left-aligned)
+    """
+    patterns = np.asarray(patterns)
+    if patterns.ndim != 3:
+        raise ValueError(f"patterns: expected (n_frames, Hp, Wp), got shape {patterns.shape}")
+    lit, i00, stride, w = geometry._sampler
+    ph, pw = patterns.shape[1:]
+    if stride != pw + 2:
+        raise ValueError(
+            f"patterns: panel size {pw}x{ph} does not match the rig's projector ({stride - 2} wide)"
+        )
+    height, width = geometry.shape
+    albedo = geometry.albedo.ravel()
+    base = albedo * np.float32(photometry.ambient * photometry.projector_power)
+    gain = (albedo.ravel()[lit] * geometry.irradiance.ravel()[lit]
+            * np.float32(photometry.projector_power))
+    bits = photometry.bit_depth
+    top = 2**bits - 1
+    dtype = np.uint8 if bits == 8 else np.uint16
+    frames = np.empty((len(patterns), height, width), dtype=dtype)
+    blur = photometry.camera_blur_px * scale
+    for k, pattern in enumerate(patterns):
+        rad = radiance[k] if radiance is not None else projector_radiance(pattern, photometry)
+        flat = rad.ravel()
+        sample = (w[0] * flat[i00] + w[1] * flat[i00 + 1] + w[2] * flat[i00 + stride]
+                  + w[3] * flat[i00 + stride + 1])
+        signal = base.copy()
+        signal[lit] += gain * sample
+        image = signal.reshape(height, width)
+        if blur > 0:
+            image = ndi.gaussian_filter(image, blur, mode="nearest")
+        if photometry.noise and seed is not None:
+            rng = np.random.default_rng([seed, camera_index, k])
+            electrons = np.maximum(image, 0) * np.float32(photometry.full_well)
+            noise = rng.standard_normal(image.shape, dtype=np.float32)
+            noise *= np.sqrt(electrons + np.float32(photometry.read_noise**2))
+            image = (electrons + noise) / np.float32(photometry.full_well)
+        levels = np.rint(np.clip(image, 0, 1) * top)
+        if bits != 8:
+            levels = levels * 2 ** (16 - bits)
+        frames[k] = levels.astype(dtype)
+    return frames
