@@ -20,7 +20,7 @@ test: $(STAMP)
 	$(PY) -m pytest src tests
 
 bench: $(STAMP)
-	$(PY) -m pip install -q -e ".[test,bench]"
+	$(PY) -m pip install -q -e ".[test,bench,icp]"
 	$(PY) bench/run_all.py
 
 clean:

@@ -13,9 +13,18 @@ unambiguous; every finer one is unwrapped from the previous (hierarchical tempor
 residual ``|r Phi_{i-1} - Phi_i|`` flags inconsistent pixels. The projector coordinate inverts the
 phase rule of ``docs/conventions.md``: ``u = Phi size / (2 pi n) + origin``.
 
-:func:`decode` is the plain NumPy reference; ``method="numba"`` runs one fused kernel
-(:func:`decode_fast`), parallel over rows, that also triangulates when given a
+:func:`decode` is the plain NumPy reference; ``method="numba"`` runs the fused kernels of
+:func:`decode_fast`, parallel over rows, which also triangulate when given a
 :class:`~nail2nail.reconstruction.TriangulationTable` (thesis eq. 3.12–3.14 in rational form).
+
+Validity: per pixel, the amplitude of every frequency (:data:`LOW_MODULATION`), saturation,
+shadow, the unwrapping residual and the panel extent; then two neighbourhood checks:
+:data:`EDGE` (``erode``: pixels next to invalid ones, whose blurred signal mixes two surfaces or
+surface and background) and, optionally, :data:`STEEP` (``max_gradient``). On the virtual
+scanner's finger (full scale, default noise, projector distortion off) the default set decodes
+with RMS 0.036–0.047 px (x) and 0.034–0.037 px (y) and no pixel off by more than 1 px with
+``erode=1, max_gradient=2``; without the gradient check the oblique side cameras reach 0.08 px
+(x) with a few hundred pixels off by 1–2.6 px where the fringes are dense and the ridges blur.
 
 References
 ----------
@@ -551,50 +560,58 @@ def _fused_kernel(frames, cos_d, sin_d, group_start, group_steps, group_bscale, 
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _neighbour_kernel(pix_reason, u, erode, max_gradient, out_reason):  # pragma: no cover
-    """EDGE: a pixel within Chebyshev distance `erode` (inside the image) is invalid;
-    STEEP: a central-difference gradient of a decoded coordinate exceeds `max_gradient`."""
-    n_dirs, height, width = u.shape
+def _finish_kernel(pix_reason, u_raw, erode, max_gradient, keep_invalid, table_dir, num, den,
+                   modulation, out_reason, out_u, out_int, out_xyz):  # pragma: no cover
+    """Neighbourhood checks (as :func:`neighbourhood_reasons`), masking and triangulation.
+
+    EDGE: a pixel within Chebyshev distance `erode` (inside the image) is invalid; STEEP: a
+    central-difference gradient of a decoded coordinate exceeds `max_gradient` (all four
+    neighbours valid). Reads `pix_reason`, `u_raw`; writes the outputs (no race between rows).
+    """
+    n_dirs, height, width = u_raw.shape
     half = np.float32(0.5)
-    for r in numba.prange(height):
-        for c in range(width):
-            f = pix_reason[r, c]
-            if f == 0 and erode > 0:
-                for rr in range(max(r - erode, 0), min(r + erode + 1, height)):
-                    for cc in range(max(c - erode, 0), min(c + erode + 1, width)):
-                        if pix_reason[rr, cc] != 0:
-                            f |= np.uint8(32)
-            if pix_reason[r, c] == 0 and 0 < r < height - 1 and 0 < c < width - 1:
-                if (pix_reason[r, c - 1] | pix_reason[r, c + 1] | pix_reason[r - 1, c]
-                        | pix_reason[r + 1, c]) == 0:
-                    for d in range(n_dirs):
-                        gx = (u[d, r, c + 1] - u[d, r, c - 1]) * half
-                        gy = (u[d, r + 1, c] - u[d, r - 1, c]) * half
-                        if gx * gx + gy * gy > max_gradient * max_gradient:
-                            f |= np.uint8(64)
-            out_reason[r, c] = f
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def _finish_kernel(reason, keep_invalid, table_dir, num, den, u, modulation, out_int,
-                   out_xyz):  # pragma: no cover
-    n_dirs, height, width = u.shape
     nan = np.float32(np.nan)
     zero = np.float32(0.0)
     one = np.float32(1.0)
     two = np.float32(2.0)
+    g2 = max_gradient * max_gradient
+    check_gradient = max_gradient < np.inf
     for r in numba.prange(height):
+        flags = np.empty(width, dtype=np.uint8)
         for c in range(width):
-            out_int[r, c] = min(two * modulation[r, c], one) if reason[r, c] == 0 else zero
-        if not keep_invalid:
-            for d in range(n_dirs):
+            flags[c] = pix_reason[r, c]
+        if erode > 0:
+            column = np.zeros(width, dtype=np.uint8)
+            for rr in range(max(r - erode, 0), min(r + erode + 1, height)):
                 for c in range(width):
-                    u[d, r, c] = u[d, r, c] if reason[r, c] == 0 else nan
+                    column[c] |= pix_reason[rr, c]
+            near = np.zeros(width, dtype=np.uint8)
+            for dc in range(-erode, erode + 1):
+                for c in range(max(0, -dc), min(width, width - dc)):
+                    near[c] |= column[c + dc]
+            for c in range(width):
+                flags[c] |= np.uint8(32) if (flags[c] == 0) & (near[c] != 0) else np.uint8(0)
+        if check_gradient and 0 < r < height - 1:
+            for d in range(n_dirs):
+                for c in range(1, width - 1):
+                    ok = (pix_reason[r, c] | pix_reason[r, c - 1] | pix_reason[r, c + 1]
+                          | pix_reason[r - 1, c] | pix_reason[r + 1, c]) == 0
+                    gx = (u_raw[d, r, c + 1] - u_raw[d, r, c - 1]) * half
+                    gy = (u_raw[d, r + 1, c] - u_raw[d, r - 1, c]) * half
+                    steep = ok & (gx * gx + gy * gy > g2)
+                    flags[c] |= np.uint8(64) if steep else np.uint8(0)
+        for c in range(width):
+            out_reason[r, c] = flags[c]
+            out_int[r, c] = min(two * modulation[r, c], one) if flags[c] == 0 else zero
+        for d in range(n_dirs):
+            for c in range(width):
+                v = u_raw[d, r, c]
+                out_u[d, r, c] = v if (flags[c] == 0) | keep_invalid else nan
         if table_dir >= 0:
             for c in range(width):
-                p = u[table_dir, r, c]
+                p = u_raw[table_dir, r, c]
                 inv = one / (den[0, r, c] + den[1, r, c] * p)
-                inv = inv if reason[r, c] == 0 else nan
+                inv = inv if flags[c] == 0 else nan
                 out_xyz[r, c, 0] = (num[0, r, c] + num[1, r, c] * p) * inv
                 out_xyz[r, c, 1] = (num[2, r, c] + num[3, r, c] * p) * inv
                 out_xyz[r, c, 2] = (num[4, r, c] + num[5, r, c] * p) * inv
@@ -744,9 +761,10 @@ def decode_fast(
     if u is None:
         raise ValueError("out: expected a Decoded returned by decode_fast")
     xyz = out.xyz if table is not None else np.zeros((1, 1, 3), np.float32)
-    pix_reason = getattr(out, "_pix_reason", None)
-    if pix_reason is None:
-        pix_reason = out._pix_reason = np.empty((height, width), np.uint8)
+    scratch = getattr(out, "_scratch", None)
+    if scratch is None:  # per-pixel reasons and raw coordinates, read by the neighbourhood pass
+        scratch = out._scratch = (np.empty((height, width), np.uint8), np.empty_like(u))
+    pix_reason, u_raw = scratch
     sat_native = np.float32(saturation * scale)
     _fused_kernel(
         frames, plan.cos_d, plan.sin_d, plan.group_start, plan.group_steps,
@@ -754,11 +772,11 @@ def decode_fast(
         plan.group_first, plan.dir_groups, plan.dir_coef, plan.dir_origin, plan.dir_size,
         np.float32(1.0 / scale), sat_native,
         np.float32(min_modulation), np.float32(min_albedo), np.float32(unwrap_tolerance),
-        u, out.modulation, out.albedo, pix_reason,
+        u_raw, out.modulation, out.albedo, pix_reason,
     )
-    _neighbour_kernel(pix_reason, u, int(erode),
-                      np.float32(np.inf if max_gradient is None else max_gradient), out.reason)
-    _finish_kernel(out.reason, bool(keep_invalid), table_dir, num, den, u, out.modulation,
+    _finish_kernel(pix_reason, u_raw, erode,
+                   np.float32(np.inf if max_gradient is None else max_gradient),
+                   bool(keep_invalid), table_dir, num, den, out.modulation, out.reason, u,
                    out.intensity, xyz)
     np.equal(out.reason, 0, out=out.mask)
     return out

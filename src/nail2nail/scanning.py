@@ -99,9 +99,15 @@ def scan_capture(
     *,
     use: str = "xpyp",
     progress: bool = False,
+    max_gradient: float | None = 2.0,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
+
+    Pixels where the decoded projector coordinates change faster than `max_gradient` projector
+    px per camera px are dropped (``phase.STEEP``): there, at grazing view, a camera pixel
+    spans more than 1/8 of the finest fringe period (16 px) and blur biases the phase; on the
+    virtual scanner at full scale they held every decoding error above 1 px.
 
     Parameters
     ----------
@@ -122,6 +128,7 @@ def scan_capture(
                 calibration.camera(name),
                 projector_distortion=calibration.projector_distortion,
                 use=use,
+                max_gradient=max_gradient,
                 **decode_options,
             )
         )

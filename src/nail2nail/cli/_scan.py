@@ -27,6 +27,9 @@ def add_parser(sub) -> None:
                    help="projector coordinates for triangulation (default: both)")
     p.add_argument("--min-modulation", type=float, default=0.03,
                    help="smallest accepted fringe amplitude, fraction of full scale")
+    p.add_argument("--max-gradient", type=float, default=2.0,
+                   help="drop pixels whose projector coordinates change faster than this, "
+                   "projector px per camera px (default 2; 'inf' keeps all)")
     p.add_argument("--no-mat5", action="store_true", help="skip the legacy mat5 files")
     p.add_argument("--no-ply", action="store_true", help="skip the PLY point clouds")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
@@ -37,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calib)
     capture = read_capture(args.capture)
     scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
-                         min_modulation=args.min_modulation)
+                         min_modulation=args.min_modulation,
+                         max_gradient=None if args.max_gradient == float("inf")
+                         else args.max_gradient)
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
                           extra={"capture": str(args.capture), "calibration": str(args.calib)})
     summary = {"out": str(args.out), "cameras": {}}
