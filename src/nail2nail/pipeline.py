@@ -9,9 +9,10 @@ Steps, each written under ``out``:
 3. The target and the finger are rendered again under patterns pre-distorted with the
    estimate's look-up table (the thesis's correction, appendix ``distortion2dlut``).
 4. ``calib/``: calibrations from the target captures: the thesis's per-camera DLT on plain
-   patterns ("before"), the same on LUT-corrected patterns ("thesis LUT"), and the joint
-   calibration with one shared projector whose distortion is modelled, refined on the target's
-   surface ("best").
+   patterns ("before"), the same on LUT-corrected patterns ("thesis_lut"), the same on plain
+   patterns with the estimated distortion compensated in the model ("model_dlt"), and the
+   joint calibration with one shared projector whose distortion is modelled, refined on the
+   target's surface ("best").
 5. ``scans/`` and ``merge/``: per configuration and object, the per-camera scans (mat5, PLY)
    and the merge error of camera pairs in projector space (thesis chapter four).
 6. Super scans (PLY, super mat5, renders) of the target in every configuration and of the
@@ -29,7 +30,7 @@ from pathlib import Path
 __all__ = ["CONFIGURATIONS", "run_demo"]
 
 #: Merge configurations compared by the demo (issue 5's table).
-CONFIGURATIONS = ("before", "thesis_lut", "best")
+CONFIGURATIONS = ("before", "thesis_lut", "model_dlt", "best")
 
 
 class _Progress:
@@ -100,12 +101,12 @@ def run_demo(
         (merge medians per configuration and object), ``"distortion"``, ``"calibration"``,
         ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
     """
-    from .cli._merge import write_merge
     from .distortion import apply_lut, distortion_lut, estimate_from_decoded
     from .io.calibration import save_calibration
     from .io.capture import read_capture
     from .io.scans import save_scans
     from .markers import TargetGeometry
+    from .merge_report import write_merge
     from .patterns import default_pattern_set, make_patterns
     from .scanning import (
         calibrate_from_observations,
@@ -118,7 +119,7 @@ def run_demo(
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    step = _Progress(progress, 13)
+    step = _Progress(progress, 15)
     rig = default_rig(scale, projector_distortion="thesis")
     pattern_set = default_pattern_set()
     patterns = make_patterns(pattern_set)
@@ -148,13 +149,16 @@ def run_demo(
     simulate("target_lut", "target", lut_patterns)
     simulate("finger_lut", "finger", lut_patterns)
 
-    step("calibrate: per-camera DLT (before), DLT on LUT patterns, joint (best)")
+    step("calibrate: per-camera DLT (before, thesis_lut, model_dlt) and joint (best)")
     surface = cylinder_distance(TargetGeometry().radius)
     obs_plain = target_observations(read_capture(captures["target"], load=False))
     obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
     calibs = {
         "before": calibrate_from_observations(obs_plain, model="dlt")[0],
         "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
+        "model_dlt": calibrate_from_observations(
+            obs_plain, model="dlt", projector_distortion={"center": list(center), "rho": rho}
+        )[0],
         "best": calibrate_from_observations(
             obs_plain,
             model="joint",

@@ -276,10 +276,15 @@ def calibrate_from_observations(
     projector_size=(1280, 1040),
     surface=None,
     initial_distortion=None,
+    projector_distortion=None,
 ):
     """Calibration and per-camera summary from target observations.
 
-    ``model="dlt"``: each camera and its own projector matrix (thesis eq. 3.11);
+    ``model="dlt"``: each camera and its own projector matrix (thesis eq. 3.11); with
+    `projector_distortion` (``{"center", "rho"}``, e.g. the plane estimate) the decoded panel
+    coordinates are undistorted first and the calibration carries the distortion, so that scans
+    compensate it in the model (:func:`~nail2nail.reconstruction.reconstruct_image`) instead of
+    with pre-distorted patterns;
     ``model="joint"``: pinhole cameras and one shared projector with radial distortion
     (:func:`~nail2nail.calibration.calibrate_rig_joint`), with the target's dense surface
     constraints when `surface` (a signed distance, e.g. :func:`cylinder_distance`) is given,
@@ -287,10 +292,17 @@ def calibrate_from_observations(
     """
     summary = {}
     if model == "dlt":
+        from .distortion import ideal_from_panel
+
         cameras = []
         for obs in observations:
+            xy_projector = obs.xy_projector
+            if projector_distortion is not None:
+                xy_projector = ideal_from_panel(
+                    xy_projector, projector_distortion["center"], projector_distortion["rho"]
+                )
             report = calibrate_points(
-                obs.xyz_world, obs.xy_camera, obs.xy_projector, method=method, use=use
+                obs.xyz_world, obs.xy_camera, xy_projector, method=method, use=use
             )
             cameras.append(
                 CameraCalibration(
@@ -302,7 +314,17 @@ def calibrate_from_observations(
                 "rms_mm": report.rms_mm.round(6).tolist(),
                 "camera_rms_px": float(np.sqrt(np.mean(report.camera_residual_px**2))),
             }
-        return RigCalibration(cameras=cameras, extra={"model": "dlt", "method": method}), summary
+        calib = RigCalibration(
+            cameras=cameras,
+            projector_distortion=None
+            if projector_distortion is None
+            else {
+                "center": [float(c) for c in projector_distortion["center"]],
+                "rho": float(projector_distortion["rho"]),
+            },
+            extra={"model": "dlt", "method": method},
+        )
+        return calib, summary
     if model != "joint":
         raise ValueError(f"model: expected 'dlt' or 'joint', got {model!r}")
     init = initial_distortion or {}
