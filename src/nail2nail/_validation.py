@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_float_array", "as_matrix", "as_points"]
+__all__ = ["as_float_array", "as_int", "as_matrix", "as_points"]
 
 
 def as_float_array(value, name: str, *, dtype=np.float64) -> np.ndarray:
@@ -52,3 +52,20 @@ def as_matrix(value, name: str, shape: tuple[int, int]) -> np.ndarray:
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{name}: contains NaN or infinity")
     return array
+
+
+def as_int(value, name: str, *, minimum: int) -> int:
+    """Return `value` as a Python ``int`` ≥ `minimum` (``bool`` is refused).
+
+    Raises
+    ------
+    TypeError
+        If `value` is not an integer.
+    ValueError
+        If it is below `minimum`.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value}")
+    return int(value)

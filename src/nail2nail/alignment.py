@@ -47,6 +47,8 @@ def icp_align(moving: Scan, fixed: Scan, *, max_distance_mm: float = 0.3,
         Pixel subsampling of both scans.
     normal_radius_mm : float
         Neighbourhood radius for the target's normals, mm.
+    max_iterations : int
+        Largest number of ICP iterations.
 
     Returns
     -------

@@ -19,7 +19,6 @@ Estimation: :func:`estimate_distortion_thesis` (eq. 3.17–3.42, as written) and
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import warnings
@@ -29,6 +28,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from ._validation import as_float_array, as_points
+from .io._json import read_json
 
 __all__ = [
     "THESIS_CENTER",
@@ -1134,11 +1134,7 @@ def load_projector_distortion(source) -> ProjectorDistortion | None:
         data, name = source, "data"
     else:
         name = os.fspath(source)
-        with open(name, encoding="utf-8") as fh:
-            try:
-                data = json.load(fh)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{name}: not valid JSON ({exc})") from exc
+        data = read_json(name)
     if not isinstance(data, dict):
         raise ValueError(f"{name}: expected a JSON object")
     candidates = [data, data.get("rig")] if isinstance(data.get("rig"), dict) else [data]

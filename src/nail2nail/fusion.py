@@ -26,7 +26,8 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
-from .merge import Correspondence, _bilinear, _check_int, _check_scan, correspond, valid_mask
+from ._validation import as_int
+from .merge import Correspondence, _bilinear, _check_scan, correspond, valid_mask
 from .reconstruction import Scan
 
 __all__ = [
@@ -348,7 +349,7 @@ def fuse_scans(
     priority = [int(p) for p in priority]
     if sorted(priority) != list(range(n)):
         raise ValueError(f"priority: expected a permutation of 0..{n - 1}, got {priority}")
-    border_px = _check_int(border_px, "border_px", minimum=1)
+    border_px = as_int(border_px, "border_px", minimum=1)
     if ownership not in ("angle", "priority"):
         raise ValueError(f"ownership: expected 'angle' or 'priority', got {ownership!r}")
     rank = {cam: k for k, cam in enumerate(priority)}
@@ -480,7 +481,7 @@ def super_mat5_scan(superscan: SuperScan, *, gap_px: int = 1, name: str = "super
     Scan
         Shape ``(max H, ΣW + gap_px × (n − 1))``; ``camera_center`` is None.
     """
-    gap_px = _check_int(gap_px, "gap_px", minimum=0)
+    gap_px = as_int(gap_px, "gap_px", minimum=0)
     scans = superscan.scans
     height = max(s.shape[0] for s in scans)
     width = sum(s.shape[1] for s in scans) + gap_px * (len(scans) - 1)

@@ -67,10 +67,12 @@ class TargetGeometry:
 
     @property
     def n_rows(self) -> int:
+        """Number of mark rows."""
         return len(self.row_y)
 
     @property
     def n_cols(self) -> int:
+        """Number of mark columns."""
         return len(self.column_angles_deg)
 
     def mark_world(self, grid) -> np.ndarray:

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
+from ._validation import as_int
 from .reconstruction import Scan
 
 __all__ = [
@@ -70,14 +71,6 @@ def _check_scan(scan, name: str) -> Scan:
     if min(shape) < 3:
         raise ValueError(f"{name}: image {shape} is too small (need at least 3 × 3 pixels)")
     return scan
-
-
-def _check_int(value, name: str, *, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise TypeError(f"{name}: expected an integer, got {type(value).__name__}")
-    if value < minimum:
-        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value}")
-    return int(value)
 
 
 def valid_mask(scan: Scan) -> np.ndarray:
@@ -151,7 +144,7 @@ def sample_pixels(mask, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     >>> rows.tolist(), cols.tolist()
     ([0, 0, 0, 2, 2, 2], [0, 2, 4, 0, 2, 4])
     """
-    stride = _check_int(stride, "stride", minimum=1)
+    stride = as_int(stride, "stride", minimum=1)
     mask = np.asarray(mask, dtype=bool)
     grid = np.zeros_like(mask)
     grid[::stride, ::stride] = True
@@ -160,6 +153,17 @@ def sample_pixels(mask, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 # -- nearest neighbour in projector space ----------------------------------------------------
+def _match_inputs(parent: Scan, child: Scan, rows, cols):
+    """Checked parent pixels ``rows, cols`` (intp) and the valid child pixels ``cr, cc``."""
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+    cr, cc = np.nonzero(valid_mask(child))
+    if cr.size == 0:
+        raise ValueError("child: no valid pixels")
+    return rows, cols, cr, cc
+
+
 def nearest_bruteforce(
     parent: Scan, child: Scan, rows, cols
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -182,12 +186,7 @@ def nearest_bruteforce(
     distance2_px2 : (N,) float64
         Squared projector distance, panel px².
     """
-    _check_scan(parent, "parent")
-    _check_scan(child, "child")
-    rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
-    cr, cc = np.nonzero(valid_mask(child))
-    if cr.size == 0:
-        raise ValueError("child: no valid pixels")
+    rows, cols, cr, cc = _match_inputs(parent, child, rows, cols)
     xp2 = np.asarray(child.xp, dtype=np.float64)[cr, cc]
     yp2 = np.asarray(child.yp, dtype=np.float64)[cr, cc]
     xp1 = np.asarray(parent.xp, dtype=np.float64)[rows, cols]
@@ -220,12 +219,7 @@ def nearest_kdtree(
     distance2_px2 : (N,) float64
         Squared projector distance, panel px².
     """
-    _check_scan(parent, "parent")
-    _check_scan(child, "child")
-    rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
-    cr, cc = np.nonzero(valid_mask(child))
-    if cr.size == 0:
-        raise ValueError("child: no valid pixels")
+    rows, cols, cr, cc = _match_inputs(parent, child, rows, cols)
     child_xy = np.stack([child.xp[cr, cc], child.yp[cr, cc]], axis=-1).astype(np.float64)
     tree = scipy.spatial.cKDTree(child_xy, leafsize=16, balanced_tree=False, compact_nodes=False)
     query = np.stack([parent.xp[rows, cols], parent.yp[rows, cols]], axis=-1).astype(np.float64)
@@ -603,8 +597,8 @@ def correspond(
     """
     _check_scan(parent, "parent")
     _check_scan(child, "child")
-    stride = _check_int(stride, "stride", minimum=1)
-    border_px = _check_int(border_px, "border_px", minimum=1)
+    stride = as_int(stride, "stride", minimum=1)
+    border_px = as_int(border_px, "border_px", minimum=1)
     for value, label in ((max_residual_px, "max_residual_px"), (max_jump_px, "max_jump_px")):
         if not np.isfinite(value) or value <= 0:
             raise ValueError(f"{label}: expected a positive number, got {value}")

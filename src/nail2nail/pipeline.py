@@ -21,7 +21,6 @@ Steps, each written under ``out``:
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -102,6 +101,7 @@ def run_demo(
         ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
     """
     from .distortion import apply_lut, distortion_lut, estimate_from_decoded
+    from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
     from .io.scans import save_scans
@@ -139,8 +139,7 @@ def run_demo(
     plane = read_capture(captures["plane"], load=False)
     report = estimate_from_decoded(_decode_views(plane))
     distortion = report.to_dict(truth=None)
-    (out / "distortion").mkdir(exist_ok=True)
-    (out / "distortion" / "projector_distortion.json").write_text(json.dumps(distortion, indent=2))
+    write_json(out / "distortion" / "projector_distortion.json", distortion)
     center, rho = report.fit.center, report.fit.rho
     lut_patterns = apply_lut(patterns, distortion_lut(pattern_set.panel_size, center, rho))
 
@@ -216,7 +215,7 @@ def run_demo(
         "super_scan": best.get("super_scan"),
         "outputs": outputs,
     }
-    (out / "summary.json").write_text(json.dumps(result, indent=2, default=float))
+    write_json(out / "summary.json", result, default=float)
     return result
 
 

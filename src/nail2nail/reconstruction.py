@@ -221,7 +221,10 @@ def triangulation_table(
 
 
 def triangulate(table: TriangulationTable, p) -> np.ndarray:
-    """World points ``(H, W, 3)`` from a projector-coordinate image `p` ``(H, W)``."""
+    """World points ``(H, W, 3)``, mm, from a projector-coordinate image `p` ``(H, W)`` (eq. 3.14).
+
+    In the table's dtype; NaN where `p` is NaN, non-finite where the denominator vanishes.
+    """
     p = np.asarray(p)
     if p.shape != table.denominator.shape[:2]:
         raise ValueError(f"p: expected shape {table.denominator.shape[:2]}, got {p.shape}")
@@ -247,7 +250,7 @@ class Scan:
     albedo : (H, W) float32
         Mean intensity in ``[0, 1]`` (the thesis's C image).
     intensity : (H, W) float32
-        Fringe modulation image (the thesis's I image; 0 where invalid).
+        Projector-lit intensity ``2 B`` clipped to 1 (the thesis's I image; 0 where invalid).
     modulation : (H, W) float32
         Fringe amplitude ``B`` in ``[0, 1]``; a quality weight.
     mask : (H, W) bool

@@ -172,9 +172,27 @@ def surface_samples(
     mark centre (the albedo edge of a mark biases the phase) and `border_px` inside the valid
     region.
 
+    Parameters
+    ----------
+    decoded : Decoded
+        The camera's decode (:func:`nail2nail.phase.decode`).
+    marks_xy : (K, 2) float
+        Mark centres, camera px.
+    diameter_px : float
+        Mark diameter ``d``, camera px.
+    stride : int
+        Sampling step along rows and columns, px.
+    clearance : float
+        Smallest distance from a mark centre, in mark diameters.
+    border_px : int
+        Erosion of the valid region, px.
+
     Returns
     -------
-    xy_camera, xy_projector : (M, 2) float64
+    xy_camera : (M, 2) float64
+        Pixel centres ``(x, y) = (column, row)``, camera px.
+    xy_projector : (M, 2) float64
+        Decoded panel coordinates ``(xp, yp)`` there, projector px.
     """
     from scipy import ndimage
 
@@ -289,6 +307,18 @@ def calibrate_from_observations(
     (:func:`~nail2nail.calibration.calibrate_rig_joint`), with the target's dense surface
     constraints when `surface` (a signed distance, e.g. :func:`cylinder_distance`) is given,
     starting from `initial_distortion` (``{"center", "rho"}``, e.g. the plane estimate) if given.
+
+    Returns
+    -------
+    calibration : RigCalibration
+    summary : dict
+        Per camera name: ``points`` and ``camera_rms_px``, with ``rms_mm`` (DLT, X/Y/Z) or
+        ``projector_rms_px`` (joint).
+
+    Raises
+    ------
+    ValueError
+        For an unknown `model`.
     """
     summary = {}
     if model == "dlt":

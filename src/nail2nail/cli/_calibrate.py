@@ -12,6 +12,8 @@ from ..calibration import calibrate_points
 from ..io.calibration import CameraCalibration, RigCalibration, save_calibration
 from ..io.points import read_points
 
+__all__ = ["add_parser", "format_table", "report_dict", "run"]
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(

@@ -19,6 +19,8 @@ from ..scanning import (
     target_observations,
 )
 
+__all__ = ["run_capture"]
+
 
 def run_capture(args: argparse.Namespace) -> int:
     if args.output is None:

@@ -11,6 +11,8 @@ import numpy as np
 from ..calibration import calibrate_points, crosscheck
 from ..io.points import read_points
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(

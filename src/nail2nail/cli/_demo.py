@@ -12,6 +12,8 @@ from ..calibration import calibrate_points, crosscheck
 from ..io.points import thesis_table
 from ._calibrate import format_table
 
+__all__ = ["add_parser", "run", "thesis_part"]
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(

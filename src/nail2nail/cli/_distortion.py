@@ -13,12 +13,17 @@ import json
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from ..distortion import (
     ProjectorDistortion,
     estimate_from_decoded,
     grid_from_decoded,
 )
+from ..io._atomic import atomic_path
+from ..io._json import write_json
+
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -72,10 +77,6 @@ def _load(capture_dir: Path):
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
-    from PIL import Image
-
-    from ..io._atomic import atomic_path
-
     with atomic_path(path) as tmp:
         Image.fromarray(image).save(tmp, format="PNG")
 
@@ -101,10 +102,7 @@ def run(args: argparse.Namespace) -> int:
                 written.append(str(path))
         estimate = ProjectorDistortion(report.fit.center, report.fit.rho)
         path = args.out / "projector_distortion.json"
-        from ..io._atomic import atomic_path
-
-        with atomic_path(path) as tmp:
-            tmp.write_text(json.dumps({"projector_distortion": estimate.to_dict()}, indent=2))
+        write_json(path, {"projector_distortion": estimate.to_dict()})
         written.append(str(path))
         result["written"] = written
 

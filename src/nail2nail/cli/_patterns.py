@@ -10,7 +10,10 @@ import numpy as np
 from PIL import Image
 
 from ..io._atomic import atomic_path
+from ..io._json import write_json
 from ..patterns import PatternSet, default_pattern_set, frame_table, grid_pattern, make_patterns
+
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -84,8 +87,7 @@ def run(args: argparse.Namespace) -> int:
         grid = grid_pattern(panel_size=pattern_set.panel_size, spacing=args.grid_spacing)
         _write_png(out / "grid.png", grid if lut is None else apply_lut(grid, lut))
         manifest["grid"] = "grid.png"
-    with atomic_path(out / "patterns.json") as tmp:
-        tmp.write_text(json.dumps(manifest, indent=2))
+    write_json(out / "patterns.json", manifest)
     summary = {"out": str(out), "n_frames": len(files), "panel_size": list(pattern_set.panel_size),
                "spec": "patterns.json", "grid": manifest.get("grid")}
     if args.json:

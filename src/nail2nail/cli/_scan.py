@@ -11,6 +11,8 @@ from ..io.capture import read_capture
 from ..io.scans import save_scans
 from ..scanning import scan_capture
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(

@@ -10,6 +10,8 @@ from pathlib import Path
 
 from ..simulation.scenes import SCENES
 
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(

@@ -8,7 +8,9 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_path"]
+import numpy as np
+
+__all__ = ["atomic_path", "write_npz"]
 
 
 @contextlib.contextmanager
@@ -38,3 +40,14 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def write_npz(path: str | os.PathLike, arrays: dict) -> Path:
+    """Write `arrays` (name -> array) to a compressed ``.npz`` at `path`, atomically.
+
+    `path` is used as given (no ``.npz`` suffix is appended). Returns `path` as a ``Path``.
+    """
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    return path

@@ -13,16 +13,14 @@ Format (``docs/capture-format.md``)::
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..camera_models import Pinhole
-from ._atomic import atomic_path
+from ._json import read_json, write_json
 
 __all__ = [
     "CameraCalibration",
@@ -88,12 +86,14 @@ class RigCalibration:
     extra: dict = field(default_factory=dict)
 
     def camera(self, name: str) -> CameraCalibration:
+        """The calibration of camera `name`; ``KeyError`` listing the known names."""
         for cam in self.cameras:
             if cam.name == name:
                 return cam
         raise KeyError(f"calibration has no camera {name!r} (has {[c.name for c in self.cameras]})")
 
     def to_dict(self) -> dict:
+        """JSON-ready dict in the calibration-file format (module docstring)."""
         return {
             "format": FORMAT,
             "version": 1,
@@ -111,6 +111,7 @@ class RigCalibration:
 
     @classmethod
     def from_dict(cls, data: dict, *, where: str = "calibration") -> RigCalibration:
+        """Inverse of :meth:`to_dict`; ``ValueError`` naming `where` on bad content."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ValueError(f"{where}: not a nail2nail calibration file (format != {FORMAT!r})")
         cams = data.get("cameras")
@@ -118,6 +119,8 @@ class RigCalibration:
             raise ValueError(f"{where}: 'cameras' must be a non-empty list")
         cameras = []
         for i, c in enumerate(cams):
+            if not isinstance(c, dict):
+                raise ValueError(f"{where}: cameras[{i}] must be an object")
             name = c.get("name", f"cam{i}")
             camera = model_from_dict(c.get("camera"), where=f"{where}: cameras[{i}].camera")
             projector = model_from_dict(
@@ -140,15 +143,9 @@ class RigCalibration:
 
 def save_calibration(path: str | os.PathLike, calibration: RigCalibration) -> None:
     """Write `calibration` as JSON (atomically)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(calibration.to_dict(), indent=2) + "\n")
+    write_json(path, calibration.to_dict())
 
 
 def load_calibration(path: str | os.PathLike) -> RigCalibration:
     """Read a calibration file; ``ValueError`` naming the file on bad content."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    return RigCalibration.from_dict(data, where=str(path))
+    return RigCalibration.from_dict(read_json(path), where=os.fspath(path))

@@ -13,7 +13,6 @@ Frames are 8-bit grey PNGs, or 16-bit PNGs holding 10/12/16-bit values left-alig
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 from PIL import Image
 
 from ._atomic import atomic_path
+from ._json import read_json, write_json
 
 __all__ = [
     "CAPTURE_FORMAT",
@@ -60,10 +60,12 @@ class Capture:
 
     @property
     def camera_names(self) -> list[str]:
+        """Camera names, in manifest order."""
         return [c["name"] for c in self.manifest["cameras"]]
 
     @property
     def bit_depth(self) -> int:
+        """Bits per pixel of the frames (manifest ``bit_depth``, 8 by default)."""
         return int(self.manifest.get("bit_depth", 8))
 
     def camera(self, name: str) -> dict:
@@ -128,9 +130,7 @@ def write_manifest(directory: str | os.PathLike, manifest: dict) -> Path:
     _check_manifest(manifest, where="manifest")
     data = {"format": CAPTURE_FORMAT, "version": 1, **manifest}
     path = directory / MANIFEST
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-    return path
+    return write_json(path, data)
 
 
 def _check_manifest(data, *, where: str) -> None:
@@ -173,11 +173,8 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
     manifest_path = path / MANIFEST
     if not manifest_path.is_file():
         raise ValueError(f"{path}: not a capture directory (no {MANIFEST})")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{manifest_path}: not valid JSON ({exc})") from exc
-    if manifest.get("format") != CAPTURE_FORMAT:
+    manifest = read_json(manifest_path)
+    if not isinstance(manifest, dict) or manifest.get("format") != CAPTURE_FORMAT:
         raise ValueError(f"{manifest_path}: not a nail2nail capture (format != "
                          f"{CAPTURE_FORMAT!r})")
     _check_manifest(manifest, where=str(manifest_path))

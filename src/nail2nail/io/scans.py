@@ -10,14 +10,14 @@ Layout (``docs/capture-format.md``)::
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ..reconstruction import Scan
-from ._atomic import atomic_path
+from ._atomic import write_npz
+from ._json import read_json, write_json
 
 __all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "save_scan_npz", "save_scans"]
 
@@ -30,9 +30,7 @@ def save_scan_npz(path: str | os.PathLike, scan: Scan) -> None:
     arrays = {name: getattr(scan, name) for name in _ARRAYS}
     if scan.camera_center is not None:
         arrays["camera_center"] = np.asarray(scan.camera_center, dtype=float)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, name=np.array(scan.name), **arrays)
+    write_npz(path, {"name": np.array(scan.name), **arrays})
 
 
 def load_scan_npz(path: str | os.PathLike) -> Scan:
@@ -80,8 +78,7 @@ def save_scans(
             entry["camera_center"] = np.asarray(scan.camera_center).tolist()
         cameras.append(entry)
     manifest = {"format": SCAN_FORMAT, "version": 1, "cameras": cameras, **(extra or {})}
-    with atomic_path(out / "scan.json") as tmp:
-        tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+    write_json(out / "scan.json", manifest)
     return manifest
 
 
@@ -91,10 +88,7 @@ def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
     manifest_path = scan_dir / "scan.json"
     if not manifest_path.exists():
         raise ValueError(f"{scan_dir}: not a scan directory (no scan.json)")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{manifest_path}: not valid JSON ({exc})") from exc
-    if manifest.get("format") != SCAN_FORMAT:
+    manifest = read_json(manifest_path)
+    if not isinstance(manifest, dict) or manifest.get("format") != SCAN_FORMAT:
         raise ValueError(f"{manifest_path}: not a nail2nail scan manifest")
     return [load_scan_npz(scan_dir / cam["npz"]) for cam in manifest["cameras"]]

@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +14,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import atomic_path
+from ..io._atomic import atomic_path, write_npz
+from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
 from .rig import Rig, default_rig, ideal_calibration, scale_camera
@@ -249,32 +249,21 @@ def _configure_rig(rig, *, scale, projector_distortion) -> Rig:
     return rig
 
 
-def _save_npz(path: Path, arrays: dict) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-
-
-def _write_json(path: Path, data) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-
-
 def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
     truth = out / "truth"
     entries: dict = {"cameras": {}}
     for name, geom in sim.geometry.items():
         arrays = _truth_arrays(geom)
-        _save_npz(truth / f"{name}.npz", arrays)
+        write_npz(truth / f"{name}.npz", arrays)
         entries["cameras"][name] = f"truth/{name}.npz"
-    _write_json(truth / "calibration.json", ideal_calibration(sim.rig))
+    write_json(truth / "calibration.json", ideal_calibration(sim.rig))
     entries["calibration"] = "truth/calibration.json"
     if isinstance(sim.scene, Finger):
         image, _ = sim.scene.rolled_print()
         with atomic_path(truth / "rolled_print.png") as tmp:
             Image.fromarray(image).save(tmp, format="PNG")
         fp = sim.scene.fingerprint
-        _write_json(truth / "fingerprint.json", {
+        write_json(truth / "fingerprint.json", {
             **fp.describe(),
             "image": "truth/rolled_print.png",
             "mapping": "column c -> u = u0 + c * pitch; row r -> v = v0 - r * pitch (mm)",

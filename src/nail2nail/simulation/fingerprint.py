@@ -76,10 +76,12 @@ class Fingerprint:
 
     @property
     def ppi(self) -> float:
+        """Resolution, pixels per inch."""
         return MM_PER_INCH / self.pitch
 
     @property
     def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the ridge image."""
         return self.ridges.shape
 
     def pixel_from_uv(self, u, v) -> tuple[np.ndarray, np.ndarray]:

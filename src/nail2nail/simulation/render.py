@@ -83,6 +83,7 @@ class CameraGeometry:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the camera image."""
         return self.surface.shape
 
     def truth_arrays(self) -> dict[str, np.ndarray]:

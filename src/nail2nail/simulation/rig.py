@@ -19,17 +19,15 @@ Every number lives in a :class:`Rig` (JSON round trip through :meth:`Rig.to_dict
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
 
 import numpy as np
 
 from ..camera_models import Pinhole, look_at
 from ..distortion import THESIS_CENTER, THESIS_RHO, ideal_from_panel, panel_from_ideal
-from ..io._atomic import atomic_path
+from ..io._json import read_json, write_json
 
 __all__ = [
     "RIG_FORMAT",
@@ -98,6 +96,7 @@ class Photometry:
 
     @classmethod
     def from_dict(cls, data: dict) -> Photometry:
+        """Photometry from a dict of its fields; ``ValueError`` on unknown keys."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -375,15 +374,9 @@ def ideal_calibration(rig: Rig) -> dict:
 
 def save_rig(path: str | os.PathLike, rig: Rig) -> None:
     """Write `rig` as JSON (atomically)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(rig.to_dict(), indent=2) + "\n")
+    write_json(path, rig.to_dict())
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
     """Read a rig JSON file; ``ValueError`` naming the file on bad content."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    return Rig.from_dict(data, where=str(path))
+    return Rig.from_dict(read_json(path), where=os.fspath(path))

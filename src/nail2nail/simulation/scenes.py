@@ -61,7 +61,10 @@ class Scene:
     name = "scene"
 
     def intersect(self, origin, directions) -> np.ndarray:  # pragma: no cover - abstract
-        """Distance ``(N,)`` along unit rays ``origin + t · directions`` to the first hit."""
+        """Distance ``(N,)`` along unit rays ``origin + t · directions`` to the first hit, mm.
+
+        `origin` is ``(3,)``, `directions` ``(N, 3)``; ``inf`` where a ray misses.
+        """
         raise NotImplementedError
 
     def surface(self, xyz) -> SurfaceInfo:  # pragma: no cover - abstract

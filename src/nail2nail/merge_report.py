@@ -1,0 +1,163 @@
+"""Merge report: the merge error of camera pairs and the fused super scan, written to a directory.
+
+:func:`write_merge` is the whole merge step on scans already in memory; ``nail2nail merge``
+(which reads a scan directory with :func:`nail2nail.io.scans.load_scans`) and
+:func:`nail2nail.pipeline.run_demo` call it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ._validation import as_int
+from .fusion import fuse_scans, write_super_mat5, write_super_ply
+from .io._atomic import write_npz
+from .io._json import write_json
+from .merge import correspond
+from .plots import (
+    plot_correspondence_images,
+    plot_correspondences_3d,
+    plot_merge_heatmap,
+    plot_merge_histogram,
+    render_points,
+)
+
+__all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
+
+#: Views of the super-scan renders: name -> (elev, azim) in degrees.
+RENDER_VIEWS = {"front": (10.0, 0.0), "side": (15.0, 70.0)}
+
+
+def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
+    """Camera pairs from ``"0-1,1-2"`` (parent-child indices in scan order).
+
+    ``None`` or ``""`` gives the neighbouring pairs ``0-1, 1-2, …``.
+
+    Examples
+    --------
+    >>> parse_pairs("0-1,2-1", 3)
+    [(0, 1), (2, 1)]
+    >>> parse_pairs(None, 3)
+    [(0, 1), (1, 2)]
+    """
+    if not text:
+        return [(i, i + 1) for i in range(n_cameras - 1)]
+    pairs = []
+    for item in text.split(","):
+        parts = item.strip().split("-")
+        try:
+            i, j = (int(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"--pairs: expected PARENT-CHILD camera indices like 0-1, got "
+                             f"{item.strip()!r}") from None
+        if not (0 <= i < n_cameras and 0 <= j < n_cameras) or i == j:
+            raise ValueError(f"--pairs: {item.strip()!r} must name two different cameras "
+                             f"among 0..{n_cameras - 1}")
+        pairs.append((i, j))
+    return pairs
+
+
+def _save_mapping(path: Path, corr) -> Path:
+    return write_npz(path, {
+        "mapping": corr.mapping, "parent_rc": corr.parent_rc, "child_rc": corr.child_rc,
+        "xyz_parent": corr.xyz_parent, "xyz_child": corr.xyz_child,
+        "distance_mm": corr.distance_mm, "residual_px": corr.residual_px,
+    })
+
+
+def write_merge(
+    scans,
+    out: str | os.PathLike,
+    *,
+    pairs: list[tuple[int, int]] | None = None,
+    stride: int = 1,
+    max_residual_px: float = 0.5,
+    border_px: int = 2,
+    figures: bool = True,
+    super_scan: bool = True,
+    progress: bool = False,
+) -> dict:
+    """Merge error of each camera pair and the fused super scan, written under `out`.
+
+    Per pair ``P-C``: ``merge_P-C_mapping.npz`` (the thesis's mapping matrix and the pairs),
+    and with `figures` ``merge_P-C_heatmap.png``, ``_histogram.png``, ``_points3d.png``,
+    ``_marked.png``. With `super_scan`: ``super.ply``, the super mat5 ``superC.bmp`` …
+    (:func:`nail2nail.fusion.super_mat5_scan`), and with `figures` ``super_front.png``,
+    ``super_side.png``. Also ``merge.json``, the returned summary.
+
+    Parameters
+    ----------
+    scans : sequence of Scan
+        One per camera, in camera order (world mm).
+    out : path-like
+        Output directory (created).
+    pairs : list of (int, int), optional
+        ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``.
+    stride, max_residual_px, border_px
+        Passed to :func:`nail2nail.merge.correspond`; `max_residual_px` (panel px) also to
+        :func:`nail2nail.fusion.fuse_scans`.
+    figures : bool
+        Write the PNG figures.
+    super_scan : bool
+        Fuse all scans into the super scan and write it.
+    progress : bool
+        Progress bar over the pairs (stderr).
+
+    Returns
+    -------
+    dict
+        ``{"out", "merge": {"P-C": {parent, child, stride, sampled, pairs, dropped,
+        distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
+        files}}, "super_scan": {...} | None, "outputs": [paths]}``.
+    """
+    scans = list(scans)
+    stride = as_int(stride, "stride", minimum=1)
+    pairs = parse_pairs(None, len(scans)) if pairs is None else pairs
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    outputs: list[str] = []
+    summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": outputs}
+    for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
+        corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
+                          border_px=border_px)
+        key = f"{i}-{j}"
+        files = {"mapping": _save_mapping(out / f"merge_{key}_mapping.npz", corr)}
+        if figures:
+            files["heatmap"] = plot_merge_heatmap(corr, out / f"merge_{key}_heatmap.png",
+                                                  background=scans[i].albedo)
+            files["histogram"] = plot_merge_histogram(
+                corr.distance_mm, out / f"merge_{key}_histogram.png",
+                title=f"{corr.parent_name} ↔ {corr.child_name}: merge error")
+            every = max(20 // stride, 1) * stride
+            files["points3d"] = plot_correspondences_3d(corr, out / f"merge_{key}_points3d.png",
+                                                        every=every)
+            files["marked"] = plot_correspondence_images(
+                corr, scans[i].albedo, scans[j].albedo, out / f"merge_{key}_marked.png",
+                every=every)
+        files = {k: str(v) for k, v in files.items()}
+        outputs.extend(files.values())
+        summary["merge"][key] = {**corr.statistics(), "files": files}
+    if super_scan:
+        sup = fuse_scans(scans, max_residual_px=max_residual_px)
+        files = {"ply": write_super_ply(out / "super.ply", sup)}
+        mat5 = write_super_mat5(out / "super", sup)
+        files["mat5"] = out / "super"
+        outputs.extend(str(p) for p in mat5)
+        if figures:
+            for view, (elev, azim) in RENDER_VIEWS.items():
+                files[f"render_{view}"] = render_points(
+                    sup.vertices, out / f"super_{view}.png", normals=sup.vertex_normals,
+                    colors=sup.colors, elev=elev, azim=azim,
+                    title=f"super scan ({view}): {sup.n_vertices} points")
+        files = {k: str(v) for k, v in files.items()}
+        outputs.extend(v for k, v in files.items() if k != "mat5")
+        summary["super_scan"] = {**sup.summary(), "files": files}
+    report = out / "merge.json"
+    outputs.append(str(report))
+    write_json(report, summary)
+    return summary
+
+
