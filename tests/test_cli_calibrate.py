@@ -48,3 +48,28 @@ def test_bad_table_exits_2_without_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.tsv" in err and "missing column" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("distortion", "message"),
+    [
+        (["center", "rho"], "needs 'center' and 'rho'"),
+        ({"center": [1.0], "rho": 0.1}, r"center must be \[x, y\]"),
+        ({"center": [1.0, 2.0], "rho": "x"}, "rho must be a finite number"),
+    ],
+)
+def test_bad_projector_distortion_in_calibration_file(tmp_path, distortion, message):
+    from nail2nail.io.calibration import RigCalibration, save_calibration
+
+    good = RigCalibration.from_dict(
+        {"format": "nail2nail-calibration", "version": 1,
+         "cameras": [{"name": "cam0", "camera": {"model": "dlt", "matrix": np.eye(3, 4).tolist()},
+                      "projector": {"model": "dlt", "matrix": np.eye(3, 4).tolist()}}]})
+    path = tmp_path / "calib.json"
+    save_calibration(path, good)
+    data = json.loads(path.read_text())
+    data["projector_distortion"] = distortion
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=message) as info:
+        load_calibration(path)
+    assert "calib.json" in str(info.value)

@@ -319,3 +319,15 @@ def test_cli_merge_not_a_scan_dir(tmp_path, capsys):
 
     assert main(["merge", str(tmp_path), "--out", str(tmp_path / "x")]) == 2
     assert "not a scan directory" in capsys.readouterr().err
+
+
+def test_write_merge_rejects_bad_pairs(tmp_path):
+    from _synthetic import synthetic_scans
+
+    from nail2nail.merge_report import write_merge
+
+    scans = synthetic_scans(size=(32, 40))
+    for pairs in ([(0, 5)], [(1, 1)]):
+        with pytest.raises(ValueError, match="pairs"):
+            write_merge(scans, tmp_path / "out", pairs=pairs, figures=False, super_scan=False)
+    assert not (tmp_path / "out").exists()

@@ -115,7 +115,10 @@ def write_merge(
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
-    pairs = parse_pairs(None, len(scans)) if pairs is None else pairs
+    pairs = parse_pairs(None, len(scans)) if pairs is None else [tuple(p) for p in pairs]
+    for i, j in pairs:
+        if not (0 <= i < len(scans) and 0 <= j < len(scans)) or i == j:
+            raise ValueError(f"pairs: ({i}, {j}) is not a pair of two of the {len(scans)} scans")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     outputs: list[str] = []

@@ -131,8 +131,14 @@ class RigCalibration:
                 CameraCalibration(name, camera, projector, tuple(size) if size else None)
             )
         dist = data.get("projector_distortion")
-        if dist is not None and not ({"center", "rho"} <= set(dist)):
-            raise ValueError(f"{where}: projector_distortion needs 'center' and 'rho'")
+        if dist is not None:
+            if not isinstance(dist, dict) or not ({"center", "rho"} <= set(dist)):
+                raise ValueError(f"{where}: projector_distortion needs 'center' and 'rho'")
+            center = np.asarray(dist["center"], dtype=float)
+            if center.shape != (2,) or not np.all(np.isfinite(center)):
+                raise ValueError(f"{where}: projector_distortion.center must be [x, y]")
+            if not isinstance(dist["rho"], int | float) or not np.isfinite(dist["rho"]):
+                raise ValueError(f"{where}: projector_distortion.rho must be a finite number")
         extra = {
             k: v
             for k, v in data.items()
