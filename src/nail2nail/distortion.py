@@ -1118,7 +1118,7 @@ class ProjectorDistortion:
 def load_projector_distortion(source) -> ProjectorDistortion | None:
     """Projector distortion from a calibration or rig JSON file (or its parsed dict).
 
-    Looks for ``projector_distortion`` (the calibration file, ``docs/dev/interfaces.md``), then
+    Looks for ``projector_distortion`` (the calibration file, ``docs/capture-format.md``), then
     for the simulator rig's projector distortion fields (``projector_distortion``,
     ``distortion`` or ``projector`` → ``distortion``, or ``distortion_center`` +
     ``distortion_rho``). A ``null`` value means no distortion and returns ``None``.

@@ -348,7 +348,7 @@ def default_rig(
 def ideal_calibration(rig: Rig) -> dict:
     """The rig's true calibration as a calibration-file dict (pinhole models).
 
-    The format is that of :mod:`nail2nail.io.calibration` (``docs/dev/interfaces.md``): one entry
+    The format is that of :mod:`nail2nail.io.calibration` (``docs/capture-format.md``): one entry
     per camera with its pinhole model and the (shared) ideal projector model, plus the
     projector's radial distortion. ``RigCalibration.from_dict`` reads it.
 
