@@ -181,9 +181,12 @@ def run_demo(
             step(f"scan and merge {obj} ({config})")
             scans = scan_capture(read_capture(captures[src], load=False), calibs[config])
             scan_dir = out / "scans" / config / obj
+            # the legacy mat5 set and PLY for the best configuration; .npz for every one
             save_scans(
                 scan_dir,
                 scans,
+                mat5=config == "best",
+                ply=config == "best",
                 extra={"capture": captures[src], "calibration": calib_paths[config]},
             )
             # super scans of the target in every configuration (the thesis's Figures 26 and
