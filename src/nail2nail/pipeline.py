@@ -104,6 +104,7 @@ def run_demo(
     from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
+    from .io.mat5 import mat5_paths
     from .io.scans import save_scans
     from .markers import TargetGeometry
     from .merge_report import write_merge
@@ -174,7 +175,8 @@ def run_demo(
 
     comparison: dict = {}
     merges: dict = {}
-    outputs: list[str] = []
+    outputs: list[str] = [str(out / "distortion" / "projector_distortion.json"),
+                          *calib_paths.values()]
     for config in CONFIGURATIONS:
         for obj in ("target", "finger"):
             src = f"{obj}_lut" if config == "thesis_lut" else obj
@@ -182,13 +184,18 @@ def run_demo(
             scans = scan_capture(read_capture(captures[src], load=False), calibs[config])
             scan_dir = out / "scans" / config / obj
             # the legacy mat5 set and PLY for the best configuration; .npz for every one
-            save_scans(
+            manifest = save_scans(
                 scan_dir,
                 scans,
                 mat5=config == "best",
                 ply=config == "best",
                 extra={"capture": captures[src], "calibration": calib_paths[config]},
             )
+            outputs.append(str(scan_dir / "scan.json"))
+            for cam in manifest["cameras"]:
+                outputs += [str(scan_dir / cam[k]) for k in ("npz", "ply") if k in cam]
+                if "mat5" in cam:
+                    outputs += [str(p) for p in mat5_paths(scan_dir / cam["mat5"]).values()]
             # super scans of the target in every configuration (the thesis's Figures 26 and
             # 27), of the finger in the best one
             build_super = super_scan and (obj == "target" or config == "best")
@@ -216,7 +223,7 @@ def run_demo(
         "calibration": calib_paths,
         "captures": captures,
         "super_scan": best.get("super_scan"),
-        "outputs": outputs,
+        "outputs": [*outputs, str(out / "summary.json")],
     }
     write_json(out / "summary.json", result, default=float)
     return result
