@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from ._validation import as_int
@@ -61,10 +62,14 @@ def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
 
 
 def _save_mapping(path: Path, corr) -> Path:
+    # float32 (µm-level values at mm scale keep ~7 digits) halves the files
     return write_npz(path, {
-        "mapping": corr.mapping, "parent_rc": corr.parent_rc, "child_rc": corr.child_rc,
-        "xyz_parent": corr.xyz_parent, "xyz_child": corr.xyz_child,
-        "distance_mm": corr.distance_mm, "residual_px": corr.residual_px,
+        "mapping": corr.mapping, "parent_rc": corr.parent_rc.astype(np.int32),
+        "child_rc": corr.child_rc.astype(np.float32),
+        "xyz_parent": corr.xyz_parent.astype(np.float32),
+        "xyz_child": corr.xyz_child.astype(np.float32),
+        "distance_mm": corr.distance_mm.astype(np.float32),
+        "residual_px": corr.residual_px.astype(np.float32),
     })
 
 
