@@ -16,15 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from nail2nail.calibration import calibrate_from_observations
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.markers import TargetGeometry
 from nail2nail.phase import decode
-from nail2nail.scanning import (
-    calibrate_from_observations,
-    cylinder_distance,
-    scan_capture,
-    target_observations,
-)
+from nail2nail.scanning import scan_capture, target_observations
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig
 
@@ -51,7 +47,7 @@ def main() -> None:
                   f"lit surface), RMS xp {np.sqrt(np.mean(ex**2)):.4f} px, RMS yp "
                   f"{np.sqrt(np.mean(ey**2)):.4f} px, max |error| {np.hypot(ex, ey).max():.3f} px")
     observations = target_observations(read_capture(root / "target", load=False))
-    surface = cylinder_distance(TargetGeometry().radius)
+    surface = TargetGeometry().signed_distance
     for model in ("dlt", "joint"):
         calib, _ = calibrate_from_observations(observations, model=model, surface=surface)
         cells = []

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from nail2nail.calibration import calibrate_from_observations
 from nail2nail.camera_models import dlt_from_pinhole
 from nail2nail.cli import main
 from nail2nail.io.calibration import CameraCalibration, RigCalibration, load_calibration
@@ -15,12 +16,7 @@ from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.io.mat5 import read_mat5
 from nail2nail.markers import TargetGeometry
 from nail2nail.phase import decode
-from nail2nail.scanning import (
-    calibrate_from_observations,
-    cylinder_distance,
-    scan_capture,
-    target_observations,
-)
+from nail2nail.scanning import scan_capture, target_observations
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 
@@ -61,7 +57,7 @@ def test_decoded_projector_coordinates_match_truth(captures):
 @pytest.fixture(scope="module")
 def joint_calibration(captures):
     observations = target_observations(read_capture(captures / "target", load=False))
-    surface = cylinder_distance(TargetGeometry().radius)
+    surface = TargetGeometry().signed_distance
     return calibrate_from_observations(observations, model="joint", surface=surface)
 
 

@@ -6,12 +6,9 @@ import numpy as np
 import pytest
 from test_joint_calibration import make_rig, observe
 
-from nail2nail.scanning import (
-    calibrate_from_observations,
-    camera_center,
-    points_table,
-    sample_bilinear,
-)
+from nail2nail.calibration import calibrate_from_observations
+from nail2nail.io.points import PointsTable
+from nail2nail.scanning import camera_center, sample_bilinear
 
 
 @pytest.mark.parametrize("model", ["dlt", "joint"])
@@ -33,7 +30,7 @@ def test_calibrate_from_observations(model):
 def test_points_table_has_thesis_columns():
     cams, proj = make_rig()
     obs = observe(cams, proj, rho=0.0, noise=0.0)[1]
-    table = points_table(obs)
+    table = PointsTable.from_arrays(obs.xyz_world, obs.xy_camera, obs.xy_projector)
     assert len(table) == len(obs.xyz_world)
     np.testing.assert_array_equal(table.xy_projector, obs.xy_projector)
 

@@ -20,12 +20,15 @@ import numpy as np
 
 from ._validation import as_points
 from .camera_models import project_dlt
+from .distortion import ideal_from_panel
+from .io.calibration import CameraCalibration, RigCalibration
 
 __all__ = [
     "CalibrationReport",
     "CrossCheck",
     "JointCalibration",
     "TargetObservations",
+    "calibrate_from_observations",
     "calibrate_points",
     "calibrate_rig_joint",
     "check_calibration_points",
@@ -413,7 +416,6 @@ def calibrate_rig_joint(
     from scipy.optimize import least_squares
 
     from .camera_models import dlt_from_pinhole, pinhole_from_dlt
-    from .distortion import ideal_from_panel
     from .reconstruction import reconstruct_points_lsq
 
     if not observations:
@@ -468,8 +470,9 @@ def calibrate_rig_joint(
 
     # Marks first; then, from there, marks and surface together (the surface residuals alone
     # have false minima far from a good start).
-    fit = least_squares(residuals, x0, x_scale="jac", method="lm", max_nfev=4000,
-                        kwargs={"with_surface": False})
+    fit = least_squares(
+        residuals, x0, x_scale="jac", method="lm", max_nfev=4000, kwargs={"with_surface": False}
+    )
     if surface is not None:
         fit = least_squares(residuals, fit.x, x_scale="jac", method="lm", max_nfev=4000)
     cams, proj, rho = split(fit.x)
@@ -480,3 +483,112 @@ def calibrate_rig_joint(
         proj_rms.append(float(np.sqrt(np.mean((proj.project(obs.xyz_world) - ideal) ** 2))))
     dist = {"center": proj.K[:2, 2].tolist(), "rho": float(rho)} if distortion else None
     return JointCalibration(cams, proj, dist, cam_rms, proj_rms)
+
+
+def calibrate_from_observations(
+    observations,
+    *,
+    model: str = "dlt",
+    method: str = "thesis",
+    use: str = "yp",
+    projector_size=(1280, 1040),
+    surface=None,
+    initial_distortion=None,
+    projector_distortion=None,
+):
+    """Calibration of a rig, and a per-camera summary, from target observations.
+
+    Parameters
+    ----------
+    observations : list of TargetObservations
+        One per camera (e.g. :func:`nail2nail.scanning.target_observations`).
+    model : {"dlt", "joint"}
+        ``"dlt"``: each camera and its own projector matrix (thesis eq. 3.11).
+        ``"joint"``: pinhole cameras and one shared projector with radial distortion
+        (:func:`calibrate_rig_joint`).
+    method, use
+        Estimator and reconstruction of the DLT model (:func:`calibrate_points`).
+    projector_size : (2,) int
+        Projector panel ``(W, H)``, px.
+    surface : callable, optional
+        Joint model: the target's signed distance in mm (e.g.
+        :meth:`nail2nail.markers.TargetGeometry.signed_distance`) for dense constraints.
+    initial_distortion : dict, optional
+        Joint model: starting ``{"center", "rho"}`` (e.g. the flat-plane estimate).
+    projector_distortion : dict, optional
+        DLT model: a known ``{"center", "rho"}``; the decoded panel coordinates are undistorted
+        first and the calibration carries the distortion, so that scans compensate it in the
+        model (:func:`nail2nail.reconstruction.reconstruct_image`) instead of with
+        pre-distorted patterns.
+
+    Returns
+    -------
+    calibration : RigCalibration
+    summary : dict
+        Per camera name: ``points`` and ``camera_rms_px``, with ``rms_mm`` (DLT, X/Y/Z) or
+        ``projector_rms_px`` (joint).
+
+    Raises
+    ------
+    ValueError
+        For an unknown `model`.
+    """
+    summary = {}
+    if model == "dlt":
+        cameras = []
+        for obs in observations:
+            xy_projector = obs.xy_projector
+            if projector_distortion is not None:
+                xy_projector = ideal_from_panel(
+                    xy_projector, projector_distortion["center"], projector_distortion["rho"]
+                )
+            report = calibrate_points(
+                obs.xyz_world, obs.xy_camera, xy_projector, method=method, use=use
+            )
+            cameras.append(
+                CameraCalibration(
+                    obs.name, report.camera_matrix, report.projector_matrix, size=obs.size
+                )
+            )
+            summary[obs.name] = {
+                "points": len(obs.xyz_world),
+                "rms_mm": report.rms_mm.round(6).tolist(),
+                "camera_rms_px": float(np.sqrt(np.mean(report.camera_residual_px**2))),
+            }
+        calib = RigCalibration(
+            cameras=cameras,
+            projector_distortion=None
+            if projector_distortion is None
+            else {
+                "center": [float(c) for c in projector_distortion["center"]],
+                "rho": float(projector_distortion["rho"]),
+            },
+            extra={"model": "dlt", "method": method},
+        )
+        return calib, summary
+    if model != "joint":
+        raise ValueError(f"model: expected 'dlt' or 'joint', got {model!r}")
+    init = initial_distortion or {}
+    joint = calibrate_rig_joint(
+        observations,
+        projector_size=projector_size,
+        surface=surface,
+        initial_rho=float(init.get("rho", 0.0)),
+        initial_center=init.get("center"),
+    )
+    cameras = [
+        CameraCalibration(o.name, cam, joint.projector, size=o.size)
+        for o, cam in zip(observations, joint.cameras, strict=True)
+    ]
+    for o, c_rms, p_rms in zip(
+        observations, joint.camera_rms_px, joint.projector_rms_px, strict=True
+    ):
+        summary[o.name] = {
+            "points": len(o.xyz_world),
+            "camera_rms_px": c_rms,
+            "projector_rms_px": p_rms,
+        }
+    calib = RigCalibration(
+        cameras=cameras, projector_distortion=joint.projector_distortion, extra={"model": "joint"}
+    )
+    return calib, summary

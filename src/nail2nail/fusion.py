@@ -26,8 +26,9 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
+from ._interpolate import bilinear
 from ._validation import as_int
-from .merge import Correspondence, _bilinear, _check_scan, correspond, valid_mask
+from .merge import Correspondence, _check_scan, correspond, valid_mask
 from .reconstruction import Scan
 
 __all__ = [
@@ -375,7 +376,7 @@ def fuse_scans(
                 continue
             rc = corr[i, j].parent_rc
             if ownership == "angle":  # the better view keeps the point; priority breaks ties
-                other, _, _ = _bilinear(scores[j], *corr[i, j].child_rc.T)
+                other, _, _ = bilinear(scores[j], *corr[i, j].child_rc.T)
                 mine = scores[i][rc[:, 0], rc[:, 1]]
                 lose = (other > mine) | ((other == mine) & (rank[j] < rank[i]))
                 rc = rc[lose]
@@ -422,7 +423,7 @@ def fuse_scans(
             m = corr[i, j]
             own = keep[m.parent_rc[:, 0], m.parent_rc[:, 1]]
             rc, sub = m.parent_rc[own], m.child_rc[own]
-            w_j, _, _ = _bilinear(weights[j], sub[:, 0], sub[:, 1])
+            w_j, _, _ = bilinear(weights[j], sub[:, 0], sub[:, 1])
             np.add.at(w_sum, (rc[:, 0], rc[:, 1]), w_j)
             np.add.at(acc, (rc[:, 0], rc[:, 1]), w_j[:, None] * m.xyz_child[own])
             np.add.at(count, (rc[:, 0], rc[:, 1]), 1)

@@ -94,6 +94,19 @@ class TargetGeometry:
         y = np.asarray(self.row_y)[grid[:, 0]]
         return np.column_stack([self.radius * np.sin(theta), y, self.radius * np.cos(theta)])
 
+    def signed_distance(self, xyz) -> np.ndarray:
+        """Signed distance ``(...)`` in mm of world points ``(..., 3)`` from the cylinder's
+        surface (``hypot(X, Z) − radius``; positive outside): the dense constraint of
+        :func:`nail2nail.calibration.calibrate_rig_joint`.
+
+        Examples
+        --------
+        >>> TargetGeometry().signed_distance([[0.0, 5.0, 11.0]]).round(4).tolist()
+        [0.2558]
+        """
+        xyz = np.asarray(xyz, dtype=float)
+        return np.hypot(xyz[..., 0], xyz[..., 2]) - self.radius
+
     def all_marks(self) -> tuple[np.ndarray, np.ndarray]:
         """Every mark: ``grid (N, 2) int`` and ``xyz_world (N, 3)``, row-major."""
         rows, cols = np.meshgrid(np.arange(self.n_rows), np.arange(self.n_cols), indexing="ij")

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
+from ._interpolate import bilinear
 from ._validation import as_int
 from .reconstruction import Scan
 
@@ -228,24 +229,6 @@ def nearest_kdtree(
 
 
 # -- sub-pixel refinement --------------------------------------------------------------------
-def _bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
-    """Bilinear value and derivatives of ``image (H, W[, k])`` at float ``(r, c)``."""
-    h, w = image.shape[:2]
-    r0 = np.clip(np.floor(r).astype(np.intp), 0, h - 2)
-    c0 = np.clip(np.floor(c).astype(np.intp), 0, w - 2)
-    fr, fc = r - r0, c - c0
-    if image.ndim == 3:
-        fr, fc = fr[:, None], fc[:, None]
-    f00, f01 = image[r0, c0], image[r0, c0 + 1]
-    f10, f11 = image[r0 + 1, c0], image[r0 + 1, c0 + 1]
-    top = f00 + (f01 - f00) * fc
-    bottom = f10 + (f11 - f10) * fc
-    value = top + (bottom - top) * fr
-    d_dc = (f01 - f00) * (1 - fr) + (f11 - f10) * fr
-    d_dr = bottom - top
-    return value, d_dr, d_dc
-
-
 def refine_subpixel(
     xp, yp, target_xp, target_yp, rows, cols, *, iterations: int = _NEWTON_STEPS
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -297,7 +280,7 @@ def refine_subpixel(
     bad = np.zeros(rows.shape, dtype=bool)
     for k in range(iterations + 1):
         if k > 0:
-            f, d_dr, d_dc = _bilinear(field_, r, c)
+            f, d_dr, d_dc = bilinear(field_, r, c)
         e = target - f
         a, b = d_dc[:, 0], d_dr[:, 0]  # d xp / d(col, row)
         cc_, d = d_dc[:, 1], d_dr[:, 1]  # d yp / d(col, row)
@@ -311,7 +294,7 @@ def refine_subpixel(
         c = np.where(bad, cols, np.clip(c + step_c, cols - _MAX_SHIFT_PX, cols + _MAX_SHIFT_PX))
         r = np.clip(r, 0, h - 1)
         c = np.clip(c, 0, w - 1)
-    f, _, _ = _bilinear(field_, r, c)
+    f, _, _ = bilinear(field_, r, c)
     residual = np.hypot(*(f - target).T)
     bad |= ~np.isfinite(residual)
     residual[bad] = np.nan

@@ -50,17 +50,6 @@ class _Progress:
             )
 
 
-def _decode_views(capture):
-    from .phase import decode
-
-    views = {}
-    for name in capture.camera_names:
-        d = decode(capture.load_frames(name), capture.pattern_set)
-        capture.frames.pop(name, None)
-        views[name] = (d.xp, d.yp, d.mask)
-    return views
-
-
 def _merge_summary(stats: dict) -> dict:
     keep = ("median", "p95", "max", "frac_below_0_05", "mean")
     return {
@@ -100,6 +89,7 @@ def run_demo(
         (merge medians per configuration and object), ``"distortion"``, ``"calibration"``,
         ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
     """
+    from .calibration import calibrate_from_observations
     from .distortion import apply_lut, distortion_lut, estimate_from_decoded
     from .io._json import write_json
     from .io.calibration import save_calibration
@@ -109,12 +99,7 @@ def run_demo(
     from .markers import TargetGeometry
     from .merge_report import write_merge
     from .patterns import default_pattern_set, make_patterns
-    from .scanning import (
-        calibrate_from_observations,
-        cylinder_distance,
-        scan_capture,
-        target_observations,
-    )
+    from .scanning import decode_cameras, scan_capture, target_observations
     from .simulation.capture import simulate_capture
     from .simulation.rig import default_rig
 
@@ -138,7 +123,9 @@ def run_demo(
     simulate("plane", "plane", patterns)
     step("estimate the projector distortion from the plane")
     plane = read_capture(captures["plane"], load=False)
-    report = estimate_from_decoded(_decode_views(plane))
+    report = estimate_from_decoded(
+        {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane)}
+    )
     distortion = report.to_dict(truth=None)
     write_json(out / "distortion" / "projector_distortion.json", distortion)
     center, rho = report.fit.center, report.fit.rho
@@ -150,7 +137,7 @@ def run_demo(
     simulate("finger_lut", "finger", lut_patterns)
 
     step("calibrate: per-camera DLT (before, thesis_lut, model_dlt) and joint (best)")
-    surface = cylinder_distance(TargetGeometry().radius)
+    surface = TargetGeometry().signed_distance
     obs_plain = target_observations(read_capture(captures["target"], load=False))
     obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
     calibs = {

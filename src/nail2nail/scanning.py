@@ -8,17 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibration import calibrate_points, calibrate_rig_joint
+from ._interpolate import bilinear
 from .io.calibration import CameraCalibration, RigCalibration
-from .io.points import PointsTable
 from .phase import decode
 from .reconstruction import Scan, model_matrix, reconstruct_image
 
 __all__ = [
-    "calibrate_from_observations",
     "camera_center",
-    "cylinder_distance",
-    "points_table",
+    "decode_cameras",
     "sample_bilinear",
     "scan_capture",
     "scan_frames",
@@ -135,6 +132,40 @@ def scan_capture(
     return scans
 
 
+def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **decode_options):
+    """Decode every camera of a capture in turn, one camera's frames in memory at a time.
+
+    Parameters
+    ----------
+    capture : Capture
+        From :func:`nail2nail.io.capture.read_capture` (``load=False`` is fine).
+    progress : bool
+        Show a progress bar labelled `desc`.
+    **decode_options
+        Passed to :func:`nail2nail.phase.decode`.
+
+    Yields
+    ------
+    name : str
+        Camera name.
+    decoded : Decoded
+        Its projector coordinates and quality images.
+
+    Raises
+    ------
+    ValueError
+        If the capture's manifest names no pattern set.
+    """
+    from tqdm.auto import tqdm
+
+    if capture.pattern_set is None:
+        raise ValueError(f"{capture.path}: the manifest names no pattern set")
+    for name in tqdm(capture.camera_names, desc=desc, unit="camera", disable=not progress):
+        decoded = decode(capture.load_frames(name), capture.pattern_set, **decode_options)
+        capture.frames.pop(name, None)  # release the frames before the next camera
+        yield name, decoded
+
+
 def sample_bilinear(image, xy) -> np.ndarray:
     """Bilinear samples of `image` ``(H, W)`` at pixel coordinates `xy` ``(N, 2)``.
 
@@ -145,15 +176,7 @@ def sample_bilinear(image, xy) -> np.ndarray:
     H, W = image.shape
     x, y = xy[:, 0], xy[:, 1]
     inside = (x >= 0) & (x <= W - 1) & (y >= 0) & (y <= H - 1)
-    x0 = np.clip(np.floor(x), 0, W - 2).astype(int)
-    y0 = np.clip(np.floor(y), 0, H - 2).astype(int)
-    fx, fy = x - x0, y - y0
-    value = (
-        image[y0, x0] * (1 - fx) * (1 - fy)
-        + image[y0, x0 + 1] * fx * (1 - fy)
-        + image[y0 + 1, x0] * (1 - fx) * fy
-        + image[y0 + 1, x0 + 1] * fx * fy
-    )
+    value, _, _ = bilinear(image, y, x)
     return np.where(inside, value, np.nan)
 
 
@@ -210,11 +233,6 @@ def surface_samples(
     return xy, np.column_stack([decoded.xp[r, c], decoded.yp[r, c]]).astype(float)
 
 
-def cylinder_distance(radius: float):
-    """Signed distance ``hypot(X, Z) − radius`` (mm) from a cylinder about the world Y axis."""
-    return lambda xyz: np.hypot(xyz[..., 0], xyz[..., 2]) - radius
-
-
 def target_observations(
     capture,
     *,
@@ -243,17 +261,13 @@ def target_observations(
         One per camera (world mm, camera px, projector panel px, and the grid identities in
         ``.grid``).
     """
-    from tqdm.auto import tqdm
-
     from .calibration import TargetObservations
     from .markers import find_target_marks
     from .markers import mark_diameter_px as nominal_diameter
 
     out = []
-    for name in tqdm(capture.camera_names, desc="target", unit="camera", disable=not progress):
-        decoded = decode(
-            capture.load_frames(name), capture.pattern_set, keep_invalid=False, **decode_options
-        )
+    for name, decoded in decode_cameras(capture, progress=progress, desc="target",
+                                        **decode_options):
         diameter = mark_diameter_px
         if diameter is None:
             if "rig" not in capture.manifest:
@@ -283,118 +297,3 @@ def target_observations(
             )
         )
     return out
-
-
-def calibrate_from_observations(
-    observations,
-    *,
-    model: str = "dlt",
-    method: str = "thesis",
-    use: str = "yp",
-    projector_size=(1280, 1040),
-    surface=None,
-    initial_distortion=None,
-    projector_distortion=None,
-):
-    """Calibration and per-camera summary from target observations.
-
-    ``model="dlt"``: each camera and its own projector matrix (thesis eq. 3.11); with
-    `projector_distortion` (``{"center", "rho"}``, e.g. the plane estimate) the decoded panel
-    coordinates are undistorted first and the calibration carries the distortion, so that scans
-    compensate it in the model (:func:`~nail2nail.reconstruction.reconstruct_image`) instead of
-    with pre-distorted patterns;
-    ``model="joint"``: pinhole cameras and one shared projector with radial distortion
-    (:func:`~nail2nail.calibration.calibrate_rig_joint`), with the target's dense surface
-    constraints when `surface` (a signed distance, e.g. :func:`cylinder_distance`) is given,
-    starting from `initial_distortion` (``{"center", "rho"}``, e.g. the plane estimate) if given.
-
-    Returns
-    -------
-    calibration : RigCalibration
-    summary : dict
-        Per camera name: ``points`` and ``camera_rms_px``, with ``rms_mm`` (DLT, X/Y/Z) or
-        ``projector_rms_px`` (joint).
-
-    Raises
-    ------
-    ValueError
-        For an unknown `model`.
-    """
-    summary = {}
-    if model == "dlt":
-        from .distortion import ideal_from_panel
-
-        cameras = []
-        for obs in observations:
-            xy_projector = obs.xy_projector
-            if projector_distortion is not None:
-                xy_projector = ideal_from_panel(
-                    xy_projector, projector_distortion["center"], projector_distortion["rho"]
-                )
-            report = calibrate_points(
-                obs.xyz_world, obs.xy_camera, xy_projector, method=method, use=use
-            )
-            cameras.append(
-                CameraCalibration(
-                    obs.name, report.camera_matrix, report.projector_matrix, size=obs.size
-                )
-            )
-            summary[obs.name] = {
-                "points": len(obs.xyz_world),
-                "rms_mm": report.rms_mm.round(6).tolist(),
-                "camera_rms_px": float(np.sqrt(np.mean(report.camera_residual_px**2))),
-            }
-        calib = RigCalibration(
-            cameras=cameras,
-            projector_distortion=None
-            if projector_distortion is None
-            else {
-                "center": [float(c) for c in projector_distortion["center"]],
-                "rho": float(projector_distortion["rho"]),
-            },
-            extra={"model": "dlt", "method": method},
-        )
-        return calib, summary
-    if model != "joint":
-        raise ValueError(f"model: expected 'dlt' or 'joint', got {model!r}")
-    init = initial_distortion or {}
-    joint = calibrate_rig_joint(
-        observations,
-        projector_size=projector_size,
-        surface=surface,
-        initial_rho=float(init.get("rho", 0.0)),
-        initial_center=init.get("center"),
-    )
-    cameras = [
-        CameraCalibration(o.name, cam, joint.projector, size=o.size)
-        for o, cam in zip(observations, joint.cameras, strict=True)
-    ]
-    for o, c_rms, p_rms in zip(
-        observations, joint.camera_rms_px, joint.projector_rms_px, strict=True
-    ):
-        summary[o.name] = {
-            "points": len(o.xyz_world),
-            "camera_rms_px": c_rms,
-            "projector_rms_px": p_rms,
-        }
-    calib = RigCalibration(
-        cameras=cameras, projector_distortion=joint.projector_distortion, extra={"model": "joint"}
-    )
-    return calib, summary
-
-
-def points_table(obs) -> PointsTable:
-    """A thesis-style points table of one camera's target observations."""
-    columns = {
-        "Xw": obs.xyz_world[:, 0],
-        "Yw": obs.xyz_world[:, 1],
-        "Zw": obs.xyz_world[:, 2],
-        "xc": obs.xy_camera[:, 0],
-        "yc": obs.xy_camera[:, 1],
-        "xp": obs.xy_projector[:, 0],
-        "yp": obs.xy_projector[:, 1],
-    }
-    if obs.grid is not None:
-        columns["grid_row"] = obs.grid[:, 0].astype(float)
-        columns["grid_col"] = obs.grid[:, 1].astype(float)
-    return PointsTable(columns=columns, labels=[str(i + 1) for i in range(len(obs.xyz_world))])

@@ -8,16 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration import calibrate_from_observations
 from ..io.calibration import save_calibration
 from ..io.capture import read_capture
-from ..io.points import write_points
+from ..io.points import PointsTable, write_points
 from ..markers import TargetGeometry
-from ..scanning import (
-    calibrate_from_observations,
-    cylinder_distance,
-    points_table,
-    target_observations,
-)
+from ..scanning import target_observations
 
 __all__ = ["run_capture"]
 
@@ -27,14 +23,17 @@ def run_capture(args: argparse.Namespace) -> int:
         raise ValueError("calibrate CAPTURE_DIR: give the calibration file to write with -o")
     capture = read_capture(args.source)
     observations = target_observations(capture, progress=not args.json)
-    surface = cylinder_distance(TargetGeometry().radius) if args.model == "joint" else None
+    surface = TargetGeometry().signed_distance if args.model == "joint" else None
     calib, summary = calibrate_from_observations(
         observations, model=args.model, method=args.method, use=args.use, surface=surface)
     out_dir = Path(args.output).parent
     tables = {}
     for obs in observations:
         path = out_dir / f"{Path(args.output).stem}_points_{obs.name}.tsv"
-        write_points(path, points_table(obs))
+        extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
+                                                 "grid_col": obs.grid[:, 1]}
+        write_points(path, PointsTable.from_arrays(obs.xyz_world, obs.xy_camera,
+                                                   obs.xy_projector, extra=extra))
         tables[obs.name] = str(path)
     calib.extra["source"] = str(args.source)
     save_calibration(args.output, calib)

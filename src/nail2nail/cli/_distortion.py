@@ -49,20 +49,16 @@ def add_parser(sub) -> None:
 def _load(capture_dir: Path):
     """Decoded maps, camera models and ground truth of a capture (if it records them)."""
     from ..io.capture import read_capture
-    from ..phase import decode
+    from ..scanning import decode_cameras
 
     capture = read_capture(capture_dir, load=False)
-    if capture.pattern_set is None:
-        raise ValueError(f"{capture_dir}: the manifest names no pattern set")
     manifest = capture.manifest
     if manifest.get("predistortion") or manifest.get("predistorted"):
         raise ValueError(
             f"{capture_dir}: captured with pre-distorted patterns; estimate from plain patterns"
         )
     views, albedo = {}, {}
-    for name in capture.camera_names:
-        decoded = decode(capture.load_frames(name), capture.pattern_set)
-        capture.frames.pop(name, None)  # one camera's frames in memory at a time
+    for name, decoded in decode_cameras(capture):
         if decoded.xp is None or decoded.yp is None:
             raise ValueError(f"{capture_dir}: the patterns must encode both xp and yp")
         views[name] = (decoded.xp, decoded.yp, decoded.mask)

@@ -38,6 +38,27 @@ class PointsTable:
     def __len__(self) -> int:
         return len(self.columns["Xw"])
 
+    @classmethod
+    def from_arrays(cls, xyz_world, xy_camera, xy_projector, *, extra=None) -> PointsTable:
+        """A table from ``(N, 3)`` world mm, ``(N, 2)`` camera px and ``(N, 2)`` projector
+        coordinates, with optional extra ``(N,)`` columns by name; points labelled ``1 … N``.
+        """
+        xyz = np.asarray(xyz_world, dtype=float)
+        cam = np.asarray(xy_camera, dtype=float)
+        proj = np.asarray(xy_projector, dtype=float)
+        columns = {
+            "Xw": xyz[:, 0],
+            "Yw": xyz[:, 1],
+            "Zw": xyz[:, 2],
+            "xc": cam[:, 0],
+            "yc": cam[:, 1],
+            "xp": proj[:, 0],
+            "yp": proj[:, 1],
+        }
+        for name, values in (extra or {}).items():
+            columns[name] = np.asarray(values, dtype=float)
+        return cls(columns=columns, labels=[str(i + 1) for i in range(len(xyz))])
+
     @property
     def xyz_world(self) -> np.ndarray:
         """(N, 3) world points, mm."""

@@ -1,0 +1,40 @@
+"""Bilinear interpolation on pixel grids: the one implementation the stages share."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["bilinear"]
+
+
+def bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
+    """Bilinear value and derivatives of `image` at float pixel positions.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, k) array
+        Values on the pixel grid (pixel centres at integer ``(r, c)``).
+    r, c : (N,) float
+        Row and column positions; positions outside ``[0, H − 1] × [0, W − 1]`` are
+        extrapolated from the nearest border cell (callers mask them).
+
+    Returns
+    -------
+    value, d_dr, d_dc : (N,) or (N, k)
+        The interpolated value and its derivatives along rows and columns. NaN in any of the
+        four neighbours makes them NaN.
+    """
+    h, w = image.shape[:2]
+    r0 = np.clip(np.floor(r).astype(np.intp), 0, h - 2)
+    c0 = np.clip(np.floor(c).astype(np.intp), 0, w - 2)
+    fr, fc = r - r0, c - c0
+    if image.ndim == 3:
+        fr, fc = fr[:, None], fc[:, None]
+    f00, f01 = image[r0, c0], image[r0, c0 + 1]
+    f10, f11 = image[r0 + 1, c0], image[r0 + 1, c0 + 1]
+    top = f00 + (f01 - f00) * fc
+    bottom = f10 + (f11 - f10) * fc
+    value = top + (bottom - top) * fr
+    d_dc = (f01 - f00) * (1 - fr) + (f11 - f10) * fr
+    d_dr = bottom - top
+    return value, d_dr, d_dc
