@@ -1,22 +1,51 @@
-"""Synthetic fingerprints (SFinGe-like growth) and the finger's rolled print."""
+"""Synthetic fingerprints (SFinGe-like growth), prints from images and the finger's rolled print."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nail2nail.simulation.fingerprint import (
+    PATTERN_FREQUENCIES,
+    PATTERNS,
+    Fingerprint,
+    arch_orientation,
     find_minutiae,
     generate_fingerprint,
     orientation_field,
+    pattern_for_seed,
 )
-from nail2nail.simulation.scenes import make_scene
+from nail2nail.simulation.scenes import Finger, make_scene
 
 
 @pytest.fixture(scope="module")
 def small_print():
-    return generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), core=(0, 1), delta=(-3, -4),
-                                seed=1)
+    return generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), cores=[(0, 1)],
+                                deltas=[(-3, -4)], ridge_period=0.46, seed=1)
+
+
+def local_periods(ridges, pitch, *, win=128, step=96):
+    """Ridge period (mm) in windows: peak of the zero-padded, Hann-windowed 2D spectrum."""
+    h, w = ridges.shape
+    hann = np.hanning(win)[:, None] * np.hanning(win)[None, :]
+    n = 512
+    f = np.fft.fftfreq(n, pitch)
+    radius = np.hypot(f[:, None], f[None, :])
+    periods = []
+    for r in range(0, h - win + 1, step):
+        for c in range(0, w - win + 1, step):
+            patch = ridges[r : r + win, c : c + win].astype(float)
+            spec = np.abs(np.fft.fft2((patch - patch.mean()) * hann, (n, n))) ** 2
+            spec[radius < 1.0] = 0  # below 1 cycle/mm: not ridges
+            periods.append(1 / radius.flat[np.argmax(spec)])
+    return np.array(periods)
+
+
+# -- orientation models ---------------------------------------------------------------------
+def _turn(theta):
+    return np.sum(np.angle(np.exp(2j * np.diff(theta)))) / 2
 
 
 def test_orientation_field_singularities():
@@ -24,23 +53,102 @@ def test_orientation_field_singularities():
     t = np.linspace(0, 2 * np.pi, 721)
     for point, sign in (((0.0, 0.0), 1), ((0.0, -5.0), -1)):
         u, v = point[0] + 0.5 * np.cos(t), point[1] + 0.5 * np.sin(t)
-        theta = orientation_field(u, v, core=(0, 0), delta=(0, -5))
-        turn = np.sum(np.angle(np.exp(2j * np.diff(theta)))) / 2
-        assert turn == pytest.approx(sign * np.pi, abs=1e-6)
+        theta = orientation_field(u, v, cores=[(0, 0)], deltas=[(0, -5)])
+        assert _turn(theta) == pytest.approx(sign * np.pi, abs=1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(n_cores=st.integers(0, 2), n_deltas=st.integers(0, 2),
+       points=st.lists(st.tuples(st.floats(-8, 8), st.floats(-8, 8)), min_size=4, max_size=4),
+       theta_inf=st.floats(-0.5, 0.5))
+def test_orientation_field_winding_property(n_cores, n_deltas, points, theta_inf):
+    # a loop around all singular points turns by pi (cores - deltas); values in [0, pi)
+    cores, deltas = points[:n_cores], points[2 : 2 + n_deltas]
+    t = np.linspace(0, 2 * np.pi, 4001)
+    u, v = 30 * np.cos(t), 30 * np.sin(t)
+    theta = orientation_field(u, v, cores=cores, deltas=deltas, theta_inf=theta_inf)
+    assert np.all((theta >= 0) & (theta < np.pi))
+    assert _turn(theta) == pytest.approx(np.pi * (n_cores - n_deltas), abs=1e-6)
+
+
+def test_arch_orientation_smooth_without_singularities():
+    t = np.linspace(0, 2 * np.pi, 2001)
+    theta = arch_orientation(6 * np.cos(t), 6 * np.sin(t), center=(0, 0))
+    assert _turn(theta) == pytest.approx(0, abs=1e-6)
+    # ridges rise towards the centre from the left and fall to the right
+    assert 0 < arch_orientation(-3.0, 2.0, center=(0, 0)) < np.pi / 2
+    assert np.pi / 2 < arch_orientation(3.0, 2.0, center=(0, 0)) < np.pi
+
+
+# -- pattern classes --------------------------------------------------------------------------
+def test_pattern_for_seed_frequencies_and_variety():
+    assert set(pattern_for_seed(s) for s in range(10)) == set(PATTERNS)
+    counts = {p: 0 for p in PATTERNS}
+    for s in range(20000):
+        counts[pattern_for_seed(s)] += 1
+    for p in PATTERNS:
+        assert counts[p] / 20000 == pytest.approx(PATTERN_FREQUENCIES[p], abs=0.005)
+    assert sum(PATTERN_FREQUENCIES.values()) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(("pattern", "n_cores", "n_deltas"), [
+    ("arch", 0, 0), ("tented_arch", 1, 1), ("left_loop", 1, 1), ("right_loop", 1, 1),
+    ("whorl", 2, 2)])
+def test_pattern_singular_points(pattern, n_cores, n_deltas):
+    center = (0.5, 3.0)
+    fp = generate_fingerprint(u_range=(-1, 1), v_range=(-1, 1), center=center, pattern=pattern,
+                              seed=3, iterations=1)
+    assert fp.pattern == pattern and fp.describe()["pattern"] == pattern
+    assert fp.cores.shape == (n_cores, 2) and fp.deltas.shape == (n_deltas, 2)
+    if n_cores:
+        mid = fp.cores.mean(axis=0)
+        assert np.all(np.abs(mid - center) <= 1.5 + 1e-9)
+        assert np.all(fp.deltas[:, 1] < mid[1] - 1.5)
+    if pattern == "left_loop":  # delta at the image right: smaller u (columns run to -u)
+        assert fp.deltas[0, 0] < fp.cores[0, 0] - 4
+    if pattern == "right_loop":
+        assert fp.deltas[0, 0] > fp.cores[0, 0] + 4
+
+
+def test_seeds_give_different_fingers():
+    prints = [generate_fingerprint(u_range=(-2, 2), v_range=(-2, 2), seed=s, iterations=1)
+              for s in range(10)]
+    assert len({fp.pattern for fp in prints}) == 5
+    cores = [tuple(fp.cores[0].round(3)) for fp in prints if len(fp.cores)]
+    assert len(set(cores)) == len(cores)
+    periods = {round(fp.ridge_period, 4) for fp in prints}
+    assert len(periods) == 10 and all(0.45 <= p <= 0.50 for p in periods)
+
+
+# -- growth -----------------------------------------------------------------------------------
 def test_ridge_period_and_range(small_print):
     fp = small_print
     assert fp.ppi == pytest.approx(500)
     assert fp.ridges.dtype == np.float32
     assert fp.ridges.min() >= -1 and fp.ridges.max() <= 1
-    # dominant spatial period of the ridge field: 0.46 mm +- 10 %
-    spec = np.abs(np.fft.fft2(fp.ridges - fp.ridges.mean()))
-    fy = np.fft.fftfreq(fp.shape[0], fp.pitch)[:, None]
-    fx = np.fft.fftfreq(fp.shape[1], fp.pitch)[None, :]
-    f = np.hypot(fx, fy)
-    peak = np.sum(f * spec**2) / np.sum(spec**2)
-    assert 1 / peak == pytest.approx(0.46, rel=0.1)
+    periods = local_periods(fp.ridges, fp.pitch)
+    assert np.median(periods) == pytest.approx(0.46, rel=0.05)
+
+
+def test_ridge_period_measured_in_local_windows():
+    # issue 9: the period measured on the image (FFT peak in 6.5 mm windows) is realistic
+    fp = generate_fingerprint(u_range=(-10, 10), v_range=(-8, 12), center=(0, 3), seed=4)
+    assert 0.45 <= fp.ridge_period <= 0.50
+    periods = local_periods(fp.ridges, fp.pitch)
+    assert np.median(periods) == pytest.approx(fp.ridge_period, rel=0.04)
+    assert np.mean((periods > 0.40) & (periods < 0.58)) >= 0.9
+
+
+def test_no_seams_in_the_ridge_field(small_print):
+    # the ridge profile is the same everywhere: local RMS and smoothness carry no block
+    # structure (no jumps between neighbouring pixels beyond a ridge flank's slope)
+    r = small_print.ridges.astype(float)
+    step = np.abs(np.diff(r, axis=1)).max(), np.abs(np.diff(r, axis=0)).max()
+    period_px = 0.46 / small_print.pitch
+    assert max(step) < 2 * np.pi / period_px * 2.5  # a sine of amplitude ~1.3 at most
+    col_energy = np.mean(r**2, axis=0)[20:-20]
+    row_energy = np.mean(r**2, axis=1)[20:-20]
+    assert col_energy.std() < 0.1 and row_energy.std() < 0.1
 
 
 def test_minutiae_found_and_reproducible(small_print):
@@ -49,12 +157,20 @@ def test_minutiae_found_and_reproducible(small_print):
     assert set(np.unique(fp.minutiae[:, 4])) <= {1.0, 3.0}
     col, row = fp.pixel_from_uv(fp.minutiae[:, 0], fp.minutiae[:, 1])
     np.testing.assert_allclose(np.column_stack([col, row]), fp.minutiae[:, 2:4], atol=1e-9)
-    again = generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), core=(0, 1), delta=(-3, -4),
-                                 seed=1)
+    again = generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), cores=[(0, 1)],
+                                 deltas=[(-3, -4)], ridge_period=0.46, seed=1)
     np.testing.assert_array_equal(again.ridges, fp.ridges)
-    other = generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), core=(0, 1), delta=(-3, -4),
-                                 seed=2)
+    other = generate_fingerprint(u_range=(-6, 6), v_range=(-6, 6), cores=[(0, 1)],
+                                 deltas=[(-3, -4)], ridge_period=0.46, seed=2)
     assert np.any(other.ridges != fp.ridges)
+
+
+def test_minutiae_density_realistic():
+    fp = generate_fingerprint(u_range=(-10, 10), v_range=(-8, 12), center=(0, 3), seed=0)
+    u, v = fp.minutiae[:, 0], fp.minutiae[:, 1]
+    inner = (np.abs(u) < 8) & (np.abs(v - 2) < 8)
+    density = inner.sum() / 16**2
+    assert 0.18 <= density <= 0.5
 
 
 def test_find_minutiae_on_a_drawn_ridge():
@@ -71,8 +187,34 @@ def test_find_minutiae_on_a_drawn_ridge():
 def test_sample_matches_grid(small_print):
     fp = small_print
     rows, cols = np.array([10, 100, 200]), np.array([5, 150, 230])
-    u, v = fp.u0 + fp.pitch * cols, fp.v0 - fp.pitch * rows
+    u, v = fp.uv_from_pixel(cols, rows)
     np.testing.assert_allclose(fp.sample(u, v), fp.ridges[rows, cols], atol=1e-5)
+
+
+def test_legacy_grid_orientation(small_print):
+    # legacy convention: column 0 is the largest u, row 0 the largest v
+    fp = small_print
+    assert fp.u0 == 6 and fp.v0 == 6
+    u, v = fp.uv_from_pixel(np.array([0, 10]), np.array([0, 10]))
+    assert u[1] < u[0] and v[1] < v[0]
+    geometry = fp.describe()
+    assert geometry["col_direction"] == "-u" and geometry["row_direction"] == "-v"
+    assert geometry["u_of_col0_mm"] == 6 and geometry["v_of_row0_mm"] == 6
+
+
+@settings(max_examples=50, deadline=None)
+@given(u=st.floats(-20, 20), v=st.floats(-20, 20), ppi=st.floats(250, 1000),
+       cu=st.floats(-3, 3), cv=st.floats(-3, 8))
+def test_pixel_uv_round_trip(u, v, ppi, cu, cv):
+    fp = Fingerprint.from_image(np.zeros((7, 9), np.uint8), ppi=ppi, center_uv=(cu, cv),
+                                normalize=False)
+    col, row = fp.pixel_from_uv(u, v)
+    u2, v2 = fp.uv_from_pixel(col, row)
+    assert u2 == pytest.approx(u, abs=1e-9) and v2 == pytest.approx(v, abs=1e-9)
+    # mirror: one pixel to the right is one pitch towards -u; the centre pixel is center_uv
+    assert fp.uv_from_pixel(col + 1, row)[0] == pytest.approx(u - 25.4 / ppi, abs=1e-9)
+    uc, vc = fp.uv_from_pixel(4, 3)
+    assert uc == pytest.approx(cu, abs=1e-9) and vc == pytest.approx(cv, abs=1e-9)
 
 
 def test_generate_bad_input():
@@ -80,8 +222,57 @@ def test_generate_bad_input():
         generate_fingerprint(ridge_period=5.0)
     with pytest.raises(ValueError, match="u_range"):
         generate_fingerprint(u_range=(3, 1))
+    with pytest.raises(ValueError, match="pattern"):
+        generate_fingerprint(pattern="double_loop")
+    with pytest.raises(ValueError, match="ppi"):
+        generate_fingerprint(ppi=0)
 
 
+# -- prints from images -----------------------------------------------------------------------
+def _stripes(h=41, w=61, period_px=9):
+    rows = np.arange(h)[:, None] + 0 * np.arange(w)[None, :]
+    return np.rint(127.5 + 127.5 * np.cos(2 * np.pi * rows / period_px)).astype(np.uint8)
+
+
+def test_from_image_values_and_outside():
+    image = _stripes()
+    fp = Fingerprint.from_image(image, ppi=500, center_uv=(1.0, 2.0), normalize=False)
+    assert fp.pattern == "image" and fp.outside == "flat" and len(fp.minutiae) == 0
+    np.testing.assert_array_equal(fp.image, image)
+    np.testing.assert_allclose(fp.ridges, (127.5 - image) / 127.5, atol=1e-6)
+    rows, cols = np.array([0, 7, 20, 40]), np.array([0, 30, 11, 60])
+    u, v = fp.uv_from_pixel(cols, rows)
+    np.testing.assert_allclose(fp.sample(u, v), fp.ridges[rows, cols], atol=1e-5)
+    # beyond the image the skin is flat
+    far = fp.sample(np.array([1.0, 1.0 + 5, 1.0 - 5]), np.array([2.0 + 5, 2.0, 2.0]))
+    np.testing.assert_allclose(far, 0.0, atol=1e-12)
+
+
+def test_from_image_normalised_contrast():
+    faint = (96 + (_stripes().astype(int) // 8)).astype(np.uint8)  # weak ink
+    fp = Fingerprint.from_image(faint, ppi=500, normalize=True)
+    inner = fp.ridges[10:-10, 10:-10]
+    assert inner.max() > 0.9 and inner.min() < -0.9
+    # ridges (dark) still positive
+    dark = faint[10:-10, 10:-10] < np.median(faint)
+    assert np.mean(inner[dark] > 0) > 0.95
+    blank = Fingerprint.from_image(np.full((30, 30), 250, np.uint8))
+    np.testing.assert_allclose(blank.ridges, 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize(("image", "match"), [
+    (np.zeros((5, 5), np.uint16), "uint8"),
+    (np.zeros((5, 5, 3), np.uint8), "shape"),
+    (np.zeros((0, 5), np.uint8), "shape"),
+])
+def test_from_image_bad_input(image, match):
+    with pytest.raises(ValueError, match=match):
+        Fingerprint.from_image(image)
+    with pytest.raises(ValueError, match="ppi"):
+        Fingerprint.from_image(np.zeros((5, 5), np.uint8), ppi=-1)
+
+
+# -- the finger --------------------------------------------------------------------------------
 def test_rolled_print():
     scene = make_scene("finger")
     image, mask = scene.rolled_print()
@@ -90,9 +281,61 @@ def test_rolled_print():
     assert fp.ppi == pytest.approx(500)
     assert np.all(image[~mask] == 255)
     # the tip: above y0 + meridian length nothing maps onto the finger
-    v = fp.v0 - fp.pitch * np.arange(fp.shape[0])
+    _, v = scene.uv_from_legacy_pixel(0, np.arange(fp.shape[0]))
     assert not np.any(mask[v > scene.y0 + scene._m[-1] + 0.1])
     assert np.all(mask[v < scene.y0 - 1][:, fp.shape[1] // 2])
     # ridges dark: the ink of ridge crests
     assert image[mask][fp.ridges[mask] > 0.9].mean() < 30
     assert len(fp.minutiae) > 50
+    assert np.linalg.norm(fp.cores.mean(axis=0) - scene.pad_center) <= 1.5 * np.sqrt(2)
+
+
+def test_rolled_print_is_the_mirror_of_the_pad_view():
+    # issue 9: legacy convention. A point on the +X side of the finger (u > 0) lands left of
+    # the print centre, a point nearer the tip (larger Y) higher up.
+    scene = make_scene("finger")
+    xyz = np.array([[3.0, 0.0, scene.az * np.sqrt(1 - (3.0 / scene.ax) ** 2)],
+                    [-3.0, 0.0, scene.az * np.sqrt(1 - (3.0 / scene.ax) ** 2)],
+                    [0.0, 4.0, scene.az]])
+    u, v = scene.print_coordinates(xyz)
+    col, row = scene.legacy_print_pixel(u, v)
+    assert col[0] < col[1] and row[2] < row[0]
+    mid = (scene.fingerprint.shape[1] - 1) / 2
+    assert col[0] < mid < col[1]
+    u2, v2 = scene.uv_from_legacy_pixel(col, row)
+    np.testing.assert_allclose(np.column_stack([u2, v2]), np.column_stack([u, v]), atol=1e-9)
+
+
+def test_finger_pattern_option():
+    scene = Finger(pattern="whorl", seed=5)
+    assert scene.fingerprint.pattern == "whorl"
+    assert scene.to_dict()["fingerprint"]["pattern"] == "whorl"
+
+
+def test_finger_wears_an_image_print():
+    # issue 9: a real print on the finger, true scale, image centre on the pad centre
+    image = _stripes(201, 151, period_px=23)
+    image[:5, :5] = 0
+    scene = make_scene("finger", print_image=image, print_ppi=500)
+    fp = scene.fingerprint
+    rolled, mask = scene.rolled_print()
+    np.testing.assert_array_equal(rolled, image)
+    assert mask.all()
+    uc, vc = scene.uv_from_legacy_pixel(75, 100)
+    assert (uc, vc) == pytest.approx(scene.pad_center)
+    # surface points: print coordinates -> legacy pixel -> the image value there
+    cols, rows = np.array([10, 75, 140, 30]), np.array([20, 100, 180, 150])
+    u, v = scene.uv_from_legacy_pixel(cols, rows)
+    on_body = v <= scene.y0
+    phi = np.interp(u, scene._s, scene._phi)
+    xyz = np.column_stack([scene.ax * np.sin(phi), v, scene.az * np.cos(phi)])[on_body]
+    pu, pv = scene.print_coordinates(xyz)
+    pc, pr = scene.legacy_print_pixel(pu, pv)
+    np.testing.assert_allclose(pc, cols[on_body], atol=1e-3)
+    np.testing.assert_allclose(pr, rows[on_body], atol=1e-9)
+    sampled = fp.sample(pu, pv)
+    expected = fp.ridges[rows[on_body], cols[on_body]]
+    np.testing.assert_allclose(sampled, expected, atol=0.05)
+    # albedo follows the image: dark pixels (ridges) brighter skin
+    albedo = scene.surface(xyz).albedo
+    assert np.all(np.sign(albedo - scene.skin_albedo) == np.sign(np.round(expected, 3)))

@@ -32,6 +32,12 @@ def add_parser(sub) -> None:
                    "default rig)")
     p.add_argument("--scale", type=float, help="camera resolution scale (default 1)")
     p.add_argument("--seed", type=int, default=0, help="fingerprint and noise seed (default 0)")
+    p.add_argument("--print", dest="print_image", type=Path, metavar="IMAGE",
+                   help="finger only: wrap this fingerprint image (8-bit grayscale PNG or WSQ, "
+                   "legacy convention: as an inked roll, tip up) around the finger instead of "
+                   "a synthetic print; truth/rolled_print.png is this image")
+    p.add_argument("--print-ppi", type=float, metavar="PPI",
+                   help="resolution of --print (default: the file's, else 500)")
     p.add_argument("--no-truth", action="store_true", help="do not write truth/")
     p.add_argument("--json", action="store_true", help="print the manifest summary as JSON")
     p.set_defaults(func=run)
@@ -43,6 +49,17 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scale is not None and not args.scale > 0:
         raise ValueError(f"--scale: expected a positive number, got {args.scale}")
+    if args.print_image is not None and args.scene != "finger":
+        raise ValueError(f"--print: only with --scene finger, got --scene {args.scene}")
+    if args.print_ppi is not None and not args.print_ppi > 0:
+        raise ValueError(f"--print-ppi: expected a positive number, got {args.print_ppi}")
+    print_image = None
+    print_ppi = args.print_ppi
+    if args.print_image is not None:
+        from ..io.prints import read_print_image
+
+        print_image, file_ppi = read_print_image(args.print_image)
+        print_ppi = print_ppi or file_ppi or 500.0
     rig = load_rig(args.rig) if args.rig else None
     patterns = names = None
     if args.patterns:
@@ -52,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         args.out, args.scene, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, patterns=patterns, pattern_names=names,
         seed=args.seed, write_truth=not args.no_truth, progress=sys.stderr.isatty(),
+        print_image=print_image, print_ppi=print_ppi or 500.0,
     )
     elapsed = time.perf_counter() - start
     summary = {
@@ -60,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         "n_frames": manifest["n_frames"],
         "cameras": [{"name": c["name"], "size": c["size"]} for c in manifest["cameras"]],
         "truth": manifest.get("truth"),
+        "print": None if print_image is None else {"image": str(args.print_image),
+                                                   "ppi": print_ppi},
         "seconds": round(elapsed, 2),
     }
     if args.json:

@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import atomic_path, write_npz
+from ..io._atomic import write_npz
 from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
+from ..io.prints import write_print_image
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
 from .rig import Rig, default_rig, ideal_calibration, scale_camera
 from .scenes import Finger, Scene, make_scene
@@ -166,6 +167,8 @@ def simulate_capture(
     seed: int = 0,
     write_truth: bool = True,
     progress: bool = False,
+    print_image=None,
+    print_ppi: float = 500.0,
 ) -> dict:
     """Render a scene and write a capture directory (``docs/capture-format.md``).
 
@@ -185,6 +188,14 @@ def simulate_capture(
     seed : int
     write_truth : bool
         Write ``truth/`` (geometry per camera, rig, ideal calibration, rolled print).
+    progress : bool
+        Show a progress bar.
+    print_image : (H, W) uint8, optional
+        Finger only (`scene` ``"finger"``): a real print in the legacy convention to wrap
+        around the finger instead of the synthetic one (``Finger.print_image``); written back
+        unchanged as ``truth/rolled_print.png``.
+    print_ppi : float
+        Resolution of `print_image`, pixels per inch.
 
     Returns
     -------
@@ -192,6 +203,11 @@ def simulate_capture(
         The manifest written to ``capture.json``.
     """
     rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
+    if print_image is not None:
+        if scene != "finger":
+            raise ValueError(f"print_image: only for the scene 'finger', got {scene!r}")
+        scene = make_scene("finger", rig=rig, seed=seed, print_image=print_image,
+                           print_ppi=print_ppi)
     sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
                    progress=progress)
     out = Path(out_dir)
@@ -260,13 +276,12 @@ def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
     entries["calibration"] = "truth/calibration.json"
     if isinstance(sim.scene, Finger):
         image, _ = sim.scene.rolled_print()
-        with atomic_path(truth / "rolled_print.png") as tmp:
-            Image.fromarray(image).save(tmp, format="PNG")
         fp = sim.scene.fingerprint
+        # legacy convention; a print from an image is written back unchanged
+        write_print_image(truth / "rolled_print.png", image, ppi=fp.ppi)
         write_json(truth / "fingerprint.json", {
             **fp.describe(),
             "image": "truth/rolled_print.png",
-            "mapping": "column c -> u = u0 + c * pitch; row r -> v = v0 - r * pitch (mm)",
             "minutiae": [
                 {"u": round(float(m[0]), 4), "v": round(float(m[1]), 4),
                  "col": int(m[2]), "row": int(m[3]),

@@ -304,10 +304,10 @@ def _normal_from_gradient(f, xyz, eps=1e-5):
 
 
 @functools.lru_cache(maxsize=4)
-def _cached_fingerprint(u_range, v_range, core, delta, seed) -> Fingerprint:
+def _cached_fingerprint(u_range, v_range, center, seed, pattern) -> Fingerprint:
     # growing a print takes a few seconds: scenes with the same parameters share it (read-only)
-    return generate_fingerprint(u_range=u_range, v_range=v_range, core=core, delta=delta,
-                                seed=seed)
+    return generate_fingerprint(u_range=u_range, v_range=v_range, center=center, seed=seed,
+                                pattern=pattern)
 
 
 @dataclass
@@ -330,6 +330,13 @@ class Finger(Scene):
     Ridges are relief of ``relief_height`` mm peak to valley; the albedo is
     ``skin_albedo · (1 + albedo_contrast · r)`` with ``r ∈ [−1, 1]`` the ridge field (+1 on
     ridge crests).
+
+    The print: `fingerprint` if given; else `print_image` (a real print, ``(H, W)`` uint8 in
+    the legacy convention, ridges dark, at `print_ppi`) centred on the pad centre
+    ``(u, v) = (0, y0 − 2)`` (:meth:`Fingerprint.from_image`, flat skin beyond it); else a
+    synthetic print of `pattern` (by default drawn by `seed`) with its core near the pad
+    centre. Print images (``rolled_print``) are in the legacy convention:
+    :meth:`legacy_print_pixel` maps ``(u, v)`` to ``(col, row)``.
     """
 
     fingerprint: Fingerprint | None = None
@@ -342,6 +349,9 @@ class Finger(Scene):
     albedo_contrast: float = 0.15
     seed: int = 0
     march_step: float = 0.03
+    pattern: str | None = None
+    print_image: np.ndarray | None = field(default=None, repr=False, compare=False)
+    print_ppi: float = 500.0
     name = "finger"
 
     def __post_init__(self):
@@ -355,11 +365,14 @@ class Finger(Scene):
         dm = np.hypot(self.ay * np.cos(psi), self.az * np.sin(psi))
         self._psi = psi
         self._m = np.concatenate([[0], np.cumsum(0.5 * (dm[1:] + dm[:-1]) * np.diff(psi))])
-        if self.fingerprint is None:
+        if self.fingerprint is None and self.print_image is not None:
+            self.fingerprint = Fingerprint.from_image(
+                self.print_image, ppi=self.print_ppi, center_uv=self.pad_center)
+        elif self.fingerprint is None:
             half_u = float(self._s[-1]) + 1.0
             self.fingerprint = _cached_fingerprint(
                 (-half_u, half_u), (-32.0, self.y0 + float(self._m[-1]) + 1.0),
-                (0.0, self.y0 - 2.0), (-9.0, self.y0 - 14.0), int(self.seed),
+                self.pad_center, int(self.seed), self.pattern,
             )
         self._hmax = self.relief_height / 2
 
@@ -380,22 +393,53 @@ class Finger(Scene):
         v = np.where(qy > 0, self.y0 + np.interp(psi, self._psi, self._m), xyz[:, 1])
         return u, v
 
+    @property
+    def pad_center(self) -> tuple[float, float]:
+        """``(u, v)`` of the pad centre, mm: ``(0, y0 − 2)``, where prints are centred."""
+        return 0.0, self.y0 - 2.0
+
+    def legacy_print_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
+        """``(col, row)`` in :meth:`rolled_print` of rolled-print coordinates ``(u, v)`` mm.
+
+        Legacy convention (the mirror of the pad view, tip up), pixel centres at integers:
+        ``col = (u0 − u) / pitch``, ``row = (v0 − v) / pitch`` with ``u0``, ``v0``, ``pitch``
+        of :attr:`fingerprint` (``truth/fingerprint.json``: ``u_of_col0_mm``,
+        ``v_of_row0_mm``, ``pitch_mm``). Use with :meth:`print_coordinates` to find the truth
+        pixel of a surface point.
+
+        Examples
+        --------
+        >>> from nail2nail.simulation.fingerprint import Fingerprint
+        >>> import numpy as np
+        >>> finger = Finger(fingerprint=Fingerprint.from_image(np.zeros((5, 5), np.uint8)))
+        >>> [float(x) for x in finger.legacy_print_pixel(0.0508, 0.0)]
+        [1.0, 2.0]
+        """
+        return self.fingerprint.pixel_from_uv(u, v)
+
+    def uv_from_legacy_pixel(self, col, row) -> tuple[np.ndarray, np.ndarray]:
+        """Rolled-print coordinates ``(u, v)`` mm of :meth:`rolled_print` pixels (inverse)."""
+        return self.fingerprint.uv_from_pixel(col, row)
+
     def rolled_print(self) -> tuple[np.ndarray, np.ndarray]:
         """Ground-truth rolled print: ``(image (H, W) uint8, mask (H, W) bool)``.
 
-        The fingerprint laid flat by arc length (``u``, ``v``), 500 ppi, ridges dark on white as
-        seen looking at the pad (legacy ink impressions are its left-right mirror); ``mask``
-        marks the print pixels that map onto the finger surface (white elsewhere).
+        The fingerprint laid flat by arc length (``u``, ``v``) in the legacy convention of
+        inked rolls and live scans: the mirror of the pad seen from outside, fingertip up
+        (:meth:`legacy_print_pixel`), ridges dark on white. A synthetic print is 500 ppi and
+        white where ``mask`` is False; a print from an image is that image unchanged.
+        ``mask`` marks the pixels that map onto the finger surface.
         """
         fp = self.fingerprint
         h, w = fp.shape
-        u = fp.u0 + fp.pitch * np.arange(w)[None, :]
-        v = fp.v0 - fp.pitch * np.arange(h)[:, None]
+        u, v = fp.uv_from_pixel(np.arange(w)[None, :], np.arange(h)[:, None])
         s_max = float(self._s[-1])
         dv = v - self.y0
         psi = np.interp(np.clip(dv, 0, None), self._m, self._psi)
         half = np.where(dv <= 0, s_max, np.cos(psi) * s_max)
         mask = (np.abs(u) <= half) & (dv <= self._m[-1])
+        if fp.image is not None:
+            return fp.image.copy(), mask
         image = np.where(mask, np.rint(127.5 - 127.5 * fp.ridges), 255).astype(np.uint8)
         return image, mask
 
@@ -451,6 +495,7 @@ class Finger(Scene):
         return {"name": self.name, "ax": self.ax, "ay": self.ay, "az": self.az, "y0": self.y0,
                 "relief_height": self.relief_height, "skin_albedo": self.skin_albedo,
                 "albedo_contrast": self.albedo_contrast, "seed": self.seed,
+                "pad_center": list(self.pad_center),
                 "fingerprint": self.fingerprint.describe()}
 
 
@@ -529,7 +574,8 @@ def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
     seed : int
         Fingerprint seed (finger).
     **options
-        Keyword arguments of the scene class (e.g. ``point=``, ``normal=`` for the plane).
+        Keyword arguments of the scene class (e.g. ``point=``, ``normal=`` for the plane;
+        ``pattern=``, ``print_image=``, ``print_ppi=`` for the finger).
 
     Examples
     --------
