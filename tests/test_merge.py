@@ -110,8 +110,13 @@ def test_projector_discontinuity_is_not_interpolated_across():
     m = correspond(parent, child)
     assert m.n_pairs > 0
     assert m.distance_mm.max() < 1e-5  # no point invented inside the step
-    lenient = correspond(parent, child, max_jump_px=100.0)
+    lenient = correspond(parent, child, max_jump_px=100.0, outlier_mm=None)
     assert lenient.distance_mm.max() > 0.05  # what interpolating across the step would do
+    # the outlier test catches those invented points even so
+    caught = correspond(parent, child, max_jump_px=100.0)
+    assert caught.distance_mm.max() < 1e-5
+    assert caught.dropped["outlier"] > 0
+    assert caught.rejected.distance_mm.min() > 0.05
 
 
 def test_residual_above_decoding_noise_is_dropped(clean):

@@ -19,7 +19,7 @@ vertex of the super scan and legacy tools that mesh a mat5 grid mesh each camera
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,15 @@ import scipy.spatial
 
 from ._interpolate import bilinear
 from ._validation import as_int
-from .merge import Correspondence, _check_scan, correspond, valid_mask
+from .merge import (
+    REJECT_REASONS,
+    Correspondence,
+    _check_scan,
+    _correspond,
+    grid_normals,
+    valid_mask,
+    view_cosine,
+)
 from .reconstruction import Scan
 
 __all__ = [
@@ -36,72 +44,12 @@ __all__ = [
     "fuse_scans",
     "grid_mesh",
     "grid_normals",
+    "spikes",
     "super_mat5_scan",
     "view_weights",
     "write_super_mat5",
     "write_super_ply",
 ]
-
-
-def grid_normals(xyz, *, camera_center=None) -> np.ndarray:
-    """Unit normals of a gridded surface from neighbour differences.
-
-    ``n = (∂X/∂row) × (∂X/∂col)``, with central differences where both neighbours are valid and
-    one-sided ones at the edge of the valid region; the normal points towards the camera (towards
-    `camera_center` if given, else by the handedness of the camera frame: x right, y down).
-
-    Parameters
-    ----------
-    xyz : (H, W, 3) float
-        World points, mm; NaN invalid.
-    camera_center : (3,) float, optional
-        Camera centre, world mm.
-
-    Returns
-    -------
-    (H, W, 3) float32
-        Unit normals; NaN where a pixel has no valid neighbour along a direction.
-
-    Examples
-    --------
-    >>> rr, cc = np.mgrid[0:3, 0:4].astype(float)
-    >>> n = grid_normals(np.stack([cc, -rr, 0 * cc], -1))
-    >>> np.abs(n[1, 1]).tolist()
-    [0.0, 0.0, 1.0]
-    """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    if xyz.ndim != 3 or xyz.shape[2] != 3:
-        raise ValueError(f"xyz: expected shape (H, W, 3), got {xyz.shape}")
-
-    def derivative(axis: int) -> np.ndarray:
-        d = np.full_like(xyz, np.nan)
-        n = xyz.shape[axis]
-        sl = [slice(None)] * 3
-
-        def take(start, stop):
-            s = list(sl)
-            s[axis] = slice(start, stop)
-            return tuple(s)
-
-        if n >= 3:
-            d[take(1, n - 1)] = 0.5 * (xyz[take(2, n)] - xyz[take(0, n - 2)])
-        if n >= 2:
-            forward = np.full_like(xyz, np.nan)
-            forward[take(0, n - 1)] = xyz[take(1, n)] - xyz[take(0, n - 1)]
-            backward = np.full_like(xyz, np.nan)
-            backward[take(1, n)] = forward[take(0, n - 1)]
-            d = np.where(np.isnan(d), forward, d)
-            d = np.where(np.isnan(d), backward, d)
-        return d
-
-    normal = np.cross(derivative(0), derivative(1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-        if camera_center is not None:
-            view = np.asarray(camera_center, dtype=np.float64) - xyz
-            flip = np.einsum("...k,...k->...", normal, view) < 0
-            normal[flip] *= -1
-    return normal.astype(np.float32)
 
 
 def view_weights(
@@ -139,23 +87,66 @@ def view_weights(
     if use_modulation:
         weight *= np.clip(np.nan_to_num(np.asarray(scan.modulation, np.float64)), 0, None)
     if scan.camera_center is not None:
-        normals = grid_normals(scan.xyz, camera_center=scan.camera_center) if normals is None \
-            else np.asarray(normals, dtype=np.float64)
-        view = np.asarray(scan.camera_center, dtype=np.float64) - scan.xyz
-        with np.errstate(invalid="ignore", divide="ignore"):
-            view /= np.linalg.norm(view, axis=-1, keepdims=True)
-            cos = np.clip(np.nan_to_num(np.einsum("...k,...k->...", normals, view)), 0, 1)
-        cos[~valid] = 0.0
-        if smooth_px > 0:
-            norm = scipy.ndimage.gaussian_filter(valid.astype(np.float64), smooth_px)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                cos = np.nan_to_num(scipy.ndimage.gaussian_filter(cos, smooth_px) / norm)
-        weight *= cos
-    if feather_px > 0:
-        distance = scipy.ndimage.distance_transform_edt(np.pad(valid, 1))[1:-1, 1:-1]
-        weight *= np.clip((distance - 0.5) / feather_px, 0, 1)
+        weight *= view_cosine(scan, normals=normals, smooth_px=smooth_px)
+    weight *= _feather(valid, feather_px)
     weight[~valid] = 0.0
     return weight
+
+
+def _feather(valid: np.ndarray, feather_px: float) -> np.ndarray | float:
+    """Ramp from 0 at the edge of `valid` (or of the image) to 1 at `feather_px` inside."""
+    if feather_px <= 0:
+        return 1.0
+    distance = scipy.ndimage.distance_transform_edt(np.pad(valid, 1))[1:-1, 1:-1]
+    return np.clip((distance - 0.5) / feather_px, 0, 1)
+
+
+def spikes(xyz, valid, *, normals=None, spike_mm: float = 0.05) -> np.ndarray:
+    """Points that stand off the surface of their neighbours: lone decoding errors.
+
+    For each valid pixel and each of the four lines through it (row, column, two diagonals)
+    whose two neighbours are valid, the offset of the point from their midpoint along its
+    normal, ``n · (X − (X₋ + X₊) / 2)``. A pixel is a spike when that offset exceeds `spike_mm`
+    on every such line (the smallest offset: a ridge, a step or a grazing view bends the
+    surface along one direction, not across all four).
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float
+        World points, mm.
+    valid : (H, W) bool
+    normals : (H, W, 3) float, optional
+        (:func:`grid_normals` if omitted; central differences do not use the pixel itself).
+    spike_mm : float
+        Largest accepted offset, mm.
+
+    Returns
+    -------
+    (H, W) bool
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:5, 0:5].astype(float)
+    >>> xyz = np.stack([cc, -rr, 0 * cc], -1)
+    >>> xyz[2, 2, 2] = 0.2
+    >>> np.argwhere(spikes(xyz, np.ones((5, 5), bool))).tolist()
+    [[2, 2]]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=-1)
+    if normals is None:
+        normals = grid_normals(np.where(valid[..., None], xyz, np.nan))
+    normals = np.nan_to_num(np.asarray(normals, dtype=np.float64))
+    h, w = valid.shape
+    pad = np.pad(np.where(valid[..., None], xyz, np.nan), ((1, 1), (1, 1), (0, 0)),
+                 constant_values=np.nan)
+    smallest = np.full((h, w), np.inf)
+    for dr, dc in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        before = pad[1 - dr:1 - dr + h, 1 - dc:1 - dc + w]
+        after = pad[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+        offset = np.abs(np.einsum("...k,...k->...", xyz - 0.5 * (before + after), normals))
+        smallest = np.fmin(smallest, offset)  # NaN (a missing neighbour) leaves it
+    return valid & np.isfinite(smallest) & (smallest > spike_mm)
 
 
 def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarray, np.ndarray]:
@@ -245,6 +236,8 @@ class SuperScan:
         Camera indices, highest priority first.
     duplicates_removed : dict[str, int]
         Per camera, owned points dropped as 3D duplicates of a higher-priority camera's points.
+    spikes_removed : dict[str, int]
+        Per camera, points dropped before fusion as spikes (:func:`spikes`).
     """
 
     scans: list[Scan]
@@ -259,6 +252,7 @@ class SuperScan:
     correspondences: dict = field(default_factory=dict)
     priority: list[int] = field(default_factory=list)
     duplicates_removed: dict = field(default_factory=dict)
+    spikes_removed: dict = field(default_factory=dict)
 
     @property
     def n_vertices(self) -> int:
@@ -272,6 +266,11 @@ class SuperScan:
             "faces": int(self.faces.shape[0]),
             "priority": [self.scans[i].name for i in self.priority],
             "duplicates_removed": dict(self.duplicates_removed),
+            "spikes_removed": dict(self.spikes_removed),
+            "rejected_pairs": {
+                f"{i}-{j}": {k: int(m.dropped.get(k, 0)) for k in REJECT_REASONS}
+                for (i, j), m in self.correspondences.items()
+            },
             "cameras": {
                 s.name: {"owned": int(s.mask.sum()), "fused": int(np.count_nonzero(v > 1))}
                 for s, v in zip(self.scans, self.n_views, strict=True)
@@ -289,20 +288,32 @@ def fuse_scans(
     feather_px: float = 8.0,
     max_edge_mm: float | None = None,
     dedupe_mm: float | None = None,
+    spike_mm: float | None = 0.05,
+    max_view_angle_deg: float | None = 70.0,
+    min_relative_modulation: float | None = 1 / 3,
+    outlier_mm: float | None = 0.025,
+    outlier_mad: float = 4.0,
 ) -> SuperScan:
     """Fuse the scans of several cameras into one nail-to-nail point cloud and mesh.
 
+    0. Spikes (:func:`spikes`: points off their neighbours' surface by more than `spike_mm`)
+       are dropped from each camera's scan.
     1. Correspondence of every ordered pair of cameras in projector space
-       (:func:`nail2nail.merge.correspond`, every pixel).
+       (:func:`nail2nail.merge.correspond`, every pixel), with the unreliable pairs rejected
+       (a view beyond `max_view_angle_deg`, modulation below `min_relative_modulation` of the
+       camera's median, a distance that is a local outlier: `outlier_mm`, `outlier_mad`).
     2. Ownership (duplicates removed): a pixel is dropped as a duplicate when another camera has
-       a correspondence for it and views it better (``ownership="angle"``: a larger smoothed
-       cos(viewing angle) × edge feather, `priority` breaking ties) or has a higher `priority`
-       (``ownership="priority"``); then points within `dedupe_mm` of a point kept by a camera
-       of higher priority go too. The rest are the super scan's vertices, so an overlap is
-       meshed from one camera.
+       a correspondence for it (kept or rejected: a rejected pair is still the same surface
+       point, only too inaccurate to average) and views it better (``ownership="angle"``: a
+       larger smoothed cos(viewing angle) × edge feather, `priority` breaking ties) or has a
+       higher `priority` (``ownership="priority"``; for rejected pairs the better view decides
+       in both modes); then points within `dedupe_mm` of a point kept by a camera of higher
+       priority go too. The rest are the super scan's vertices, so an overlap is meshed from
+       one camera.
     3. Fusion: each owned pixel moves to the weighted mean of its own point and its
-       corresponding points in every other camera (weights: :func:`view_weights`, interpolated
-       at the sub-pixel correspondence).
+       corresponding points in every other camera, over the kept pairs only (weights:
+       :func:`view_weights`, interpolated at the sub-pixel correspondence). A point whose pair
+       was rejected keeps the better-viewed camera's point: it is not averaged.
     4. Normals of the fused grids (:func:`grid_normals`) and a mesh per camera grid
        (:func:`grid_mesh`).
 
@@ -325,6 +336,10 @@ def fuse_scans(
         After ownership, a point closer than this to a point owned by a camera of higher
         `priority` is dropped too (edges of valid regions, where correspondences are refused);
         default half the pixel spacing, 0 to skip.
+    spike_mm : float or None
+        Spike threshold of step 0, mm; None skips it.
+    max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad :
+        The rejection tests, passed to :func:`~nail2nail.merge.correspond`; None skips one.
 
     Returns
     -------
@@ -353,36 +368,57 @@ def fuse_scans(
     border_px = as_int(border_px, "border_px", minimum=1)
     if ownership not in ("angle", "priority"):
         raise ValueError(f"ownership: expected 'angle' or 'priority', got {ownership!r}")
+    if spike_mm is not None and not (np.isfinite(spike_mm) and spike_mm > 0):
+        raise ValueError(f"spike_mm: expected a positive number or None, got {spike_mm}")
     rank = {cam: k for k, cam in enumerate(priority)}
 
     normals0 = [grid_normals(s.xyz, camera_center=s.camera_center) for s in scans]
+    spikes_removed = dict.fromkeys((s.name for s in scans), 0)
+    if spike_mm is not None:
+        for i, s in enumerate(scans):
+            bad = spikes(s.xyz, valid[i], normals=normals0[i], spike_mm=spike_mm)
+            spikes_removed[s.name] = int(bad.sum())
+            if bad.any():
+                valid[i] = valid[i] & ~bad
+                scans[i] = replace(s, mask=valid[i], xyz=np.where(valid[i][..., None], s.xyz,
+                                                                   np.float32(np.nan)))
+                normals0[i] = grid_normals(scans[i].xyz, camera_center=s.camera_center)
     weights = [view_weights(s, normals=nm, feather_px=feather_px)
                for s, nm in zip(scans, normals0, strict=True)]
+    # the smoothed view cosine serves the rejection test and the ownership score
+    quality = {id(s): [view_cosine(s, normals=nm, smooth_px=2.0), None]
+               for s, nm in zip(scans, normals0, strict=True) if s.camera_center is not None}
     corr: dict[tuple[int, int], Correspondence] = {}
     for i in range(n):
         for j in range(n):
             if i != j:
-                corr[i, j] = correspond(scans[i], scans[j], max_residual_px=max_residual_px,
-                                        border_px=border_px)
+                corr[i, j] = _correspond(
+                    scans[i], scans[j], stride=1, max_residual_px=max_residual_px,
+                    border_px=border_px, max_jump_px=2.0, refine=True, method="kdtree",
+                    workers=-1, max_view_angle_deg=max_view_angle_deg,
+                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
+                    outlier_mad=outlier_mad, outlier_block_px=32, quality=quality)
 
-    if ownership == "angle":
-        scores = [view_weights(s, normals=nm, feather_px=feather_px, use_modulation=False,
-                               smooth_px=2.0) for s, nm in zip(scans, normals0, strict=True)]
+    scores = []  # view_weights(use_modulation=False, smooth_px=2) from the cached cosine
+    for s, v in zip(scans, valid, strict=True):
+        cos = quality[id(s)][0] if id(s) in quality else v.astype(np.float64)
+        scores.append(np.where(v, cos * _feather(v, feather_px), 0.0))
     keeps = []
     for i in range(n):
         keep = valid[i].copy()
         for j in range(n):
             if j == i:
                 continue
-            rc = corr[i, j].parent_rc
-            if ownership == "angle":  # the better view keeps the point; priority breaks ties
-                other, _, _ = bilinear(scores[j], *corr[i, j].child_rc.T)
-                mine = scores[i][rc[:, 0], rc[:, 1]]
-                lose = (other > mine) | ((other == mine) & (rank[j] < rank[i]))
-                rc = rc[lose]
-            elif rank[j] > rank[i]:
-                continue
-            keep[rc[:, 0], rc[:, 1]] = False
+            kept = corr[i, j]
+            n_kept = kept.n_pairs
+            pairs = kept.all_pairs()
+            rc = pairs.parent_rc
+            other, _, _ = bilinear(scores[j], *pairs.child_rc.T)
+            mine = scores[i][rc[:, 0], rc[:, 1]]
+            lose = (other > mine) | ((other == mine) & (rank[j] < rank[i]))
+            if ownership == "priority":  # kept pairs by priority, rejected by the better view
+                lose[:n_kept] = rank[j] < rank[i]
+            keep[rc[lose, 0], rc[lose, 1]] = False
         keeps.append(keep)
 
     spacing = np.concatenate([
@@ -464,6 +500,7 @@ def fuse_scans(
         colors=np.concatenate(cols), faces=np.concatenate(faces),
         camera=np.concatenate(cams), pixel=np.concatenate(pix),
         correspondences=corr, priority=priority, duplicates_removed=removed,
+        spikes_removed=spikes_removed,
     )
 
 

@@ -14,6 +14,15 @@ valid region, when the child position lies at the border of the child's valid re
 the projector-coordinate residual after refinement exceeds the decoding noise. The counts per
 reason are kept in :attr:`Correspondence.dropped`.
 
+A pair that is found may still be wrong: at a grazing view or a shadow border a camera's
+projector coordinates are biased (blur spreads a pixel over much surface, and the fringe signal
+is weak), which shifts its point along the surface. Such pairs are *rejected* (kept apart in
+:attr:`Correspondence.rejected`, with the reason): either camera views the point beyond
+`max_view_angle_deg`, either camera's fringe modulation there is below a fraction of its
+median, or the pair's distance is an outlier among the pairs around it (above their median by
+more than ``max(outlier_mm, outlier_mad × MAD)``). The statistics report the merge error of the
+kept pairs and of all pairs before rejection.
+
 :func:`nearest_bruteforce` is the appendix's search (vectorised over the child for each parent
 pixel), kept as the reference the k-d tree path is tested against.
 """
@@ -33,18 +42,27 @@ from .reconstruction import Scan
 
 __all__ = [
     "DROP_REASONS",
+    "REJECT_REASONS",
     "Correspondence",
     "correspond",
+    "grid_normals",
+    "local_outliers",
     "merge_statistics",
     "nearest_bruteforce",
     "nearest_kdtree",
     "refine_subpixel",
     "sample_pixels",
     "valid_mask",
+    "view_cosine",
 ]
 
-#: Reasons a sampled parent pixel gets no correspondence, in the order they are tested.
-DROP_REASONS = ("parent_border", "child_border", "residual")
+#: Reasons a pair found in projector space is rejected as unreliable, in the order tested
+#: (:func:`correspond`): a grazing view, a weak fringe signal, a distance far above its
+#: neighbours'. Rejected pairs are kept apart in :attr:`Correspondence.rejected`.
+REJECT_REASONS = ("view_angle", "modulation", "outlier")
+#: Reasons a sampled parent pixel gets no (kept) correspondence, in the order they are tested.
+DROP_REASONS = ("parent_border", "child_border", "residual", *REJECT_REASONS)
+_MIN_BLOCK_PAIRS = 8  # fewer pairs in a block: the outlier test uses the statistics of all pairs
 
 _MAX_SHIFT_PX = 1.5  # a refined position further than this from the nearest pixel is not trusted
 _NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
@@ -151,6 +169,111 @@ def sample_pixels(mask, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     grid[::stride, ::stride] = True
     rows, cols = np.nonzero(mask & grid)
     return rows, cols
+
+
+def grid_normals(xyz, *, camera_center=None) -> np.ndarray:
+    """Unit normals of a gridded surface from neighbour differences.
+
+    ``n = (∂X/∂row) × (∂X/∂col)``, with central differences where both neighbours are valid and
+    one-sided ones at the edge of the valid region; the normal points towards the camera (towards
+    `camera_center` if given, else by the handedness of the camera frame: x right, y down).
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float
+        World points, mm; NaN invalid.
+    camera_center : (3,) float, optional
+        Camera centre, world mm.
+
+    Returns
+    -------
+    (H, W, 3) float32
+        Unit normals; NaN where a pixel has no valid neighbour along a direction.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:3, 0:4].astype(float)
+    >>> n = grid_normals(np.stack([cc, -rr, 0 * cc], -1))
+    >>> np.abs(n[1, 1]).tolist()
+    [0.0, 0.0, 1.0]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 3 or xyz.shape[2] != 3:
+        raise ValueError(f"xyz: expected shape (H, W, 3), got {xyz.shape}")
+
+    def derivative(axis: int) -> np.ndarray:
+        d = np.full_like(xyz, np.nan)
+        n = xyz.shape[axis]
+        sl = [slice(None)] * 3
+
+        def take(start, stop):
+            s = list(sl)
+            s[axis] = slice(start, stop)
+            return tuple(s)
+
+        if n >= 3:
+            d[take(1, n - 1)] = 0.5 * (xyz[take(2, n)] - xyz[take(0, n - 2)])
+        if n >= 2:
+            forward = np.full_like(xyz, np.nan)
+            forward[take(0, n - 1)] = xyz[take(1, n)] - xyz[take(0, n - 1)]
+            backward = np.full_like(xyz, np.nan)
+            backward[take(1, n)] = forward[take(0, n - 1)]
+            d = np.where(np.isnan(d), forward, d)
+            d = np.where(np.isnan(d), backward, d)
+        return d
+
+    normal = np.cross(derivative(0), derivative(1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        if camera_center is not None:
+            view = np.asarray(camera_center, dtype=np.float64) - xyz
+            flip = np.einsum("...k,...k->...", normal, view) < 0
+            normal[flip] *= -1
+    return normal.astype(np.float32)
+
+
+def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarray:
+    """Cosine of the viewing angle of each pixel: its normal against the ray to the camera.
+
+    Parameters
+    ----------
+    scan : Scan
+        Needs ``camera_center``.
+    normals : (H, W, 3) float, optional
+        Surface normals (:func:`grid_normals` if omitted).
+    smooth_px : float
+        Gaussian smoothing (σ, px) of the cosine over the valid pixels (the surface's ridges
+        tilt the per-pixel normal; the view of the finger's shape is what limits decoding); 0
+        for none.
+
+    Returns
+    -------
+    (H, W) float64
+        In ``[0, 1]``; 0 on invalid pixels and where the normal is undefined.
+
+    Raises
+    ------
+    ValueError
+        If `scan` has no ``camera_center``.
+    """
+    _check_scan(scan, "scan")
+    if scan.camera_center is None:
+        raise ValueError(f"scan {scan.name!r}: camera_center is needed for the viewing angle")
+    valid = valid_mask(scan)
+    if normals is None:
+        normals = grid_normals(scan.xyz, camera_center=scan.camera_center)
+    normals = np.asarray(normals, dtype=np.float64)
+    view = np.asarray(scan.camera_center, dtype=np.float64) - np.asarray(scan.xyz, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        view /= np.linalg.norm(view, axis=-1, keepdims=True)
+        cos = np.clip(np.nan_to_num(np.einsum("...k,...k->...", normals, view)), 0, 1)
+    cos[~valid] = 0.0
+    if smooth_px > 0:
+        norm = scipy.ndimage.gaussian_filter(valid.astype(np.float64), smooth_px)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.nan_to_num(scipy.ndimage.gaussian_filter(cos, smooth_px) / norm)
+        cos[~valid] = 0.0
+    return cos
 
 
 # -- nearest neighbour in projector space ----------------------------------------------------
@@ -393,8 +516,14 @@ class Correspondence:
     n_sampled : int
         Valid parent pixels on the stride grid that were tried.
     dropped : dict[str, int]
-        Pixels dropped per reason (:data:`DROP_REASONS`).
+        Pixels dropped per reason (:data:`DROP_REASONS`; the last three count the rejected
+        pairs).
     stride : int
+    rejected : Correspondence or None
+        The pairs found but rejected (:data:`REJECT_REASONS`), with their reason in `reason`;
+        None when no rejection test ran.
+    reason : (N,) str or None
+        For the pairs of a `rejected` correspondence, why each was rejected.
     """
 
     parent_name: str
@@ -410,6 +539,8 @@ class Correspondence:
     n_sampled: int
     dropped: dict[str, int] = field(default_factory=dict)
     stride: int = 1
+    rejected: Correspondence | None = None
+    reason: np.ndarray | None = None
 
     @property
     def n_pairs(self) -> int:
@@ -442,9 +573,28 @@ class Correspondence:
         out[self.parent_rc[:, 0], self.parent_rc[:, 1]] = self.distance_mm
         return out
 
+    def all_pairs(self) -> Correspondence:
+        """The kept and the rejected pairs together (the correspondence before rejection)."""
+        if self.rejected is None or self.rejected.n_pairs == 0:
+            return self
+        r = self.rejected
+        return Correspondence(
+            parent_name=self.parent_name, child_name=self.child_name,
+            parent_shape=self.parent_shape, child_shape=self.child_shape,
+            **{k: np.concatenate([getattr(self, k), getattr(r, k)]) for k in (
+                "parent_rc", "child_nearest", "child_rc", "xyz_parent", "xyz_child",
+                "residual_px")},
+            n_sampled=self.n_sampled,
+            dropped={k: v for k, v in self.dropped.items() if k not in REJECT_REASONS},
+            stride=self.stride,
+        )
+
     def statistics(self) -> dict:
-        """Merge-error statistics, see :func:`merge_statistics`, plus the pair counts."""
+        """Merge-error statistics of the kept pairs, see :func:`merge_statistics`, the pair
+        counts, the rejections per reason and the statistics of all pairs before rejection
+        (``"before_rejection"``: ``{pairs, distance_mm, squared_mm2}``)."""
         stats = merge_statistics(self.distance_mm)
+        before = self.all_pairs()
         return {
             "parent": self.parent_name,
             "child": self.child_name,
@@ -452,7 +602,10 @@ class Correspondence:
             "sampled": self.n_sampled,
             "pairs": self.n_pairs,
             "dropped": dict(self.dropped),
+            "rejected": {k: int(self.dropped.get(k, 0)) for k in REJECT_REASONS},
             **stats,
+            "before_rejection": {"pairs": before.n_pairs,
+                                 **merge_statistics(before.distance_mm)},
         }
 
 
@@ -507,6 +660,63 @@ def merge_statistics(distance_mm) -> dict:
     }
 
 
+def local_outliers(rows, cols, distance_mm, *, block_px: int = 32, floor_mm: float = 0.025,
+                   k_mad: float = 4.0) -> np.ndarray:
+    """Pairs whose distance is far above the distances of the pairs around them.
+
+    The parent image is cut into `block_px` × `block_px` blocks; a pair is an outlier when its
+    distance exceeds its block's median by more than ``max(floor_mm, k_mad × MAD)`` (MAD: the
+    block's median absolute deviation; blocks with fewer than 8 pairs use all pairs). A smooth
+    offset between the cameras (a calibration error) moves the median, not the outliers.
+
+    Parameters
+    ----------
+    rows, cols : (N,) int
+        Parent pixels of the pairs.
+    distance_mm : (N,) float
+        Their merge errors, mm.
+    block_px : int
+    floor_mm : float
+        Smallest excess over the median that counts, mm.
+    k_mad : float
+
+    Returns
+    -------
+    (N,) bool
+
+    Examples
+    --------
+    >>> d = np.full(100, 0.005); d[7] = 0.2
+    >>> np.flatnonzero(local_outliers(np.arange(100) // 10, np.arange(100) % 10, d)).tolist()
+    [7]
+    """
+    block_px = as_int(block_px, "block_px", minimum=1)
+    d = np.asarray(distance_mm, dtype=np.float64)
+    rows, cols = np.asarray(rows, np.intp), np.asarray(cols, np.intp)
+    if d.size == 0:
+        return np.zeros(0, dtype=bool)
+
+    def block_median(values, block):
+        # one sort by (block, value); the key orders distances up to 4 m exactly enough
+        order = np.argsort(block * 4096.0 + np.clip(values, 0.0, 4000.0))
+        counts = np.bincount(block, minlength=n_blocks)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        sv = values[order]
+        lo = np.clip(starts + (counts - 1) // 2, 0, values.size - 1)
+        hi = np.clip(starts + counts // 2, 0, values.size - 1)
+        return 0.5 * (sv[lo] + sv[hi]), counts
+
+    n_cols = int(cols.max()) // block_px + 1
+    block = (rows // block_px) * n_cols + cols // block_px
+    n_blocks = int(block.max()) + 1
+    median, counts = block_median(d, block)
+    mad, _ = block_median(np.abs(d - median[block]), block)
+    few = counts < _MIN_BLOCK_PAIRS
+    g_median = np.median(d)
+    median[few], mad[few] = g_median, np.median(np.abs(d - g_median))
+    return d - median[block] > np.maximum(floor_mm, k_mad * mad[block])
+
+
 def correspond(
     parent: Scan,
     child: Scan,
@@ -518,6 +728,11 @@ def correspond(
     refine: bool = True,
     method: str = "kdtree",
     workers: int = -1,
+    max_view_angle_deg: float | None = 70.0,
+    min_relative_modulation: float | None = 1 / 3,
+    outlier_mm: float | None = 0.025,
+    outlier_mad: float = 4.0,
+    outlier_block_px: int = 32,
 ) -> Correspondence:
     """Corresponding pixels of two scans in projector space, and their world points.
 
@@ -530,6 +745,15 @@ def correspond(
     (``"residual"``; the decoding noise: a pixel the child never saw has a large residual).
     Pixels where the projector coordinates jump (depth discontinuities) count as edges of the
     valid region, so no pair interpolates across one.
+
+    The pairs found are then tested, and the unreliable ones rejected (kept apart in
+    :attr:`Correspondence.rejected`): ``"view_angle"``, either camera views the point at more
+    than `max_view_angle_deg` from its normal (:func:`view_cosine`, smoothed over 2 px; needs
+    the scans' ``camera_center``); ``"modulation"``, either camera's fringe modulation there is
+    below `min_relative_modulation` × its median over its valid pixels (the phase noise grows as
+    1 / modulation); ``"outlier"``, the pair's distance is an outlier among its neighbours'
+    (:func:`local_outliers` with `outlier_block_px`, `outlier_mm`, `outlier_mad`). ``None``
+    skips a test.
 
     Parameters
     ----------
@@ -550,6 +774,19 @@ def correspond(
         Nearest-neighbour search; ``"bruteforce"`` is the appendix's, for small inputs only.
     workers : int
         Threads for the k-d tree query (``-1``: all cores).
+    max_view_angle_deg : float or None
+        Largest viewing angle (between the normal and the ray to the camera) of a kept pair in
+        either camera, degrees.
+    min_relative_modulation : float or None
+        Smallest modulation of a kept pair in either camera, as a fraction of that camera's
+        median modulation.
+    outlier_mm : float or None
+        Smallest excess of a pair's distance over the local median that makes it an outlier,
+        mm; None skips the outlier test.
+    outlier_mad : float
+        The excess must also exceed this many local MADs.
+    outlier_block_px : int
+        Size of the parent-image blocks over which the local median and MAD are taken, px.
 
     Returns
     -------
@@ -578,13 +815,43 @@ def correspond(
     >>> m.n_pairs, round(float(np.median(m.distance_mm)), 4)
     (16, 0.2502)
     """
+    return _correspond(
+        parent, child, stride=stride, max_residual_px=max_residual_px, border_px=border_px,
+        max_jump_px=max_jump_px, refine=refine, method=method, workers=workers,
+        max_view_angle_deg=max_view_angle_deg, min_relative_modulation=min_relative_modulation,
+        outlier_mm=outlier_mm, outlier_mad=outlier_mad, outlier_block_px=outlier_block_px,
+    )
+
+
+def _relative_modulation(scan: Scan) -> np.ndarray:
+    """Modulation over its median on the valid pixels, 0 where invalid (the quality image)."""
+    valid = valid_mask(scan)
+    m = np.nan_to_num(np.asarray(scan.modulation, dtype=np.float64))
+    median = float(np.median(m[valid])) if valid.any() else 0.0
+    return np.where(valid, m / median, 0.0) if median > 0 else np.zeros_like(m)
+
+
+def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_px, refine,
+                method, workers, max_view_angle_deg, min_relative_modulation, outlier_mm,
+                outlier_mad, outlier_block_px, quality=None) -> Correspondence:
+    """:func:`correspond`; `quality` maps ``id(scan)`` to its ``[view cosine, relative
+    modulation]`` images, so a caller matching one scan many times computes them once."""
     _check_scan(parent, "parent")
     _check_scan(child, "child")
     stride = as_int(stride, "stride", minimum=1)
     border_px = as_int(border_px, "border_px", minimum=1)
-    for value, label in ((max_residual_px, "max_residual_px"), (max_jump_px, "max_jump_px")):
+    outlier_block_px = as_int(outlier_block_px, "outlier_block_px", minimum=1)
+    for value, label in ((max_residual_px, "max_residual_px"), (max_jump_px, "max_jump_px"),
+                         (outlier_mad, "outlier_mad")):
         if not np.isfinite(value) or value <= 0:
             raise ValueError(f"{label}: expected a positive number, got {value}")
+    for value, label in ((min_relative_modulation, "min_relative_modulation"),
+                         (outlier_mm, "outlier_mm")):
+        if value is not None and (not np.isfinite(value) or value < 0):
+            raise ValueError(f"{label}: expected a non-negative number or None, got {value}")
+    if max_view_angle_deg is not None and not 0 < max_view_angle_deg <= 90:
+        raise ValueError(f"max_view_angle_deg: expected a number in (0, 90] or None, "
+                         f"got {max_view_angle_deg}")
     if method not in ("kdtree", "bruteforce"):
         raise ValueError(f"method: expected 'kdtree' or 'bruteforce', got {method!r}")
 
@@ -626,19 +893,61 @@ def correspond(
     with np.errstate(invalid="ignore"):
         good = finite & (residual <= max_residual_px)
     dropped["residual"] = int(np.count_nonzero(finite & ~good))
-    rows, cols = rows[good], cols[good]
-    return Correspondence(
-        parent_name=str(parent.name),
-        child_name=str(child.name),
-        parent_shape=tuple(parent_valid.shape),
-        child_shape=tuple(child_valid.shape),
-        parent_rc=np.stack([rows, cols], axis=-1),
-        child_nearest=np.stack([nr[good], nc[good]], axis=-1),
-        child_rc=np.stack([sub_r[good], sub_c[good]], axis=-1),
-        xyz_parent=np.asarray(parent.xyz, dtype=np.float64)[rows, cols],
-        xyz_child=xyz_child[good],
-        residual_px=residual[good],
-        n_sampled=int(n_sampled),
-        dropped=dropped,
-        stride=stride,
-    )
+    xyz_parent = np.asarray(parent.xyz, dtype=np.float64)[rows[good], cols[good]]
+    pairs = {
+        "parent_rc": np.stack([rows[good], cols[good]], axis=-1),
+        "child_nearest": np.stack([nr[good], nc[good]], axis=-1),
+        "child_rc": np.stack([sub_r[good], sub_c[good]], axis=-1),
+        "xyz_parent": xyz_parent,
+        "xyz_child": xyz_child[good],
+        "residual_px": residual[good],
+    }
+
+    # rejection of unreliable pairs, in the order of REJECT_REASONS
+    n = pairs["parent_rc"].shape[0]
+    reason = np.full(n, -1, dtype=np.int8)
+    pr, pc = pairs["parent_rc"].T
+    cr, cc = pairs["child_rc"].T
+    tests = any(v is not None for v in (max_view_angle_deg, min_relative_modulation, outlier_mm))
+    if quality is None:
+        quality = {}
+
+    def images(scan, k):
+        cache = quality.setdefault(id(scan), [None, None])
+        if cache[k] is None:
+            cache[k] = view_cosine(scan, smooth_px=2.0) if k == 0 else _relative_modulation(scan)
+        return cache[k]
+
+    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
+        if limit is None or n == 0:
+            continue
+        threshold = np.cos(np.radians(limit)) if code == 0 else limit
+        ok = np.ones(n, dtype=bool)
+        for scan, (r, c) in ((parent, (pr, pc)), (child, (cr, cc))):
+            if code == 0 and scan.camera_center is None:
+                continue
+            value = bilinear(images(scan, code), r.astype(np.float64), c.astype(np.float64))[0]
+            ok &= value >= threshold
+        reason[(reason < 0) & ~ok] = code
+    if outlier_mm is not None and n:
+        live = reason < 0
+        distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
+        out = local_outliers(pr[live], pc[live], distance[live], block_px=outlier_block_px,
+                             floor_mm=outlier_mm, k_mad=outlier_mad)
+        reason[np.flatnonzero(live)[out]] = 2
+    for code, name in enumerate(REJECT_REASONS):
+        dropped[name] = int(np.count_nonzero(reason == code))
+
+    def subset(sel, **extra):
+        return Correspondence(
+            parent_name=str(parent.name), child_name=str(child.name),
+            parent_shape=tuple(parent_valid.shape), child_shape=tuple(child_valid.shape),
+            **{k: v[sel] for k, v in pairs.items()}, n_sampled=int(n_sampled), stride=stride,
+            **extra)
+
+    rejected = None
+    if tests:
+        bad = reason >= 0
+        rejected = subset(bad, reason=np.asarray(REJECT_REASONS)[reason[bad]],
+                          dropped={k: dropped[k] for k in REJECT_REASONS})
+    return subset(reason < 0, dropped=dropped, rejected=rejected)
