@@ -1,0 +1,27 @@
+"""Unrolling: the nail-to-nail 3D finger flattened into a rolled-equivalent 2D print.
+
+capture → decode → reconstruct → merge → **unroll** → report. The stage takes every camera's
+scan of a finger, measures the ridges as relief (plus albedo) on each camera's grid, flattens
+the skin into the print plane (cylinder, fitted sphere, or distance-preserving ARAP on a mesh
+of the scan), blends the cameras across their overlaps and renders a 500-ppi print in the legacy
+convention (mirror of the pad view, fingertip up, ridges dark), with its binarised version,
+mask, quality and distortion figures.
+
+Modules: :mod:`~nail2nail.unroll.ridges` (ridge signal), :mod:`~nail2nail.unroll.flatten`
+(flattening maps and their distortion), :mod:`~nail2nail.unroll.render` (print grid, blending,
+grey and binary prints), :mod:`~nail2nail.unroll.quality` (ridge period and clarity),
+:mod:`~nail2nail.unroll.rolled` (:func:`unroll_scans`), :mod:`~nail2nail.unroll.accuracy`
+(comparison with the true skin coordinates).
+"""
+
+from .flatten import METHODS, fit_flattening, map_distortion
+from .rolled import DEFAULT_METHOD, RolledPrint, unroll_scans
+
+__all__ = [
+    "DEFAULT_METHOD",
+    "METHODS",
+    "RolledPrint",
+    "fit_flattening",
+    "map_distortion",
+    "unroll_scans",
+]

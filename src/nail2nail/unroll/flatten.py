@@ -1,0 +1,605 @@
+"""Flattening maps: from the finger's 3D surface to the plane of the rolled print.
+
+Every map takes world points ``(N, 3)`` in mm and returns print-plane coordinates ``(N, 2)``
+in mm, ``(s, t)``: ``s`` runs around the finger, increasing towards ``axis × pad`` (to the right
+as seen looking at the pad with the tip up), ``t`` runs along the finger towards the tip. The
+rolled print itself is the left-right mirror of that view (:mod:`nail2nail.unroll.render`).
+
+Methods
+-------
+``cylinder``
+    The thesis's unrolling (chapter five): a least-squares circular cylinder; ``s = R θ``,
+    ``t`` the position along its axis.
+``sphere``
+    Fit-sphere unwrapping (Wang, Lau and Hassebrook, *Fit-sphere unwrapping and performance
+    analysis of 3D fingerprints*, Appl. Opt. 49(4), 592–600, 2010, doi:10.1364/AO.49.000592):
+    a least-squares sphere; longitude around the finger axis and latitude towards the tip,
+    both as arc lengths on the sphere.
+``rolled``
+    Non-parametric, the rolling of a finger on a plane: each cross-section perpendicular to the
+    finger's axis is laid down by its arc length from the pad's centre line (``s``), and the
+    pad's centre profile along the finger by its arc length (``t``). Lengths around the finger
+    are kept exactly, and lengths along it on the pad's centre line; the measured surface
+    gives both (radius on a coarse grid of cylinder coordinates, :func:`surface_mesh`). This is
+    what rolling the finger on a card does to the skin (without the skin's compression).
+``isometric``
+    Non-parametric and distance-preserving: the scan is resampled on a coarse mesh
+    (:func:`surface_mesh`) and flattened by as-rigid-as-possible parameterisation (Liu et al.,
+    *A local/global approach to mesh parameterization*, SGP 2008, doi:10.1111/j.1467-8659.2008.
+    01290.x) with libigl, started from the cylinder's coordinates; every point then follows by
+    bilinear interpolation of the displacement from the cylinder coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.ndimage
+import scipy.optimize
+import scipy.sparse
+import scipy.sparse.csgraph
+
+from .._interpolate import bilinear
+
+__all__ = [
+    "METHODS",
+    "CylinderMap",
+    "IsometricMap",
+    "RolledMap",
+    "SphereMap",
+    "fit_cylinder",
+    "fit_flattening",
+    "fit_sphere",
+    "map_distortion",
+    "surface_mesh",
+]
+
+#: Unrolling methods, in the order the docs list them.
+_SMOOTH = 0.5  # σ (grid nodes) of the smoothing of the section radii
+METHODS = ("cylinder", "sphere", "rolled", "isometric")
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _frame(axis, pad) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orthonormal ``(axis, pad, across = axis × pad)``, `pad` made perpendicular to `axis`."""
+    a = _unit(axis)
+    n = np.asarray(pad, dtype=np.float64) - np.dot(pad, a) * a
+    if np.linalg.norm(n) < 1e-6:
+        raise ValueError("pad direction: parallel to the finger axis")
+    n = _unit(n)
+    return a, n, np.cross(a, n)
+
+
+@dataclass
+class CylinderMap:
+    """Unrolling on a circular cylinder: ``s = R θ``, ``t`` along the axis (thesis, chapter five).
+
+    Attributes
+    ----------
+    center : (3,) float
+        A point on the axis, world mm (the origin of ``t``).
+    axis : (3,) float
+        Unit axis direction, towards the fingertip.
+    pad : (3,) float
+        Unit direction from the axis to the pad centre (``θ = 0``), perpendicular to `axis`.
+    radius : float
+        Cylinder radius, mm.
+    """
+
+    center: np.ndarray
+    axis: np.ndarray
+    pad: np.ndarray
+    radius: float
+    name = "cylinder"
+
+    def angles(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``θ`` (rad, 0 on the pad), ``t`` (mm along the axis) and the radius (mm) of points."""
+        a, n, e = _frame(self.axis, self.pad)
+        d = np.asarray(xyz, dtype=np.float64) - self.center
+        t = d @ a
+        x, z = d @ e, d @ n
+        return np.arctan2(x, z), t, np.hypot(x, z)
+
+    def __call__(self, xyz) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
+        theta, t, _ = self.angles(xyz)
+        return np.stack([self.radius * theta, t], axis=-1)
+
+    def describe(self) -> dict:
+        """JSON-ready parameters."""
+        return {"method": self.name, "center_mm": np.round(self.center, 4).tolist(),
+                "axis": np.round(self.axis, 6).tolist(), "pad": np.round(self.pad, 6).tolist(),
+                "radius_mm": round(float(self.radius), 4)}
+
+
+@dataclass
+class SphereMap:
+    """Fit-sphere unwrapping: longitude and latitude as arc lengths (Wang et al. 2010).
+
+    ``s = R λ`` with ``λ`` the longitude around the finger axis (0 on the pad) and ``t = R φ``
+    with ``φ`` the latitude from the sphere's equator (perpendicular to the axis), positive
+    towards the tip.
+    """
+
+    center: np.ndarray
+    axis: np.ndarray
+    pad: np.ndarray
+    radius: float
+    name = "sphere"
+
+    def __call__(self, xyz) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
+        a, n, e = _frame(self.axis, self.pad)
+        d = np.asarray(xyz, dtype=np.float64) - self.center
+        along = d @ a
+        lon = np.arctan2(d @ e, d @ n)
+        lat = np.arctan2(along, np.hypot(d @ e, d @ n))
+        return np.stack([self.radius * lon, self.radius * lat], axis=-1)
+
+    def describe(self) -> dict:
+        """JSON-ready parameters."""
+        return {"method": self.name, "center_mm": np.round(self.center, 4).tolist(),
+                "axis": np.round(self.axis, 6).tolist(), "pad": np.round(self.pad, 6).tolist(),
+                "radius_mm": round(float(self.radius), 4)}
+
+
+@dataclass
+class IsometricMap:
+    """A cylinder map plus a smooth displacement field found by ARAP flattening.
+
+    ``(s, t) = cylinder(xyz) + D(cylinder(xyz))`` with ``D`` bilinear on a regular grid of the
+    cylinder's ``(s, t)`` (pitch `grid_mm`, origin `grid_origin`).
+
+    Attributes
+    ----------
+    cylinder : CylinderMap
+    displacement : (Gt, Gs, 2) float64
+        ``D`` at the grid nodes, mm (row: ``t``, column: ``s``).
+    grid_origin : (2,) float
+        Cylinder ``(s, t)`` of node ``[0, 0]``, mm.
+    grid_mm : float
+        Node spacing, mm.
+    iterations : int
+        ARAP iterations run.
+    """
+
+    cylinder: CylinderMap
+    displacement: np.ndarray
+    grid_origin: np.ndarray
+    grid_mm: float
+    iterations: int = 0
+    name = "isometric"
+
+    def __call__(self, xyz) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
+        st = self.cylinder(xyz)
+        c = (st[:, 0] - self.grid_origin[0]) / self.grid_mm
+        r = (st[:, 1] - self.grid_origin[1]) / self.grid_mm
+        h, w = self.displacement.shape[:2]
+        d, _, _ = bilinear(self.displacement, np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
+        return st + d
+
+    def describe(self) -> dict:
+        """JSON-ready parameters."""
+        return {"method": self.name, "cylinder": self.cylinder.describe(),
+                "grid_mm": self.grid_mm, "grid_shape": list(self.displacement.shape[:2]),
+                "arap_iterations": self.iterations}
+
+
+@dataclass
+class RolledMap:
+    """Rolling on a plane: arc length around each cross-section, and along the pad's profile.
+
+    ``s(θ, z)`` is tabulated on a regular grid of cylinder coordinates (``Rθ`` and ``z``, pitch
+    `grid_mm`) and interpolated bilinearly; ``t(z)`` is a 1D table.
+
+    Attributes
+    ----------
+    cylinder : CylinderMap
+        Axis, pad direction and the grid's coordinates.
+    s_table : (Gz, Gθ) float64
+        ``s`` at the grid nodes, mm.
+    t_table : (Gz,) float64
+        ``t`` at the grid rows, mm (0 where the pad profile crosses ``z = 0``).
+    grid_origin : (2,) float
+        Cylinder ``(Rθ, z)`` of node ``[0, 0]``, mm.
+    grid_mm : float
+    """
+
+    cylinder: CylinderMap
+    s_table: np.ndarray
+    t_table: np.ndarray
+    grid_origin: np.ndarray
+    grid_mm: float
+    name = "rolled"
+
+    def __call__(self, xyz) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
+        st = self.cylinder(xyz)
+        c = (st[:, 0] - self.grid_origin[0]) / self.grid_mm
+        r = (st[:, 1] - self.grid_origin[1]) / self.grid_mm
+        h, w = self.s_table.shape
+        s, _, _ = bilinear(self.s_table, np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
+        rows = np.arange(h)
+        t = np.interp(r, rows, self.t_table)
+        # beyond the table, keep the last slope (the extension is at most a margin)
+        t = np.where(r < 0, self.t_table[0] + r * (self.t_table[1] - self.t_table[0]), t)
+        t = np.where(r > h - 1, self.t_table[-1] + (r - h + 1) * (self.t_table[-1]
+                                                                  - self.t_table[-2]), t)
+        s = s + np.where(c < 0, c, np.where(c > w - 1, c - w + 1, 0)) * self.grid_mm
+        return np.stack([s, t], axis=-1)
+
+    def describe(self) -> dict:
+        """JSON-ready parameters."""
+        return {"method": self.name, "cylinder": self.cylinder.describe(),
+                "grid_mm": self.grid_mm, "grid_shape": list(self.s_table.shape)}
+
+
+def _fit_rolled(mesh: SurfaceMesh, cylinder: CylinderMap) -> RolledMap:
+    gh, gw = mesh.grid_shape
+    h = mesh.grid_mm
+    _, _, radius = cylinder.angles(mesh.vertices)
+    rad = np.full((gh, gw), np.nan)
+    rad[mesh.node[:, 0], mesh.node[:, 1]] = radius
+    have = np.isfinite(rad)
+    # light smoothing against noise (the radius varies over millimetres), normalised
+    w = scipy.ndimage.gaussian_filter(have.astype(float), _SMOOTH)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sm = scipy.ndimage.gaussian_filter(np.where(have, rad, 0.0), _SMOOTH) / w
+    rad = np.where(have, sm, np.nan)
+    _, (ri, ci) = scipy.ndimage.distance_transform_edt(~have, return_indices=True)
+    rad = rad[ri, ci]  # empty nodes: nearest measured radius (extension beyond the data)
+    origin = mesh.grid_origin + 0.5 * h  # vertices sit near cell centres
+    th = (origin[0] + h * np.arange(gw)) / cylinder.radius  # θ of each column
+    zz = origin[1] + h * np.arange(gh)
+    # arc length around each section: |ΔP| between neighbouring nodes of a row
+    seg = np.sqrt((rad[:, 1:] * np.sin(np.diff(th)) ) ** 2
+                  + (rad[:, 1:] * np.cos(np.diff(th)) - rad[:, :-1]) ** 2)
+    s = np.concatenate([np.zeros((gh, 1)), np.cumsum(seg, axis=1)], axis=1)
+    # s = 0 on the pad's centre line (θ = 0)
+    s0 = np.array([np.interp(0.0, th, row) for row in s])
+    s -= s0[:, None]
+    # arc length along the pad's profile (the section radius at θ = 0)
+    r_pad = np.array([np.interp(0.0, th, row) for row in rad])
+    dt = np.hypot(np.diff(zz), np.diff(r_pad))
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+    t -= np.interp(0.0, zz, t)
+    return RolledMap(cylinder=cylinder, s_table=s, t_table=t, grid_origin=origin, grid_mm=h)
+
+
+def _sample(points, n_max: int, seed: int = 0) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) <= n_max:
+        return points
+    return points[np.random.default_rng(seed).choice(len(points), n_max, replace=False)]
+
+
+def _check_points(xyz) -> np.ndarray:
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"xyz: expected shape (N, 3), got {xyz.shape}")
+    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    if len(xyz) < 100:
+        raise ValueError(f"xyz: need at least 100 finite surface points to unroll, got {len(xyz)}")
+    return xyz
+
+
+def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0, 1.0),
+                 n_max: int = 20000) -> CylinderMap:
+    """Least-squares circular cylinder through surface points.
+
+    The axis starts as the principal direction of the points, turned towards `tip_direction`,
+    and is refined with the centre and radius by minimising ``Σ (ρ_i − R)²`` (ρ the distance
+    to the axis; Levenberg–Marquardt on a random subset of `n_max` points).
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Surface points, world mm; non-finite rows are ignored.
+    tip_direction : (3,) float
+        Rough direction of the fingertip (sign of the axis); the world ``+Y`` of
+        ``docs/conventions.md`` by default.
+    pad_direction : (3,) float
+        Rough direction from the finger to the pad's viewer (``θ = 0``); ``+Z`` by default.
+    n_max : int
+        Points used for the fit.
+
+    Returns
+    -------
+    CylinderMap
+        ``center`` is the point of the axis nearest the points' centroid.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 100 points, or the pad direction parallel to the axis.
+    """
+    pts = _sample(_check_points(xyz), n_max)
+    centroid = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
+    a0 = vt[0] if np.dot(vt[0], tip_direction) >= 0 else -vt[0]
+    _, n0, e0 = _frame(a0, pad_direction)
+
+    def unpack(p):
+        a = _unit(a0 + p[0] * e0 + p[1] * n0)
+        c = centroid + p[2] * e0 + p[3] * n0
+        return a, c
+
+    def residual(p):
+        a, c = unpack(p)
+        d = pts - c
+        rho = np.linalg.norm(d - np.outer(d @ a, a), axis=1)
+        return rho - p[4]
+
+    d = pts - centroid
+    r0 = float(np.median(np.linalg.norm(d - np.outer(d @ a0, a0), axis=1)))
+    # start behind the pad: the centroid of a one-sided scan lies in front of the axis
+    p0 = np.array([0.0, 0.0, 0.0, -0.3 * r0, r0])
+    fit = scipy.optimize.least_squares(residual, p0, method="lm")
+    # the tip's cap tilts a cylinder fitted to the whole finger, and a tilted axis shears the
+    # unrolled print: fit again to the body only, the sections whose radius is that of the
+    # finger's body (within 6 % of the median section radius)
+    a, c = unpack(fit.x)
+    d = pts - c
+    along = d @ a
+    rho = np.linalg.norm(d - np.outer(along, a), axis=1)
+    slab = np.floor((along - along.min()) / 1.0).astype(np.intp)  # 1 mm sections
+    r_slab = np.array([np.median(rho[slab == k]) if np.any(slab == k) else np.nan
+                       for k in range(slab.max() + 1)])
+    body = np.abs(r_slab - np.nanmedian(r_slab)) <= 0.06 * np.nanmedian(r_slab)
+    keep = body[slab]
+    if keep.sum() >= 100 and keep.mean() < 0.98:
+        pts = pts[keep]
+        fit = scipy.optimize.least_squares(residual, fit.x, method="lm")
+    a, c = unpack(fit.x)
+    c = c + np.dot(centroid - c, a) * a
+    a, n, _ = _frame(a, pad_direction)
+    return CylinderMap(center=c, axis=a, pad=n, radius=float(abs(fit.x[4])))
+
+
+def fit_sphere(xyz, *, axis, pad_direction=(0.0, 0.0, 1.0), n_max: int = 20000) -> SphereMap:
+    """Least-squares sphere (algebraic fit ``|p|² = 2 c·p + k``) for fit-sphere unwrapping.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Surface points, world mm.
+    axis : (3,) float
+        Finger axis towards the tip (e.g. of :func:`fit_cylinder`): the longitude runs around it.
+    pad_direction : (3,) float
+        Direction of longitude 0.
+
+    Returns
+    -------
+    SphereMap
+    """
+    pts = _sample(_check_points(xyz), n_max)
+    A = np.column_stack([2 * pts, np.ones(len(pts))])
+    sol, *_ = np.linalg.lstsq(A, (pts**2).sum(axis=1), rcond=None)
+    center = sol[:3]
+    radius = float(np.sqrt(sol[3] + center @ center))
+    a, n, _ = _frame(axis, pad_direction)
+    return SphereMap(center=center, axis=a, pad=n, radius=radius)
+
+
+@dataclass
+class SurfaceMesh:
+    """A coarse triangle mesh of the scanned skin, resampled on a cylinder-coordinate grid.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+        Mean world point of the samples in each grid cell, mm.
+    faces : (F, 3) int64
+    node : (V, 2) int64
+        ``(row, col)`` of each vertex on the grid (row: cylinder ``t``, col: cylinder ``s``).
+    grid_shape : (int, int)
+    grid_origin : (2,) float
+        Cylinder ``(s, t)`` of node ``[0, 0]``, mm.
+    grid_mm : float
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    node: np.ndarray
+    grid_shape: tuple[int, int]
+    grid_origin: np.ndarray
+    grid_mm: float
+    extra: dict = field(default_factory=dict)
+
+
+def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
+                 min_samples: int = 3) -> SurfaceMesh:
+    """Resample surface points on a regular grid of cylinder coordinates and mesh the grid.
+
+    Each grid cell's vertex is the mean of the points that fall in it (which averages out
+    ridges, so the mesh is the skin's base surface); cells with fewer than `min_samples`
+    points are empty. Neighbouring cells are joined by two triangles per square, triangles with
+    an edge longer than 3 `grid_mm` are dropped (depth jumps), and only the largest connected
+    piece is kept.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Surface points, world mm.
+    cylinder : CylinderMap
+        Its ``(s, t)`` are the grid's coordinates.
+    grid_mm : float
+        Cell size, mm.
+    min_samples : int
+
+    Returns
+    -------
+    SurfaceMesh
+
+    Raises
+    ------
+    ValueError
+        If fewer than 10 triangles remain.
+    """
+    pts = _check_points(xyz)
+    st = cylinder(pts)
+    origin = st.min(axis=0)
+    cr = np.floor((st - origin) / grid_mm).astype(np.int64)
+    gw, gh = int(cr[:, 0].max()) + 2, int(cr[:, 1].max()) + 2
+    cell = cr[:, 1] * gw + cr[:, 0]
+    count = np.bincount(cell, minlength=gh * gw)
+    mean = np.stack([np.bincount(cell, pts[:, k], minlength=gh * gw) for k in range(3)], -1)
+    ok = count >= min_samples
+    mean[ok] /= count[ok, None]
+    index = np.full(gh * gw, -1, dtype=np.int64)
+    index[ok] = np.arange(np.count_nonzero(ok))
+    idx = index.reshape(gh, gw)
+    tl, tr, bl, br = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tris = np.concatenate([np.stack([tl, tr, bl], -1).reshape(-1, 3),
+                           np.stack([tr, br, bl], -1).reshape(-1, 3)])
+    tris = tris[(tris >= 0).all(axis=1)]
+    verts = mean[ok]
+    edge = np.max([np.linalg.norm(verts[tris[:, i]] - verts[tris[:, (i + 1) % 3]], axis=1)
+                   for i in range(3)], axis=0)
+    tris = tris[edge <= 3 * grid_mm]
+    if len(tris) < 10:
+        raise ValueError(f"xyz: the surface gives only {len(tris)} triangles at {grid_mm} mm; "
+                         "too few points or too small a scan to unroll")
+    n = len(verts)
+    adj = scipy.sparse.coo_matrix(
+        (np.ones(3 * len(tris)), (tris.ravel(), np.roll(tris, 1, axis=1).ravel())), (n, n))
+    _, label = scipy.sparse.csgraph.connected_components(adj, directed=False)
+    largest = np.bincount(label[tris[:, 0]]).argmax()
+    tris = tris[label[tris[:, 0]] == largest]
+    used = np.unique(tris)
+    remap = np.full(n, -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    rows, cols = np.divmod(np.flatnonzero(ok)[used], gw)
+    return SurfaceMesh(vertices=verts[used], faces=remap[tris], node=np.stack([rows, cols], -1),
+                       grid_shape=(gh, gw), grid_origin=origin, grid_mm=float(grid_mm))
+
+
+def _fit_isometric(mesh: SurfaceMesh, cylinder: CylinderMap, *, iterations: int) -> IsometricMap:
+    import igl
+
+    st0 = cylinder(mesh.vertices)
+    data = igl.ARAPData()
+    data.max_iter = int(iterations)
+    # one vertex pinned (near the middle) fixes the translation; the rotation stays free
+    pin = int(np.argmin(np.linalg.norm(st0 - st0.mean(axis=0), axis=1)))
+    igl.arap_precomputation(mesh.vertices, mesh.faces, 2, np.array([pin], dtype=np.int32), data)
+    uv = igl.arap_solve(st0[[pin]], data, st0)
+    # ARAP is defined up to a rigid motion: align it with the cylinder coordinates (Kabsch,
+    # no scale, no reflection), so that s still runs around the finger and t towards the tip
+    mu, m0 = uv.mean(axis=0), st0.mean(axis=0)
+    u, _, vt = np.linalg.svd((uv - mu).T @ (st0 - m0))
+    rot = u @ vt
+    if np.linalg.det(rot) < 0:
+        u[:, -1] *= -1
+        rot = u @ vt
+    uv = (uv - mu) @ rot + m0
+    # the displacement on the grid nodes; empty nodes take their nearest node's value
+    gh, gw = mesh.grid_shape
+    disp = np.zeros((gh, gw, 2))
+    have = np.zeros((gh, gw), dtype=bool)
+    node = mesh.node
+    # a vertex sits at its cell's mean point: give the displacement at the cell's node
+    disp[node[:, 0], node[:, 1]] = uv - st0
+    have[node[:, 0], node[:, 1]] = True
+    _, (ri, ci) = scipy.ndimage.distance_transform_edt(~have, return_indices=True)
+    disp = disp[ri, ci]
+    # nodes are cell corners; vertices lie near cell centres: shift the origin by half a cell
+    origin = mesh.grid_origin + 0.5 * mesh.grid_mm
+    return IsometricMap(cylinder=cylinder, displacement=disp, grid_origin=origin,
+                        grid_mm=mesh.grid_mm, iterations=int(iterations))
+
+
+def map_distortion(flat, mesh: SurfaceMesh) -> dict:
+    """Length and area distortion of a flattening map over a surface mesh.
+
+    For each triangle, the singular values ``σ1 ≥ σ2`` of the map's Jacobian from the
+    triangle's 3D plane to the print plane: the length distortion is ``max(|σ1 − 1|,
+    |σ2 − 1|)`` (the worst stretch or shrink of a length on the skin) and the area distortion
+    ``|σ1 σ2 − 1|``. Statistics are weighted by the triangles' 3D areas.
+
+    Parameters
+    ----------
+    flat : callable
+        A flattening map (``(N, 3) -> (N, 2)``, mm).
+    mesh : SurfaceMesh
+
+    Returns
+    -------
+    dict
+        ``{"length": {"median", "p95", "max"}, "area": {...}}`` as fractions (0.01 = 1 %),
+        plus ``"area_mm2"`` of the mesh.
+    """
+    v, f = mesh.vertices, mesh.faces
+    uv = flat(v)
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    e1, e2 = p1 - p0, p2 - p0
+    # orthonormal basis of each triangle's plane
+    b1 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    nrm = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(nrm, axis=1)
+    b2 = np.cross(nrm / (2 * area[:, None]), b1)
+    X = np.stack([np.stack([np.einsum("ij,ij->i", e, b) for b in (b1, b2)], -1)
+                  for e in (e1, e2)], -1)  # (F, 2, 2): columns are e1, e2 in-plane
+    U = np.stack([uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]], -1)
+    J = U @ np.linalg.inv(X)
+    sv = np.linalg.svd(J, compute_uv=False)
+    length = np.max(np.abs(sv - 1), axis=1)
+    areal = np.abs(sv[:, 0] * sv[:, 1] - 1)
+    return {"length": _weighted_stats(length, area), "area": _weighted_stats(areal, area),
+            "area_mm2": round(float(area.sum()), 2)}
+
+
+def _weighted_stats(x, w) -> dict:
+    order = np.argsort(x)
+    cw = np.cumsum(w[order]) / w.sum()
+
+    def q(p):
+        return float(x[order][min(np.searchsorted(cw, p), len(x) - 1)])
+
+    return {"median": round(q(0.5), 5), "p95": round(q(0.95), 5), "max": round(float(x.max()), 5)}
+
+
+def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0.0),
+                   pad_direction=(0.0, 0.0, 1.0), grid_mm: float = 0.5,
+                   iterations: int = 30):
+    """Fit the flattening map of `method` to surface points, and the coarse mesh it is judged on.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Surface points, world mm (every camera's valid points).
+    method : {"cylinder", "sphere", "rolled", "isometric"}
+    tip_direction, pad_direction : (3,) float
+        Rough directions of the fingertip and of the pad's viewer, world frame.
+    grid_mm : float
+        Cell size of the coarse mesh (:func:`surface_mesh`), mm.
+    iterations : int
+        ARAP iterations (``isometric``).
+
+    Returns
+    -------
+    flat : CylinderMap or SphereMap or IsometricMap
+    mesh : SurfaceMesh
+
+    Raises
+    ------
+    ValueError
+        Unknown method, or too few points.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    cyl = fit_cylinder(xyz, tip_direction=tip_direction, pad_direction=pad_direction)
+    mesh = surface_mesh(xyz, cyl, grid_mm=grid_mm)
+    if method == "cylinder":
+        return cyl, mesh
+    if method == "sphere":
+        return fit_sphere(xyz, axis=cyl.axis, pad_direction=cyl.pad), mesh
+    if method == "rolled":
+        return _fit_rolled(mesh, cyl), mesh
+    return _fit_isometric(mesh, cyl, iterations=iterations), mesh

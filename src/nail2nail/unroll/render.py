@@ -1,0 +1,191 @@
+"""Rendering the rolled-equivalent print: blend every camera's ridge signal on the print grid.
+
+Print grid (the legacy convention of inked and live-scan rolled prints, ``docs/conventions.md``):
+the image is the left-right mirror of the pad seen from outside, fingertip up, at `ppi` pixels
+per inch; pixel ``(row, col)`` has its centre at print-plane coordinates
+
+    ``s = s0 − col · pitch``,  ``t = t0 − row · pitch``,  ``pitch = 25.4 / ppi`` mm,
+
+with ``(s, t)`` of :mod:`nail2nail.unroll.flatten`. Each camera's valid pixels are mapped to
+``(s, t)`` and splatted bilinearly with their blending weight (fringe modulation × cos² of the
+viewing angle × a wide feather at the edge of the camera's valid region), so that cameras fade
+into each other across their overlaps and no seam is visible; small gaps are filled by a
+normalised Gaussian of ≈ 0.6 px.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from ..fusion import view_weights
+from ..merge import valid_mask
+from .ridges import masked_gaussian
+
+__all__ = ["MM_PER_INCH", "PrintGrid", "binarize", "blend_cameras", "print_grid", "to_gray"]
+
+MM_PER_INCH = 25.4
+
+
+class PrintGrid:
+    """Geometry of a print image: ``s = s0 − col · pitch``, ``t = t0 − row · pitch``."""
+
+    def __init__(self, s0: float, t0: float, pitch: float, shape: tuple[int, int]):
+        self.s0, self.t0, self.pitch = float(s0), float(t0), float(pitch)
+        self.shape = (int(shape[0]), int(shape[1]))
+
+    @property
+    def ppi(self) -> float:
+        """Pixels per inch."""
+        return MM_PER_INCH / self.pitch
+
+    def pixel(self, st) -> tuple[np.ndarray, np.ndarray]:
+        """``(row, col)`` (float) of print-plane points ``(N, 2)``, mm."""
+        st = np.asarray(st, dtype=np.float64)
+        return (self.t0 - st[:, 1]) / self.pitch, (self.s0 - st[:, 0]) / self.pitch
+
+    def plane(self, row, col) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of pixel positions."""
+        return np.stack([self.s0 - np.asarray(col) * self.pitch,
+                         self.t0 - np.asarray(row) * self.pitch], axis=-1)
+
+    def describe(self) -> dict:
+        """JSON-ready geometry."""
+        return {"ppi": round(self.ppi, 4), "pitch_mm": self.pitch, "shape": list(self.shape),
+                "s_of_col0_mm": round(self.s0, 5), "t_of_row0_mm": round(self.t0, 5),
+                "mapping": "s = s_of_col0 - col * pitch; t = t_of_row0 - row * pitch "
+                           "(s around the finger towards axis x pad, t towards the tip; "
+                           "legacy convention: mirror of the pad view, tip up)"}
+
+
+def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
+    """The print grid covering print-plane points ``(N, 2)`` (mm) with a margin."""
+    if not ppi > 0:
+        raise ValueError(f"ppi: expected a positive number, got {ppi}")
+    pitch = MM_PER_INCH / ppi
+    lo = np.percentile(st_all, 0.01, axis=0) - margin_mm
+    hi = np.percentile(st_all, 99.99, axis=0) + margin_mm
+    # snap s0, t0 to the pitch so that prints of one finger at one ppi share a lattice
+    s0 = np.ceil(hi[0] / pitch) * pitch
+    t0 = np.ceil(hi[1] / pitch) * pitch
+    w = int(np.ceil((s0 - lo[0]) / pitch)) + 1
+    h = int(np.ceil((t0 - lo[1]) / pitch)) + 1
+    return PrintGrid(s0, t0, pitch, (h, w))
+
+
+def _splat(grid: PrintGrid, st, values, weights) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear splat: ``Σ w·k·v`` and ``Σ w·k`` per print pixel (k the bilinear kernel)."""
+    h, w = grid.shape
+    r, c = grid.pixel(st)
+    r0, c0 = np.floor(r).astype(np.intp), np.floor(c).astype(np.intp)
+    fr, fc = (r - r0).astype(np.float32), (c - c0).astype(np.float32)
+    num = np.zeros(h * w, np.float64)
+    den = np.zeros(h * w, np.float64)
+    for dr, dc, k in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        rr, cc = r0 + dr, c0 + dc
+        ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        idx = rr[ok] * w + cc[ok]
+        kw = k[ok] * weights[ok]
+        num += np.bincount(idx, kw * values[ok], minlength=h * w)
+        den += np.bincount(idx, kw, minlength=h * w)
+    return num.reshape(h, w), den.reshape(h, w)
+
+
+def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
+                  min_support: float = 0.3):
+    """Blend per-camera samples ``(st (N, 2), value (N,), weight (N,))`` on the print grid.
+
+    Parameters
+    ----------
+    grid : PrintGrid
+    samples : sequence of (st, value, weight)
+        One entry per camera.
+    fill_sigma_px : float
+        σ of the normalised Gaussian that fills gaps between splatted samples, print px.
+    min_support : float
+        A pixel has data where the smoothed sample density (samples per pixel) is at least this.
+
+    Returns
+    -------
+    value : (H, W) float32
+        Weighted mean of the cameras' values; NaN off `mask`.
+    mask : (H, W) bool
+        Pixels with data.
+    share : (n_cameras, H, W) float32
+        Each camera's fraction of the blending weight per pixel.
+    """
+    h, w = grid.shape
+    num = np.zeros((h, w))
+    den = np.zeros((h, w))
+    count = np.zeros((h, w))
+    per_camera = []
+    for st, value, weight in samples:
+        n_, d_ = _splat(grid, st, np.asarray(value, np.float64), np.asarray(weight, np.float64))
+        _, c_ = _splat(grid, st, np.zeros(len(st)), np.ones(len(st)))
+        num += n_
+        den += d_
+        count += c_
+        per_camera.append(d_)
+    g = (lambda a: ndi.gaussian_filter(a, fill_sigma_px, truncate=3.0)) if fill_sigma_px > 0 \
+        else (lambda a: a)
+    num_s, den_s = g(num), g(den)
+    support = g(count)
+    mask = support >= min_support
+    # close pinholes, drop specks: the print's data region is one solid piece
+    mask = ndi.binary_closing(mask, iterations=2, border_value=0)
+    mask = ndi.binary_fill_holes(mask)
+    mask &= den_s > 1e-9 * max(float(den_s.max()), 1e-300)
+    label, n = ndi.label(mask)
+    if n > 1:
+        sizes = np.bincount(label.ravel())
+        sizes[0] = 0
+        mask = label == sizes.argmax()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        value = np.where(mask, num_s / den_s, np.nan).astype(np.float32)
+        total = np.maximum(sum(g(d) for d in per_camera), 1e-300)
+        share = np.stack([np.where(mask, g(d) / total, 0) for d in per_camera]).astype(
+            np.float32)
+    return value, mask, share
+
+
+def camera_samples(scan, signal, flat, *, feather_px: float = 40.0):
+    """``(st, value, weight)`` of one camera's valid pixels for :func:`blend_cameras`.
+
+    The weight is modulation × cos² (viewing angle) × a feather of `feather_px` camera pixels
+    from the edge of the valid region (wide, so that cameras cross-fade over about a
+    millimetre).
+    """
+    weight = view_weights(scan, feather_px=feather_px)
+    cos_weight = view_weights(scan, feather_px=0, use_modulation=False)
+    weight = weight * cos_weight  # modulation × cos² × feather
+    ok = valid_mask(scan) & np.isfinite(signal) & (weight > 0)
+    xyz = np.asarray(scan.xyz, dtype=np.float64)[ok]
+    return flat(xyz), signal[ok].astype(np.float32), weight[ok].astype(np.float32)
+
+
+def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
+    """8-bit print: ridges dark on white, contrast normalised locally (σ `sigma_px`).
+
+    ``I = 127.5 − 90 z`` with ``z`` the locally normalised ridge signal (a sinusoid of unit
+    RMS spans ±1.41, i.e. about 0–255); white (255) off `mask`.
+    """
+    mean = masked_gaussian(value, mask, sigma_px, reduce=reduce)
+    d = np.where(mask, value - mean, 0)
+    rms = np.sqrt(masked_gaussian(d * d, mask, sigma_px, reduce=reduce))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(mask, d / np.maximum(rms, 1e-12), 0)
+    gray = np.clip(np.rint(127.5 - 90.0 * z), 0, 255)
+    return np.where(mask, gray, 255).astype(np.uint8)
+
+
+def binarize(gray, mask, *, period_px: float) -> np.ndarray:
+    """Ridges black (0) on white (255), by a local-mean threshold (thesis Figure 37).
+
+    The image is smoothed (σ = period / 8) against pixel noise and thresholded at its local mean
+    over a window of one ridge period (σ = period / 2).
+    """
+    g = ndi.gaussian_filter(np.asarray(gray, np.float32), period_px / 8)
+    local = masked_gaussian(g, mask, period_px / 2)
+    ridge = mask & (g < local)
+    return np.where(ridge, 0, 255).astype(np.uint8)

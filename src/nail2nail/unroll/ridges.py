@@ -1,0 +1,172 @@
+"""The ridge signal of one camera's scan: relief along the normal plus albedo, normalised.
+
+The friction ridges are relief of a few tens of µm on a smooth finger. On each camera's pixel
+grid the smooth surface is a normalised Gaussian average of the valid points (σ about one
+millimetre, computed on a reduced grid for speed); the relief is the point's offset from it
+along the normal, ``h = (X − X̄)·n``, positive on ridge crests. The albedo's local contrast
+(ridges reflect more than furrows on live skin and in the simulator) can be added with a weight.
+Each part is normalised by its local RMS so that the blend of cameras has one scale.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from ..merge import grid_normals, valid_mask
+from ..reconstruction import Scan
+
+__all__ = ["local_normalize", "masked_gaussian", "pixel_spacing_mm", "ridge_signal"]
+
+
+def pixel_spacing_mm(xyz, valid) -> float:
+    """Median distance between horizontally adjacent valid points, mm."""
+    step = np.linalg.norm(np.diff(xyz, axis=1), axis=-1)
+    ok = valid[:, 1:] & valid[:, :-1]
+    step = step[ok]
+    if not step.size:
+        raise ValueError("scan: no two adjacent valid pixels")
+    return float(np.median(step))
+
+
+def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.ndarray:
+    """Normalised Gaussian average of `values` over the `valid` pixels.
+
+    ``G(v · m) / G(m)``: invalid pixels neither contribute nor pull the average to zero. With
+    ``reduce > 1`` the average is computed on a grid block-averaged by `reduce` and brought
+    back by bilinear interpolation (for wide σ this costs ``reduce²`` less, and the result is
+    smooth anyway).
+
+    Parameters
+    ----------
+    values : (H, W) or (H, W, k) float
+    valid : (H, W) bool
+    sigma_px : float
+        σ in pixels of the full grid.
+    reduce : int
+
+    Returns
+    -------
+    (H, W) or (H, W, k) float32
+        NaN where no valid pixel is near.
+    """
+    v = np.asarray(values, dtype=np.float32)
+    m = np.asarray(valid, dtype=np.float32)
+    squeeze = v.ndim == 2
+    if squeeze:
+        v = v[..., None]
+    v = np.where(m[..., None] > 0, v, 0).astype(np.float32)
+    h, w = m.shape
+    f = max(1, int(reduce))
+    if f > 1:
+        hp, wp = -(-h // f) * f, -(-w // f) * f
+        vp = np.zeros((hp, wp, v.shape[2]), np.float32)
+        mp = np.zeros((hp, wp), np.float32)
+        vp[:h, :w], mp[:h, :w] = v, m
+        v = vp.reshape(hp // f, f, wp // f, f, -1).mean(axis=(1, 3))
+        m = mp.reshape(hp // f, f, wp // f, f).mean(axis=(1, 3))
+    s = sigma_px / f
+    num = np.stack([ndi.gaussian_filter(v[..., k], s, truncate=3.0) for k in range(v.shape[2])],
+                   -1)
+    den = ndi.gaussian_filter(m, s, truncate=3.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(den[..., None] > 1e-3, num / den[..., None], np.nan).astype(np.float32)
+    if f > 1:
+        # block centres sit at (f − 1)/2 + f·i on the full grid
+        rows = (np.arange(h, dtype=np.float32) - (f - 1) / 2) / f
+        cols = (np.arange(w, dtype=np.float32) - (f - 1) / 2) / f
+        rows = np.clip(rows, 0, out.shape[0] - 1)
+        cols = np.clip(cols, 0, out.shape[1] - 1)
+        r0 = np.minimum(rows.astype(np.intp), out.shape[0] - 2) if out.shape[0] > 1 \
+            else np.zeros(h, np.intp)
+        c0 = np.minimum(cols.astype(np.intp), out.shape[1] - 2) if out.shape[1] > 1 \
+            else np.zeros(w, np.intp)
+        fr = (rows - r0)[:, None, None]
+        fc = (cols - c0)[None, :, None]
+        r1 = np.minimum(r0 + 1, out.shape[0] - 1)
+        c1 = np.minimum(c0 + 1, out.shape[1] - 1)
+        top = out[r0][:, c0] * (1 - fc) + out[r0][:, c1] * fc
+        bottom = out[r1][:, c0] * (1 - fc) + out[r1][:, c1] * fc
+        out = top * (1 - fr) + bottom * fr
+    return out[..., 0] if squeeze else out
+
+
+def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.ndarray:
+    """``(v − mean) / rms`` over a Gaussian window of σ `sigma_px` (valid pixels only).
+
+    Returns
+    -------
+    (H, W) float32
+        0 mean and unit RMS locally; NaN off `valid`.
+    """
+    v = np.where(valid, values, np.nan).astype(np.float32)
+    mean = masked_gaussian(v, valid, sigma_px, reduce=reduce)
+    d = v - mean
+    rms = np.sqrt(masked_gaussian(d * d, valid & np.isfinite(d), sigma_px, reduce=reduce))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = d / np.maximum(rms, 1e-12)
+    return np.where(valid, out, np.nan).astype(np.float32)
+
+
+def ridge_signal(
+    scan: Scan,
+    *,
+    surface_sigma_mm: float = 0.8,
+    noise_sigma_mm: float = 0.03,
+    contrast_sigma_mm: float = 1.0,
+    albedo_weight: float = 0.3,
+) -> np.ndarray:
+    """Ridge signal of one camera's scan on its pixel grid: positive on ridge crests.
+
+    Parameters
+    ----------
+    scan : Scan
+    surface_sigma_mm : float
+        σ of the smooth surface the relief is measured from, mm (above the ridge period of
+        about 0.5 mm, below the finger's curvature radius).
+    noise_sigma_mm : float
+        σ of a light smoothing of the relief against depth noise, mm (0 for none).
+    contrast_sigma_mm : float
+        σ of the local normalisation window, mm.
+    albedo_weight : float
+        Weight of the normalised albedo contrast added to the normalised relief (0: relief
+        only).
+
+    Returns
+    -------
+    (H, W) float32
+        Locally normalised ridge signal (unit local RMS); NaN off the scan's valid pixels.
+
+    Raises
+    ------
+    ValueError
+        If the scan has no valid pixels.
+    """
+    valid = valid_mask(scan)
+    if not valid.any():
+        raise ValueError(f"scan {scan.name!r}: no valid pixels")
+    rows, cols = np.nonzero(valid)
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    xyz = np.asarray(scan.xyz[box], dtype=np.float32)
+    m = valid[box]
+    spacing = pixel_spacing_mm(xyz, m)
+    sigma = surface_sigma_mm / spacing
+    reduce = max(1, int(sigma // 3))
+    smooth = masked_gaussian(xyz, m, sigma, reduce=reduce)
+    normals = grid_normals(smooth, camera_center=scan.camera_center)
+    relief = np.einsum("...k,...k->...", np.nan_to_num(xyz - smooth), np.nan_to_num(normals))
+    m = m & np.isfinite(smooth).all(axis=-1) & np.isfinite(normals).all(axis=-1)
+    if noise_sigma_mm > 0:
+        relief = masked_gaussian(relief, m, noise_sigma_mm / spacing)
+    csig = contrast_sigma_mm / spacing
+    creduce = max(1, int(csig // 4))
+    signal = local_normalize(relief, m, csig, reduce=creduce)
+    if albedo_weight > 0:
+        albedo = np.asarray(scan.albedo[box], dtype=np.float32)
+        if noise_sigma_mm > 0:
+            albedo = masked_gaussian(albedo, m, noise_sigma_mm / spacing)
+        signal = signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)
+        signal = local_normalize(signal, m, csig, reduce=creduce)
+    out = np.full(valid.shape, np.nan, dtype=np.float32)
+    out[box] = np.where(m, signal, np.nan)
+    return out

@@ -1,0 +1,260 @@
+"""From per-camera scans to a rolled-equivalent print (the pipeline's last stage).
+
+:func:`unroll_scans` runs, in order: the ridge signal of every camera
+(:func:`~nail2nail.unroll.ridges.ridge_signal`), the flattening map fitted to all cameras'
+points (:func:`~nail2nail.unroll.flatten.fit_flattening`), the blend of the cameras on the
+print grid (:mod:`~nail2nail.unroll.render`), the 8-bit print, its binarised version, and
+quality figures (:mod:`~nail2nail.unroll.quality`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..merge import valid_mask
+from ..reconstruction import Scan
+from .flatten import METHODS, fit_flattening, map_distortion
+from .quality import block_quality
+from .render import (
+    PrintGrid,
+    binarize,
+    blend_cameras,
+    camera_samples,
+    print_grid,
+    to_gray,
+)
+from .ridges import ridge_signal
+
+__all__ = ["DEFAULT_METHOD", "RolledPrint", "unroll_scans"]
+
+#: The default unrolling method: the one with the least length and area distortion (README).
+DEFAULT_METHOD = "isometric"
+
+
+@dataclass
+class RolledPrint:
+    """A rolled-equivalent print in the legacy convention (mirror of the pad view, tip up).
+
+    Attributes
+    ----------
+    image : (H, W) uint8
+        Ridges dark on white; 255 off `mask`.
+    mask : (H, W) bool
+        Pixels with data.
+    binary : (H, W) uint8
+        Ridges 0, everything else 255.
+    ridge : (H, W) float32
+        The blended ridge signal (positive on crests); NaN off `mask`.
+    share : (n_cameras, H, W) float32
+        Each camera's fraction of the blend per pixel.
+    grid : PrintGrid
+        Pixel ↔ print-plane geometry and resolution.
+    method : str
+    flattening : object
+        The flattening map (world points ``(N, 3)`` → print plane ``(N, 2)``, mm).
+    cameras : list of str
+    distortion : dict
+        Length and area distortion of the map over the scanned skin
+        (:func:`~nail2nail.unroll.flatten.map_distortion`).
+    quality : dict
+        Block ridge period and clarity (:func:`~nail2nail.unroll.quality.block_quality`).
+    timings : dict
+        Seconds per step.
+    """
+
+    image: np.ndarray
+    mask: np.ndarray
+    binary: np.ndarray
+    ridge: np.ndarray
+    share: np.ndarray
+    grid: PrintGrid
+    method: str
+    flattening: object
+    cameras: list[str]
+    distortion: dict
+    quality: dict
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def ppi(self) -> float:
+        """Pixels per inch."""
+        return self.grid.ppi
+
+    def pixel_of(self, xyz) -> tuple[np.ndarray, np.ndarray]:
+        """``(row, col)`` (float) in this print of world points ``(N, 3)``, mm."""
+        return self.grid.pixel(self.flattening(np.asarray(xyz, dtype=np.float64)))
+
+    def metadata(self) -> dict:
+        """JSON-ready description: geometry, method, distortion, coverage and quality."""
+        area_px = int(self.mask.sum())
+        pitch = self.grid.pitch
+        dominant = np.argmax(self.share, axis=0)
+        coverage = {}
+        for i, name in enumerate(self.cameras):
+            contributes = self.mask & (self.share[i] > 0.01)
+            coverage[name] = {
+                "contributes_fraction": round(float(contributes.sum()) / max(area_px, 1), 4),
+                "dominant_fraction": round(
+                    float((self.mask & (dominant == i)).sum()) / max(area_px, 1), 4),
+            }
+        q = self.quality
+        clarity = np.asarray(q["clarity"])
+        period = np.asarray(q["period_px"])
+        return {
+            "format": "nail2nail-rolled-print",
+            "version": 1,
+            "convention": "legacy rolled print: mirror of the pad seen from outside, fingertip "
+                          "up; ridges dark on white",
+            **self.grid.describe(),
+            "method": self.method,
+            "flattening": self.flattening.describe(),
+            "cameras": list(self.cameras),
+            "print_area_mm2": round(area_px * pitch * pitch, 2),
+            "print_size_mm": _extent_mm(self.mask, pitch),
+            "distortion": self.distortion,
+            "coverage": coverage,
+            "quality": {
+                "measure": "ridge clarity per 32 px block: fraction of spectral energy within "
+                           "±25 % of the ridge frequency (1 = clean ridges)",
+                "blocks": int(clarity.size),
+                "clarity_median": _r(np.median(clarity)) if clarity.size else None,
+                "clarity_p10": _r(np.percentile(clarity, 10)) if clarity.size else None,
+                "ridge_period_mm_median": _r(np.median(period) * pitch) if period.size else None,
+                "regions": _region_quality(q, self.share, self.cameras),
+            },
+            "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
+        }
+
+
+def _r(x) -> float:
+    return round(float(x), 4)
+
+
+def _extent_mm(mask, pitch) -> list[float]:
+    rows, cols = np.nonzero(mask)
+    if not rows.size:
+        return [0.0, 0.0]
+    return [round((cols.max() - cols.min() + 1) * pitch, 2),
+            round((rows.max() - rows.min() + 1) * pitch, 2)]
+
+
+def _region_quality(q, share, cameras) -> dict:
+    """Median clarity of the blocks where each camera dominates (the print's regions)."""
+    if not np.asarray(q["clarity"]).size:
+        return {}
+    r = np.asarray(q["rows"]).round().astype(int)
+    c = np.asarray(q["cols"]).round().astype(int)
+    dom = np.argmax(share[:, r, c], axis=0)
+    out = {}
+    for i, name in enumerate(cameras):
+        sel = dom == i
+        out[name] = {"blocks": int(sel.sum()),
+                     "clarity_median": _r(np.median(q["clarity"][sel])) if sel.any() else None}
+    return out
+
+
+def unroll_scans(
+    scans,
+    *,
+    method: str = DEFAULT_METHOD,
+    ppi: float = 500.0,
+    tip_direction=(0.0, 1.0, 0.0),
+    pad_direction=None,
+    ridge_options: dict | None = None,
+    feather_px: float = 40.0,
+    grid_mm: float = 0.5,
+) -> RolledPrint:
+    """Unroll a finger scanned by one or more cameras into a rolled-equivalent print.
+
+    Parameters
+    ----------
+    scans : sequence of Scan
+        Every camera's scan of one finger with all its valid pixels (the output of
+        :func:`nail2nail.scanning.scan_capture`), in one world frame; overlaps are blended.
+    method : {"cylinder", "sphere", "rolled", "isometric"}
+        Flattening (:mod:`nail2nail.unroll.flatten`); ``isometric`` by default, the method with
+        the least distortion.
+    ppi : float
+        Resolution of the print, pixels per inch (500 is the FBI's rolled-print standard).
+    tip_direction : (3,) float
+        Rough direction of the fingertip in the world frame (``+Y``, ``docs/conventions.md``).
+    pad_direction : (3,) float, optional
+        Rough direction from the finger towards the viewer of the pad. Default: the mean
+        direction from the points to the cameras' centres (the scanner faces the pad), else
+        ``+Z``.
+    ridge_options : dict, optional
+        Keyword arguments of :func:`~nail2nail.unroll.ridges.ridge_signal`.
+    feather_px : float
+        Width of each camera's cross-fade at the edge of its valid region, camera px.
+    grid_mm : float
+        Cell size of the coarse mesh the flattening is fitted and judged on, mm.
+
+    Returns
+    -------
+    RolledPrint
+
+    Raises
+    ------
+    ValueError
+        No scans, a scan without valid pixels, an unknown method, a bad `ppi`.
+    """
+    scans = list(scans)
+    if not scans:
+        raise ValueError("scans: expected at least one Scan")
+    for i, s in enumerate(scans):
+        if not isinstance(s, Scan):
+            raise TypeError(f"scans[{i}]: expected a Scan, got {type(s).__name__}")
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if not (isinstance(ppi, (int, float)) and 100 <= ppi <= 4000):
+        raise ValueError(f"ppi: expected a number in 100..4000, got {ppi!r}")
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = now - clock
+        clock = now
+
+    points = []
+    for s in scans:
+        v = valid_mask(s)
+        if not v.any():
+            raise ValueError(f"scans: {s.name!r} has no valid pixels")
+        points.append(np.asarray(s.xyz, dtype=np.float64)[v][::4])
+    points = np.concatenate(points)
+    if pad_direction is None:
+        centers = [np.asarray(s.camera_center, float) for s in scans if s.camera_center is not None]
+        if centers:
+            centroid = points.mean(axis=0)
+            pad_direction = np.mean([(c - centroid) / np.linalg.norm(c - centroid)
+                                     for c in centers], axis=0)
+        else:
+            pad_direction = (0.0, 0.0, 1.0)
+    flat, mesh = fit_flattening(points, method, tip_direction=tip_direction,
+                                pad_direction=pad_direction, grid_mm=grid_mm)
+    lap("flatten")
+    signals = [ridge_signal(s, **(ridge_options or {})) for s in scans]
+    lap("ridges")
+    samples = [camera_samples(s, sig, flat, feather_px=feather_px)
+               for s, sig in zip(scans, signals, strict=True)]
+    grid = print_grid(np.concatenate([st for st, _, _ in samples]), ppi=ppi)
+    value, mask, share = blend_cameras(grid, samples)
+    lap("blend")
+    if not mask.any():
+        raise ValueError("scans: the print has no pixel with data")
+    pitch = grid.pitch
+    image = to_gray(value, mask, sigma_px=1.0 / pitch, reduce=max(1, int(0.25 / pitch)))
+    binary = binarize(image, mask, period_px=0.48 / pitch)
+    lap("render")
+    quality = block_quality(image, mask, block_px=round(1.6 / pitch))
+    distortion = map_distortion(flat, mesh)
+    lap("quality")
+    return RolledPrint(image=image, mask=mask, binary=binary, ridge=value, share=share,
+                       grid=grid, method=method, flattening=flat,
+                       cameras=[s.name for s in scans], distortion=distortion,
+                       quality=quality, timings=timings)
