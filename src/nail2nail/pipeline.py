@@ -17,6 +17,10 @@ Steps, each written under ``out``:
    and the merge error of camera pairs in projector space (thesis chapter four).
 6. Super scans (PLY, super mat5, renders) of the target in every configuration and of the
    finger in the best one.
+7. ``print/``: the finger of the best configuration unrolled into a rolled-equivalent print
+   (:mod:`nail2nail.unroll`, default method; PNG, WSQ, binarised, mask, metadata), and every
+   unrolling method compared with the virtual finger's true skin coordinates (geometric
+   accuracy, distortion, ridge period).
 """
 
 from __future__ import annotations
@@ -105,7 +109,7 @@ def run_demo(
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    step = _Progress(progress, 15)
+    step = _Progress(progress, 16)
     rig = default_rig(scale, projector_distortion="thesis")
     pattern_set = default_pattern_set()
     patterns = make_patterns(pattern_set)
@@ -194,8 +198,13 @@ def run_demo(
                 super_scan=build_super,
             )
             merges[(config, obj)] = summary
+            if (config, obj) == ("best", "finger"):
+                finger_scans = scans
             comparison.setdefault(config, {})[obj] = _merge_summary(summary["merge"])
             outputs += summary.get("outputs", [])
+    step("unroll the finger into a rolled-equivalent print (every method against the truth)")
+    unrolled = _unroll_demo(finger_scans, captures["finger"], out / "print", figures=figures)
+    outputs += unrolled.pop("outputs")
     best = merges[("best", "finger")]
     result = {
         "out": str(out),
@@ -210,10 +219,46 @@ def run_demo(
         "calibration": calib_paths,
         "captures": captures,
         "super_scan": best.get("super_scan"),
+        "print": unrolled,
         "outputs": [*outputs, str(out / "summary.json")],
     }
     write_json(out / "summary.json", result, default=float)
     return result
+
+
+def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
+    """Unroll with every method, compare each with the truth, write the default's print."""
+    from .io._json import write_json
+    from .io.rolled import write_rolled_print
+    from .simulation.truth import truth_print_sampler, truth_skin_coordinates
+    from .unroll import DEFAULT_METHOD, METHODS, unroll_scans
+    from .unroll.accuracy import geometric_accuracy
+
+    truth_uv = truth_skin_coordinates(capture_dir, [s.name for s in scans])
+    _, sampler = truth_print_sampler(capture_dir)
+    methods, prints, maps = {}, {}, {}
+    for method in (DEFAULT_METHOD, *[m for m in METHODS if m != DEFAULT_METHOD]):
+        start = time.perf_counter()
+        rolled = unroll_scans(scans, method=method)
+        seconds = time.perf_counter() - start
+        acc = geometric_accuracy(rolled, scans, truth_uv, truth_sampler=sampler, maps=figures)
+        truth_on_grid = acc.pop("truth_on_grid")
+        maps[method] = (acc.pop("scale_error_map", None), acc.pop("displacement_map", None))
+        prints[method] = (rolled, truth_on_grid)
+        methods[method] = {"seconds": round(seconds, 3), "distortion": rolled.distortion,
+                           **acc}
+    rolled, truth_on_grid = prints[DEFAULT_METHOD]
+    meta = write_rolled_print(out, rolled, extra={"accuracy": methods[DEFAULT_METHOD]})
+    outputs = [str(out / f) for f in meta["files"].values()] + [str(out / "print.json")]
+    write_json(out / "methods.json", methods)
+    outputs.append(str(out / "methods.json"))
+    if figures:
+        from .unroll.figures import save_print_figures
+
+        outputs += [str(p) for p in save_print_figures(out, prints, maps)]
+    return {"method": DEFAULT_METHOD, "dir": str(out), "methods": methods,
+            "shape": meta["shape"], "print_size_mm": meta["print_size_mm"],
+            "outputs": outputs}
 
 
 def format_summary(result: dict) -> str:
@@ -233,6 +278,18 @@ def format_summary(result: dict) -> str:
                 d = pairs[pair]["distance_mm"]
                 cells.append(f"{1000 * d['median']:7.1f} / {1000 * d['p95']:6.1f}")
             lines.append(f"{config:<14}{obj:<8}{cells[0]:>16}{cells[1]:>16}")
+    if result.get("print"):
+        p = result["print"]
+        lines += ["", f"Rolled-equivalent print ({p['method']}, {p['print_size_mm'][0]} x "
+                  f"{p['print_size_mm'][1]} mm at 500 ppi) against the true skin coordinates:",
+                  f"{'method':<11}{'scale err p95':>14}{'displ. p95':>12}{'period dev':>12}"
+                  f"{'length dist p95':>17}{'time s':>8}"]
+        for name, m in p["methods"].items():
+            lines.append(
+                f"{name:<11}{100 * m['scale_error']['p95']:13.2f}%"
+                f"{1000 * m['displacement_mm']['p95']:9.0f} µm"
+                f"{100 * m['period_ratio']['median_abs_deviation']:11.2f}%"
+                f"{100 * m['distortion']['length']['p95']:16.1f}%{m['seconds']:8.2f}")
     lines.append("")
     lines.append(f"outputs under {result['out']} (summary.json lists every file)")
     return "\n".join(lines)

@@ -20,6 +20,7 @@ COMMANDS = [
     "scan",
     "distortion",
     "merge",
+    "unroll",
     "demo",
 ]
 
@@ -27,7 +28,7 @@ COMMANDS = [
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nail2nail",
-        description="Touchless 3D fingerprint capture: calibrate, simulate, scan, merge.",
+        description="Touchless 3D fingerprint capture: calibrate, simulate, scan, merge, unroll.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:

@@ -34,7 +34,8 @@ def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
     -------
     dict
         ``rows, cols`` (B,) block centres (px); ``period_px`` (B,) float; ``clarity`` (B,)
-        float in [0, 1]; ``grid`` (Hb, Wb) float32 clarity map (NaN where not measured).
+        float in [0, 1]; ``grid`` (Hb, Wb) float32 clarity map (NaN where not measured), block
+        ``[i, j]`` covering rows ``i·block_px …`` and columns ``j·block_px …``; ``block_px``.
     """
     img = np.asarray(gray, dtype=np.float64)
     h, w = img.shape
@@ -46,7 +47,7 @@ def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
     grid = np.full((nb_r, nb_c), np.nan, dtype=np.float32)
     if not br.size:
         return {"rows": np.zeros(0), "cols": np.zeros(0), "period_px": np.zeros(0),
-                "clarity": np.zeros(0), "grid": grid}
+                "clarity": np.zeros(0), "grid": grid, "block_px": block_px}
     b = blocks[br, :, bc, :]  # (B, block, block)
     b = b - b.mean(axis=(1, 2), keepdims=True)
     win = np.hanning(block_px)
@@ -65,4 +66,4 @@ def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
     clarity = e_near.sum(axis=(1, 2)) / np.maximum(total, 1e-300)
     grid[br, bc] = clarity
     return {"rows": (br + 0.5) * block_px - 0.5, "cols": (bc + 0.5) * block_px - 0.5,
-            "period_px": 1.0 / r_mean, "clarity": clarity, "grid": grid}
+            "period_px": 1.0 / r_mean, "clarity": clarity, "grid": grid, "block_px": block_px}

@@ -18,8 +18,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from ..fusion import view_weights
-from ..merge import valid_mask
 from .ridges import masked_gaussian
 
 __all__ = ["MM_PER_INCH", "PrintGrid", "binarize", "blend_cameras", "print_grid", "to_gray"]
@@ -73,23 +71,31 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     return PrintGrid(s0, t0, pitch, (h, w))
 
 
-def _splat(grid: PrintGrid, st, values, weights) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear splat: ``Σ w·k·v`` and ``Σ w·k`` per print pixel (k the bilinear kernel)."""
+def _splat(grid: PrintGrid, st, values, weights, *, count: bool = False):
+    """Bilinear splat: ``Σ w·k·v`` and ``Σ w·k`` per print pixel (k the bilinear kernel), and
+    with `count` also ``Σ k`` (the sample density)."""
     h, w = grid.shape
     r, c = grid.pixel(st)
     r0, c0 = np.floor(r).astype(np.intp), np.floor(c).astype(np.intp)
     fr, fc = (r - r0).astype(np.float32), (c - c0).astype(np.float32)
+    values = np.asarray(values, np.float32)
+    weights = np.asarray(weights, np.float32)
     num = np.zeros(h * w, np.float64)
     den = np.zeros(h * w, np.float64)
+    cnt = np.zeros(h * w, np.float64) if count else None
+    wv = weights * values
     for dr, dc, k in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
                       (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
         rr, cc = r0 + dr, c0 + dc
         ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
         idx = rr[ok] * w + cc[ok]
-        kw = k[ok] * weights[ok]
-        num += np.bincount(idx, kw * values[ok], minlength=h * w)
-        den += np.bincount(idx, kw, minlength=h * w)
-    return num.reshape(h, w), den.reshape(h, w)
+        kk = k[ok]
+        num += np.bincount(idx, kk * wv[ok], minlength=h * w)
+        den += np.bincount(idx, kk * weights[ok], minlength=h * w)
+        if count:
+            cnt += np.bincount(idx, kk, minlength=h * w)
+    out = (num.reshape(h, w), den.reshape(h, w))
+    return (*out, cnt.reshape(h, w)) if count else out
 
 
 def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
@@ -117,19 +123,19 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
     """
     h, w = grid.shape
     num = np.zeros((h, w))
-    den = np.zeros((h, w))
     count = np.zeros((h, w))
     per_camera = []
     for st, value, weight in samples:
-        n_, d_ = _splat(grid, st, np.asarray(value, np.float64), np.asarray(weight, np.float64))
-        _, c_ = _splat(grid, st, np.zeros(len(st)), np.ones(len(st)))
+        n_, d_, c_ = _splat(grid, st, value, weight, count=True)
         num += n_
-        den += d_
         count += c_
         per_camera.append(d_)
-    g = (lambda a: ndi.gaussian_filter(a, fill_sigma_px, truncate=3.0)) if fill_sigma_px > 0 \
-        else (lambda a: a)
-    num_s, den_s = g(num), g(den)
+
+    def g(a):
+        return ndi.gaussian_filter(a, fill_sigma_px, truncate=3.0) if fill_sigma_px > 0 else a
+
+    per_camera = [g(d) for d in per_camera]
+    num_s, den_s = g(num), sum(per_camera)
     support = g(count)
     mask = support >= min_support
     # close pinholes, drop specks: the print's data region is one solid piece
@@ -143,25 +149,21 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
         mask = label == sizes.argmax()
     with np.errstate(invalid="ignore", divide="ignore"):
         value = np.where(mask, num_s / den_s, np.nan).astype(np.float32)
-        total = np.maximum(sum(g(d) for d in per_camera), 1e-300)
-        share = np.stack([np.where(mask, g(d) / total, 0) for d in per_camera]).astype(
-            np.float32)
+        total = np.maximum(den_s, 1e-300)
+        share = np.stack([np.where(mask, d / total, 0) for d in per_camera]).astype(np.float32)
     return value, mask, share
 
 
-def camera_samples(scan, signal, flat, *, feather_px: float = 40.0):
-    """``(st, value, weight)`` of one camera's valid pixels for :func:`blend_cameras`.
+def camera_samples(scan, signal, weight, flat):
+    """``(st, value, weight)`` of one camera's pixels with data, for :func:`blend_cameras`.
 
-    The weight is modulation × cos² (viewing angle) × a feather of `feather_px` camera pixels
-    from the edge of the valid region (wide, so that cameras cross-fade over about a
-    millimetre).
+    `signal` and `weight` are the camera's ridge signal and blending weight
+    (:func:`~nail2nail.unroll.ridges.camera_layer`); `flat` maps world points to the print
+    plane.
     """
-    weight = view_weights(scan, feather_px=feather_px)
-    cos_weight = view_weights(scan, feather_px=0, use_modulation=False)
-    weight = weight * cos_weight  # modulation × cos² × feather
-    ok = valid_mask(scan) & np.isfinite(signal) & (weight > 0)
-    xyz = np.asarray(scan.xyz, dtype=np.float64)[ok]
-    return flat(xyz), signal[ok].astype(np.float32), weight[ok].astype(np.float32)
+    ok = (weight > 0) & np.isfinite(signal)
+    xyz = np.asarray(scan.xyz[ok], dtype=np.float64)
+    return flat(xyz), signal[ok], weight[ok]
 
 
 def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:

@@ -13,10 +13,16 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from ..merge import grid_normals, valid_mask
+from ..merge import valid_mask
 from ..reconstruction import Scan
 
-__all__ = ["local_normalize", "masked_gaussian", "pixel_spacing_mm", "ridge_signal"]
+__all__ = [
+    "camera_layer",
+    "local_normalize",
+    "masked_gaussian",
+    "pixel_spacing_mm",
+    "ridge_signal",
+]
 
 
 def pixel_spacing_mm(xyz, valid) -> float:
@@ -108,15 +114,48 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     return np.where(valid, out, np.nan).astype(np.float32)
 
 
-def ridge_signal(
+def _normals(xyz) -> np.ndarray:
+    """Unit normals ``∂X/∂row × ∂X/∂col`` of a smooth grid surface (float32, NaN-safe)."""
+    d_r = np.gradient(xyz, axis=0)
+    d_c = np.gradient(xyz, axis=1)
+    n = np.cross(d_r, d_c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return n
+
+
+def _feather(valid, width_px: float, reduce: int) -> np.ndarray:
+    """Ramp 0 → 1 over `width_px` from the edge of `valid` (distance on a reduced grid)."""
+    if width_px <= 0:
+        return np.ones(valid.shape, np.float32)
+    h, w = valid.shape
+    f = max(1, int(reduce))
+    hp, wp = -(-h // f) * f, -(-w // f) * f
+    vp = np.zeros((hp, wp), bool)
+    vp[:h, :w] = valid
+    small = vp.reshape(hp // f, f, wp // f, f).all(axis=(1, 3))
+    dist = ndi.distance_transform_edt(np.pad(small, 1))[1:-1, 1:-1] * f
+    dist = np.repeat(np.repeat(dist, f, axis=0), f, axis=1)[:h, :w]
+    return np.clip(dist.astype(np.float32) / width_px, 0, 1)
+
+
+def camera_layer(
     scan: Scan,
     *,
     surface_sigma_mm: float = 0.8,
     noise_sigma_mm: float = 0.03,
     contrast_sigma_mm: float = 1.0,
     albedo_weight: float = 0.3,
-) -> np.ndarray:
-    """Ridge signal of one camera's scan on its pixel grid: positive on ridge crests.
+    feather_px: float = 40.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ridge signal and blending weight of one camera's scan on its pixel grid.
+
+    The ridge signal is the relief ``h = (X − X̄)·n`` from the smooth surface ``X̄`` (σ
+    `surface_sigma_mm`), lightly smoothed against depth noise, normalised by its local RMS,
+    plus `albedo_weight` × the albedo's normalised local contrast, normalised again. The
+    blending weight is fringe modulation × cos² (viewing angle of the smooth surface) × a
+    feather rising over `feather_px` camera pixels from the edge of the valid region, so that
+    cameras cross-fade over about a millimetre.
 
     Parameters
     ----------
@@ -131,11 +170,17 @@ def ridge_signal(
     albedo_weight : float
         Weight of the normalised albedo contrast added to the normalised relief (0: relief
         only).
+    feather_px : float
+        Width of the weight's ramp at the edge of the valid region, camera px (0: none).
 
     Returns
     -------
-    (H, W) float32
-        Locally normalised ridge signal (unit local RMS); NaN off the scan's valid pixels.
+    signal : (H, W) float32
+        Locally normalised ridge signal (unit local RMS), positive on ridge crests; NaN off the
+        valid pixels.
+    weight : (H, W) float32
+        Non-negative blending weight; 0 off the valid pixels. Without ``camera_center`` the
+        cosine factor is 1.
 
     Raises
     ------
@@ -145,15 +190,25 @@ def ridge_signal(
     valid = valid_mask(scan)
     if not valid.any():
         raise ValueError(f"scan {scan.name!r}: no valid pixels")
-    rows, cols = np.nonzero(valid)
-    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    rows = np.flatnonzero(valid.any(axis=1))
+    cols = np.flatnonzero(valid.any(axis=0))
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
     xyz = np.asarray(scan.xyz[box], dtype=np.float32)
     m = valid[box]
     spacing = pixel_spacing_mm(xyz, m)
     sigma = surface_sigma_mm / spacing
     reduce = max(1, int(sigma // 3))
     smooth = masked_gaussian(xyz, m, sigma, reduce=reduce)
-    normals = grid_normals(smooth, camera_center=scan.camera_center)
+    normals = _normals(smooth)
+    if scan.camera_center is not None:
+        view = np.asarray(scan.camera_center, np.float32) - smooth
+        view /= np.linalg.norm(view, axis=-1, keepdims=True)
+        cos = np.einsum("...k,...k->...", normals, view)
+        # orient the normals towards the camera
+        normals *= np.where(cos < 0, -1, 1).astype(np.float32)[..., None]
+        cos = np.abs(cos)
+    else:
+        cos = np.ones(m.shape, np.float32)
     relief = np.einsum("...k,...k->...", np.nan_to_num(xyz - smooth), np.nan_to_num(normals))
     m = m & np.isfinite(smooth).all(axis=-1) & np.isfinite(normals).all(axis=-1)
     if noise_sigma_mm > 0:
@@ -167,6 +222,15 @@ def ridge_signal(
             albedo = masked_gaussian(albedo, m, noise_sigma_mm / spacing)
         signal = signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)
         signal = local_normalize(signal, m, csig, reduce=creduce)
-    out = np.full(valid.shape, np.nan, dtype=np.float32)
-    out[box] = np.where(m, signal, np.nan)
-    return out
+    modulation = np.clip(np.nan_to_num(np.asarray(scan.modulation[box], np.float32)), 0, None)
+    weight = modulation * np.nan_to_num(cos) ** 2 * _feather(m, feather_px, max(1, reduce // 2))
+    out_signal = np.full(valid.shape, np.nan, dtype=np.float32)
+    out_signal[box] = np.where(m, signal, np.nan)
+    out_weight = np.zeros(valid.shape, dtype=np.float32)
+    out_weight[box] = np.where(m & np.isfinite(signal), weight, 0)
+    return out_signal, out_weight
+
+
+def ridge_signal(scan: Scan, **options) -> np.ndarray:
+    """The ridge signal of :func:`camera_layer` alone: ``(H, W) float32``, NaN off the scan."""
+    return camera_layer(scan, **options)[0]

@@ -26,12 +26,12 @@ from .render import (
     print_grid,
     to_gray,
 )
-from .ridges import ridge_signal
+from .ridges import camera_layer
 
 __all__ = ["DEFAULT_METHOD", "RolledPrint", "unroll_scans"]
 
 #: The default unrolling method: the one with the least length and area distortion (README).
-DEFAULT_METHOD = "isometric"
+DEFAULT_METHOD = "rolled"
 
 
 @dataclass
@@ -186,7 +186,7 @@ def unroll_scans(
         direction from the points to the cameras' centres (the scanner faces the pad), else
         ``+Z``.
     ridge_options : dict, optional
-        Keyword arguments of :func:`~nail2nail.unroll.ridges.ridge_signal`.
+        Keyword arguments of :func:`~nail2nail.unroll.ridges.camera_layer`.
     feather_px : float
         Width of each camera's cross-fade at the edge of its valid region, camera px.
     grid_mm : float
@@ -238,10 +238,9 @@ def unroll_scans(
     flat, mesh = fit_flattening(points, method, tip_direction=tip_direction,
                                 pad_direction=pad_direction, grid_mm=grid_mm)
     lap("flatten")
-    signals = [ridge_signal(s, **(ridge_options or {})) for s in scans]
+    layers = [camera_layer(s, feather_px=feather_px, **(ridge_options or {})) for s in scans]
     lap("ridges")
-    samples = [camera_samples(s, sig, flat, feather_px=feather_px)
-               for s, sig in zip(scans, signals, strict=True)]
+    samples = [camera_samples(s, sig, wt, flat) for s, (sig, wt) in zip(scans, layers, strict=True)]
     grid = print_grid(np.concatenate([st for st, _, _ in samples]), ppi=ppi)
     value, mask, share = blend_cameras(grid, samples)
     lap("blend")

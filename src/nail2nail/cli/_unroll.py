@@ -1,0 +1,82 @@
+"""``nail2nail unroll``: per-camera scans of a finger to a rolled-equivalent print.
+
+Thin command layer: reads a scan directory (:func:`nail2nail.io.scans.load_scans`), calls
+:func:`nail2nail.unroll.unroll_scans` and writes the print with
+:func:`nail2nail.io.rolled.write_rolled_print`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from ..unroll import DEFAULT_METHOD, METHODS
+
+__all__ = ["add_parser", "run"]
+
+
+def _vector(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not any(values):
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z (not all 0), got {text!r}")
+    return values
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "unroll",
+        help="unroll the scanned finger into a rolled-equivalent 2D print (PNG, WSQ)",
+        description="Measure the ridges on every camera's scan (relief along the normal plus "
+        "albedo), flatten the finger into the print plane, blend the cameras across their "
+        "overlaps and write a 500-ppi print in the legacy convention (the image an inked roll "
+        "gives: mirror of the pad seen from outside, fingertip up, ridges dark): print.png, "
+        "print.wsq, print_binary.png, print_mask.png, print_coverage.png, print_quality.png "
+        "and print.json.",
+    )
+    p.add_argument("scan_dir", type=Path, help="scan directory written by `nail2nail scan`")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                   help=f"flattening (default: {DEFAULT_METHOD}, the least distortion; "
+                   "docs/unroll.md)")
+    p.add_argument("--ppi", type=float, default=500.0,
+                   help="resolution, pixels per inch (default 500; 1000 writes JPEG 2000 "
+                   "instead of WSQ)")
+    p.add_argument("--tip-direction", type=_vector, default=(0.0, 1.0, 0.0),
+                   help="rough direction of the fingertip in the world frame, X,Y,Z "
+                   "(default 0,1,0: +Y, docs/conventions.md)")
+    p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
+    p.add_argument("--json", action="store_true", help="print the metadata as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io.rolled import write_rolled_print
+    from ..io.scans import load_scans
+    from ..unroll import unroll_scans
+
+    if not 100 <= args.ppi <= 4000:
+        raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
+    scans = load_scans(args.scan_dir)
+    start = time.perf_counter()
+    rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
+                          tip_direction=args.tip_direction)
+    meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,
+                              extra={"scan_dir": str(args.scan_dir),
+                                     "seconds": round(time.perf_counter() - start, 3)})
+    if args.json:
+        print(json.dumps(meta, indent=2, allow_nan=False))
+        return 0
+    w, h = meta["print_size_mm"]
+    d = meta["distortion"]
+    print(f"{args.method} unroll: {meta['shape'][1]} x {meta['shape'][0]} px at "
+          f"{meta['ppi']:g} ppi ({w} x {h} mm, {meta['print_area_mm2']} mm² with data)")
+    print(f"length distortion p95 {100 * d['length']['p95']:.1f} %, area p95 "
+          f"{100 * d['area']['p95']:.1f} %; ridge clarity median "
+          f"{meta['quality']['clarity_median']}")
+    print(f"wrote {Path(args.out) / meta['files']['print']} and {Path(args.out) / 'print.json'}")
+    return 0

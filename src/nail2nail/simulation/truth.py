@@ -1,0 +1,83 @@
+"""Reading the ground truth of a virtual capture (``truth/`` of ``simulate``) for evaluation.
+
+A finger capture's truth holds, per camera, the rolled-print coordinates ``(u, v)`` (mm) of the
+true surface point each pixel sees (``param_u``, ``param_v`` of ``truth/camN.npz``), and the
+true rolled print in the legacy convention with its geometry (``truth/rolled_print.png``,
+``truth/fingerprint.json``: ``col = (u_of_col0_mm − u) / pitch_mm``,
+``row = (v_of_row0_mm − v) / pitch_mm``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..io._json import read_json
+
+__all__ = ["truth_print_sampler", "truth_skin_coordinates"]
+
+
+def _truth_entries(capture_dir: Path) -> dict:
+    manifest = read_json(capture_dir / "capture.json")
+    truth = manifest.get("truth") if isinstance(manifest, dict) else None
+    if not truth:
+        raise ValueError(f"{capture_dir}: the capture has no truth/ (a virtual capture "
+                         "written with truth is needed)")
+    return truth
+
+
+def truth_skin_coordinates(capture_dir: str | os.PathLike, names) -> list[tuple]:
+    """Per camera name, the true ``(u, v)`` (each ``(H, W) float32``, mm; NaN off the finger).
+
+    Raises
+    ------
+    ValueError
+        If the capture has no truth, or no skin coordinates for a camera.
+    """
+    capture_dir = Path(capture_dir)
+    cameras = _truth_entries(capture_dir).get("cameras", {})
+    out = []
+    for name in names:
+        if name not in cameras:
+            raise ValueError(f"{capture_dir}: no truth for camera {name!r}")
+        path = capture_dir / cameras[name]
+        with np.load(path) as data:
+            if "param_u" not in data:
+                raise ValueError(f"{path}: no skin coordinates (param_u, param_v)")
+            surface = data["surface"] if "surface" in data else np.ones(data["param_u"].shape,
+                                                                          bool)
+            u = np.where(surface, data["param_u"], np.nan).astype(np.float32)
+            v = np.where(surface, data["param_v"], np.nan).astype(np.float32)
+        out.append((u, v))
+    return out
+
+
+def truth_print_sampler(capture_dir: str | os.PathLike):
+    """``(image (H, W) uint8, sampler)``: the true print and ``sampler(u, v) -> ridge field``.
+
+    The sampler interpolates the print bilinearly at rolled-print coordinates (mm) and returns
+    ``(127.5 − I) / 127.5`` (positive on ridges, which are dark); white (0 ridge) outside.
+    """
+    from PIL import Image
+    from scipy.ndimage import map_coordinates
+
+    capture_dir = Path(capture_dir)
+    truth = _truth_entries(capture_dir)
+    if "rolled_print" not in truth or "fingerprint" not in truth:
+        raise ValueError(f"{capture_dir}: the truth has no rolled print (not a finger?)")
+    geometry = read_json(capture_dir / truth["fingerprint"])
+    with Image.open(capture_dir / truth["rolled_print"]) as im:
+        image = np.asarray(im.convert("L"))
+    u0, v0 = float(geometry["u_of_col0_mm"]), float(geometry["v_of_row0_mm"])
+    pitch = float(geometry["pitch_mm"])
+    data = image.astype(np.float64)
+
+    def sampler(u, v):
+        col = (u0 - np.asarray(u, float)) / pitch
+        row = (v0 - np.asarray(v, float)) / pitch
+        value = map_coordinates(data, [row, col], order=1, mode="constant", cval=255.0)
+        return (127.5 - value) / 127.5
+
+    return image, sampler
