@@ -191,3 +191,64 @@ def test_bad_inputs(scans):
         fuse_scans([scans[0], "cam1"])
     with pytest.raises(ValueError, match="xyz: expected shape"):
         grid_normals(np.zeros((4, 4)))
+
+
+# -- issue 9: a clean fused surface ----------------------------------------------------------
+def _corrupted(scans):
+    """Camera 1 with 40 points of its mask-edge band (3 px) and 12 inner points pushed 0.2 and
+    0.3 mm off the surface."""
+    import scipy.ndimage
+
+    s = scans[1]
+    rng = np.random.default_rng(0)
+    inner = scipy.ndimage.binary_erosion(s.mask, iterations=3)
+    xyz = s.xyz.copy()
+    picked = []
+    for region, count, offset_mm in ((s.mask & ~inner, 40, 0.2),
+                                     (scipy.ndimage.binary_erosion(s.mask, iterations=10), 12,
+                                      0.3)):
+        rows, cols = np.nonzero(region)
+        pick = rng.choice(rows.size, count, replace=False)
+        xyz[rows[pick], cols[pick]] *= np.float32(1 + offset_mm / RADIUS)  # radially out
+        picked.append((rows[pick], cols[pick]))
+    return [scans[0], replace(s, xyz=xyz), scans[2]], picked
+
+
+def test_issue9_corrupted_points_do_not_reach_the_fused_surface(scans):
+    bad, (_, (sr, sc)) = _corrupted(scans)
+    off = {"spike_mm": None, "surface_mm": None, "max_view_angle_deg": None,
+           "min_relative_modulation": None, "outlier_mm": None}
+    dirty = fuse_scans(bad, **off)
+    assert np.abs(_radial_error(dirty.vertices)).max() > 0.1  # what fusing them blindly does
+    sup = fuse_scans(bad)
+    assert np.abs(_radial_error(sup.vertices)).max() < 0.05
+    assert sup.points_rejected["cam1"]["spike"] >= 12
+    assert not sup.scans[1].mask[sr, sc].any()
+    summary = sup.summary()
+    assert summary["points_rejected"] == sup.points_rejected
+    assert set(summary["points_rejected"]["cam0"]) == {"spike", "off_surface"}
+    rejected = summary["rejected_pairs"]
+    assert set(rejected) == {f"{i}-{j}" for i in range(3) for j in range(3) if i != j}
+    assert sum(rejected["0-1"].values()) > 0
+    # the surface still covers the finger: corrupted points were replaced, not cut out
+    assert sup.n_vertices > 0.95 * dirty.n_vertices
+
+
+def test_issue9_spikes():
+    from nail2nail.fusion import spikes
+
+    rr, cc = np.mgrid[0:12, 0:12].astype(float)
+    xyz = np.stack([cc * 0.05, -rr * 0.05, 0.02 * np.sin(cc)], -1)  # ridges along columns
+    valid = np.ones((12, 12), bool)
+    assert not spikes(xyz, valid).any()
+    xyz[5, 5, 2] += 0.2
+    xyz[0, 7, 2] -= 0.2  # the outermost row has one line: not tested
+    xyz[11, 0, 2] -= 0.2  # a corner: neither
+    xyz[5, 11, 2] += 0.2  # the last column: the column line and no other, not tested either
+    xyz[1, 3, 2] += 0.2  # inside the first row: three lines
+    found = spikes(xyz, valid)
+    assert np.argwhere(found).tolist() == [[1, 3], [5, 5]]
+    valid[4:7, 4:7] = False
+    assert not spikes(xyz, valid)[5, 5]
+    with pytest.raises(ValueError, match="spike_mm"):
+        fuse_scans(synthetic_scans(size=(32, 40)), spike_mm=0)

@@ -336,3 +336,72 @@ def test_write_merge_rejects_bad_pairs(tmp_path):
         with pytest.raises(ValueError, match="pairs"):
             write_merge(scans, tmp_path / "out", pairs=pairs, figures=False, super_scan=False)
     assert not (tmp_path / "out").exists()
+
+
+# -- issue 9: rejection of unreliable pairs --------------------------------------------------
+def _corrupt_edge(scan, *, band_px=3, offset_mm=0.2):
+    """`scan` with the points within `band_px` of its mask edge pushed off the surface."""
+    import scipy.ndimage
+
+    inner = scipy.ndimage.binary_erosion(scan.mask, iterations=band_px)
+    band = scan.mask & ~inner
+    xyz = scan.xyz.copy()
+    xyz[band, 2] += np.float32(offset_mm)
+    return replace(scan, xyz=xyz), band
+
+
+def test_issue9_corrupted_mask_edge_pairs_are_rejected(noisy):
+    child, _ = _corrupt_edge(noisy[1])
+    plain = correspond(noisy[0], child, max_view_angle_deg=None, min_relative_modulation=None,
+                       outlier_mm=None)
+    assert plain.rejected is None and plain.dropped["outlier"] == 0
+    assert plain.distance_mm.max() > 0.1  # the corrupted points are paired without the tests
+    m = correspond(noisy[0], child)
+    # every pair more than the outlier floor (25 µm) off its neighbours is rejected
+    assert m.distance_mm.max() < 0.035
+    assert m.n_pairs > 0.8 * plain.n_pairs
+    assert m.rejected.n_pairs == sum(m.dropped[k] for k in ("view_angle", "modulation",
+                                                            "outlier"))
+    assert set(m.rejected.reason) <= {"view_angle", "modulation", "outlier"}
+    assert m.dropped["outlier"] > 0
+    # nothing is hidden: the statistics before rejection hold every pair found
+    stats = m.statistics()
+    assert stats["before_rejection"]["pairs"] == plain.n_pairs
+    assert stats["before_rejection"]["distance_mm"]["max"] == pytest.approx(
+        plain.distance_mm.max())
+    assert stats["rejected"] == {k: m.dropped[k] for k in ("view_angle", "modulation",
+                                                           "outlier")}
+    assert m.n_sampled == m.n_pairs + sum(m.dropped.values())
+
+
+def test_issue9_rejection_tests_by_reason(clean):
+    # grazing views: the cylinder's silhouette seen by the side cameras
+    wide = correspond(clean[0], clean[1], max_view_angle_deg=None, min_relative_modulation=None,
+                      outlier_mm=None)
+    m = correspond(clean[0], clean[1], max_view_angle_deg=60.0, min_relative_modulation=None,
+                   outlier_mm=None)
+    assert m.dropped["view_angle"] > 0 and m.dropped["modulation"] == 0
+    assert m.n_pairs + m.dropped["view_angle"] == wide.n_pairs
+    # a stripe of weak fringes (a tenth of the modulation) in the child
+    stripe = (np.arange(SIZE[0]) >= 40) & (np.arange(SIZE[0]) < 50)
+    weak = replace(clean[1], modulation=clean[1].modulation * np.where(
+        stripe, 0.1, 1.0).astype(np.float32))
+    m = correspond(clean[0], weak, max_view_angle_deg=None, outlier_mm=None)
+    assert m.dropped["modulation"] > 0
+    assert m.n_pairs + m.dropped["modulation"] == wide.n_pairs
+    col = m.child_rc[:, 1]
+    assert not np.any((col >= 40) & (col <= 49))  # none in the stripe (bilinear at its rim)
+    with pytest.raises(ValueError, match="max_view_angle_deg"):
+        correspond(clean[0], clean[1], max_view_angle_deg=120)
+    with pytest.raises(ValueError, match="outlier_mm"):
+        correspond(clean[0], clean[1], outlier_mm=-1)
+
+
+def test_issue9_local_outliers_follow_a_smooth_offset():
+    from nail2nail.merge import local_outliers
+
+    rows, cols = np.divmod(np.arange(64 * 64), 64)
+    d = 0.005 + 0.05 * cols / 64  # a calibration-like ramp, 5 to 55 µm
+    d[[100, 2000, 4000]] += 0.1
+    out = local_outliers(rows, cols, d, block_px=16)
+    assert np.flatnonzero(out).tolist() == [100, 2000, 4000]

@@ -101,22 +101,24 @@ def _feather(valid: np.ndarray, feather_px: float) -> np.ndarray | float:
     return np.clip((distance - 0.5) / feather_px, 0, 1)
 
 
-def spikes(xyz, valid, *, normals=None, spike_mm: float = 0.05) -> np.ndarray:
+def spikes(xyz, valid, *, spike_mm: float = 0.05) -> np.ndarray:
     """Points that stand off the surface of their neighbours: lone decoding errors.
 
-    For each valid pixel and each of the four lines through it (row, column, two diagonals)
-    whose two neighbours are valid, the offset of the point from their midpoint along its
-    normal, ``n · (X − (X₋ + X₊) / 2)``. A pixel is a spike when that offset exceeds `spike_mm`
-    on every such line (the smallest offset: a ridge, a step or a grazing view bends the
-    surface along one direction, not across all four).
+    For each valid pixel, the lines through it (row, column, two diagonals) whose two
+    neighbours are valid; with at least two such lines, the local normal ``n`` is the
+    normalised sum of the cross products of their chords (the pixel itself is not used), and
+    the offset on a line is ``|n · (X − (X₋ + X₊) / 2)|``. A pixel is a spike when the offset
+    exceeds `spike_mm` on every line (the smallest: a ridge, a step or a grazing view bends the
+    surface along one direction, not across all). On a smooth surface the offset is the
+    curvature term ``κ h² / 2`` (h the pixel spacing: about 4 µm on the finger's ridges at full
+    resolution) plus the noise. Pixels with fewer than two lines (the outermost row of a valid
+    region) are not tested: with one line, a spike and its neighbour look alike.
 
     Parameters
     ----------
     xyz : (H, W, 3) float
         World points, mm.
     valid : (H, W) bool
-    normals : (H, W, 3) float, optional
-        (:func:`grid_normals` if omitted; central differences do not use the pixel itself).
     spike_mm : float
         Largest accepted offset, mm.
 
@@ -134,19 +136,35 @@ def spikes(xyz, valid, *, normals=None, spike_mm: float = 0.05) -> np.ndarray:
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=-1)
-    if normals is None:
-        normals = grid_normals(np.where(valid[..., None], xyz, np.nan))
-    normals = np.nan_to_num(np.asarray(normals, dtype=np.float64))
     h, w = valid.shape
     pad = np.pad(np.where(valid[..., None], xyz, np.nan), ((1, 1), (1, 1), (0, 0)),
-                 constant_values=np.nan)
-    smallest = np.full((h, w), np.inf)
-    for dr, dc in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        before = pad[1 - dr:1 - dr + h, 1 - dc:1 - dc + w]
-        after = pad[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
-        offset = np.abs(np.einsum("...k,...k->...", xyz - 0.5 * (before + after), normals))
+                 constant_values=np.nan).reshape(-1, 3)
+    rr, cc = np.nonzero(valid)
+    centre = (rr + 1) * (w + 2) + cc + 1  # flat indices into the padded grid
+    x = xyz[rr, cc]
+    steps = ((1, 0), (0, 1), (1, 1), (1, -1))
+    chords, mids = [], []
+    for dr, dc in steps:
+        before, after = pad[centre - dr * (w + 2) - dc], pad[centre + dr * (w + 2) + dc]
+        chords.append(after - before)
+        mids.append(0.5 * (before + after))
+    normal = np.zeros_like(x)
+    for k in range(len(steps)):
+        for m in range(k + 1, len(steps)):
+            # orient every pair's cross product alike: by the sign of the pixel steps' own
+            sign = np.sign(steps[k][0] * steps[m][1] - steps[k][1] * steps[m][0])
+            normal += np.nan_to_num(sign * np.cross(chords[k], chords[m]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    smallest = np.full(rr.size, np.inf)
+    lines = np.zeros(rr.size, dtype=np.int8)
+    for mid in mids:
+        offset = np.abs(np.einsum("nk,nk->n", x - mid, normal))
+        lines += np.isfinite(mid[:, 0])
         smallest = np.fmin(smallest, offset)  # NaN (a missing neighbour) leaves it
-    return valid & np.isfinite(smallest) & (smallest > spike_mm)
+    out = np.zeros((h, w), dtype=bool)
+    out[rr, cc] = (lines >= 2) & np.isfinite(smallest) & (smallest > spike_mm)
+    return out
 
 
 def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarray, np.ndarray]:
@@ -236,8 +254,9 @@ class SuperScan:
         Camera indices, highest priority first.
     duplicates_removed : dict[str, int]
         Per camera, owned points dropped as 3D duplicates of a higher-priority camera's points.
-    spikes_removed : dict[str, int]
-        Per camera, points dropped before fusion as spikes (:func:`spikes`).
+    points_rejected : dict[str, dict[str, int]]
+        Per camera, points dropped as ``"spike"`` (before fusion, :func:`spikes`) and as
+        ``"off_surface"`` (unfused points off the other cameras' fused surface).
     """
 
     scans: list[Scan]
@@ -252,7 +271,7 @@ class SuperScan:
     correspondences: dict = field(default_factory=dict)
     priority: list[int] = field(default_factory=list)
     duplicates_removed: dict = field(default_factory=dict)
-    spikes_removed: dict = field(default_factory=dict)
+    points_rejected: dict = field(default_factory=dict)
 
     @property
     def n_vertices(self) -> int:
@@ -266,7 +285,7 @@ class SuperScan:
             "faces": int(self.faces.shape[0]),
             "priority": [self.scans[i].name for i in self.priority],
             "duplicates_removed": dict(self.duplicates_removed),
-            "spikes_removed": dict(self.spikes_removed),
+            "points_rejected": {k: dict(v) for k, v in self.points_rejected.items()},
             "rejected_pairs": {
                 f"{i}-{j}": {k: int(m.dropped.get(k, 0)) for k in REJECT_REASONS}
                 for (i, j), m in self.correspondences.items()
@@ -276,6 +295,34 @@ class SuperScan:
                 for s, v in zip(self.scans, self.n_views, strict=True)
             },
         }
+
+
+def _off_surface(points, score, ref, ref_trust, *, radius, surface_mm, k=8) -> np.ndarray:
+    """Points farther than `surface_mm` from the plane of their `k` nearest reference points
+    (within `radius`, at least 3), where those are more trusted than the point (mean trust)."""
+    tree = scipy.spatial.cKDTree(ref)
+    out = np.zeros(points.shape[0], dtype=bool)
+    near = np.flatnonzero(np.isfinite(tree.query(points, distance_upper_bound=radius)[0]))
+    dist, idx = tree.query(points[near], k=k, distance_upper_bound=radius)
+    found = np.isfinite(dist)
+    enough = found.sum(axis=1) >= 3
+    test = near[enough]
+    if not test.size:
+        return out
+    idx, found, p = idx[enough], found[enough], points[test]
+    nb = ref[np.where(found, idx, 0)]
+    w = found[..., None].astype(np.float64)
+    centroid = (nb * w).sum(axis=1) / w.sum(axis=1)
+    d = (nb - centroid[:, None]) * w
+    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))
+    normal = vectors[:, :, 0]  # the smallest eigenvalue's vector: the plane's normal
+    # points along a line (a grazing view's single row) define no plane
+    planar = values[:, 1] > 0.05 * values[:, 2]
+    offset = np.abs(np.einsum("ni,ni->n", p - centroid, normal))
+    trust = np.where(found, ref_trust[np.where(found, idx, 0)], 0.0)
+    mean_trust = trust.sum(axis=1) / found.sum(axis=1)
+    out[test] = planar & (offset > surface_mm) & (mean_trust > score[test])
+    return out
 
 
 def fuse_scans(
@@ -289,6 +336,7 @@ def fuse_scans(
     max_edge_mm: float | None = None,
     dedupe_mm: float | None = None,
     spike_mm: float | None = 0.05,
+    surface_mm: float | None = 0.05,
     max_view_angle_deg: float | None = 70.0,
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
@@ -314,7 +362,12 @@ def fuse_scans(
        corresponding points in every other camera, over the kept pairs only (weights:
        :func:`view_weights`, interpolated at the sub-pixel correspondence). A point whose pair
        was rejected keeps the better-viewed camera's point: it is not averaged.
-    4. Normals of the fused grids (:func:`grid_normals`) and a mesh per camera grid
+    4. A point left unfused (no kept pair) that lies farther than `surface_mm` from the plane
+       of the other cameras' points around it (8 nearest within 3 pixel spacings) is dropped
+       when those are confirmed (a kept pair closer than `surface_mm`) or view the surface
+       better (the ownership score): a corrupted point at a mask edge or a shadow border,
+       where no pair could be tested. Of two disagreeing lone points the better view stays.
+    5. Normals of the fused grids (:func:`grid_normals`) and a mesh per camera grid
        (:func:`grid_mesh`).
 
     Parameters
@@ -338,6 +391,8 @@ def fuse_scans(
         default half the pixel spacing, 0 to skip.
     spike_mm : float or None
         Spike threshold of step 0, mm; None skips it.
+    surface_mm : float or None
+        Off-surface threshold of step 4, mm; None skips it.
     max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad :
         The rejection tests, passed to :func:`~nail2nail.merge.correspond`; None skips one.
 
@@ -376,7 +431,7 @@ def fuse_scans(
     spikes_removed = dict.fromkeys((s.name for s in scans), 0)
     if spike_mm is not None:
         for i, s in enumerate(scans):
-            bad = spikes(s.xyz, valid[i], normals=normals0[i], spike_mm=spike_mm)
+            bad = spikes(s.xyz, valid[i], spike_mm=spike_mm)
             spikes_removed[s.name] = int(bad.sum())
             if bad.any():
                 valid[i] = valid[i] & ~bad
@@ -446,7 +501,7 @@ def fuse_scans(
             keeps[i][rr[near], cc[near]] = False
             removed[scans[i].name] = int(near.sum())
 
-    fused_scans, fused_normals, n_views = [], [], []
+    fused_xyz, counts = [], []
     for i, s in enumerate(scans):
         keep = keeps[i]
         xyz = np.asarray(s.xyz, dtype=np.float64)
@@ -464,7 +519,38 @@ def fuse_scans(
             np.add.at(acc, (rc[:, 0], rc[:, 1]), w_j[:, None] * m.xyz_child[own])
             np.add.at(count, (rc[:, 0], rc[:, 1]), 1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            fused = np.where((w_sum > 0)[..., None], acc / w_sum[..., None], xyz)
+            fused_xyz.append(np.where((w_sum > 0)[..., None], acc / w_sum[..., None], xyz))
+        counts.append(count)
+
+    # a lone point (no kept pair) off the surface of the other cameras nearby is dropped when
+    # they are confirmed there (a kept pair within surface_mm) or view it better
+    off_surface = dict.fromkeys((s.name for s in scans), 0)
+    if surface_mm is not None and n > 1 and np.isfinite(spacing):
+        points, trust = [], []  # per camera: valid points; confirmed (inf) or view score
+        for j in range(n):
+            t = np.array(scores[j], dtype=np.float64)
+            for k in range(n):
+                if k != j:
+                    m = corr[j, k]
+                    t[tuple(m.parent_rc[m.distance_mm <= surface_mm].T)] = np.inf
+            points.append(np.asarray(scans[j].xyz, np.float64)[valid[j]])
+            trust.append(t[valid[j]])
+        for i in range(n):
+            lone = keeps[i] & (counts[i] == 1)
+            others = [j for j in range(n) if j != i]
+            ref = np.concatenate([points[j] for j in others])
+            if not lone.any() or not ref.size:
+                continue
+            ref_trust = np.concatenate([trust[j] for j in others])
+            rr, cc = np.nonzero(lone)
+            off = _off_surface(fused_xyz[i][rr, cc], scores[i][rr, cc], ref, ref_trust,
+                               radius=3 * spacing, surface_mm=surface_mm)
+            keeps[i][rr[off], cc[off]] = False
+            off_surface[scans[i].name] = int(off.sum())
+
+    fused_scans, fused_normals, n_views = [], [], []
+    for i, s in enumerate(scans):
+        keep, count, fused, xyz = keeps[i], counts[i], fused_xyz[i], np.asarray(s.xyz, np.float64)
         # normals from every valid pixel (fused where owned), so ownership edges keep them
         normals = grid_normals(np.where(keep[..., None], fused, xyz), camera_center=s.camera_center)
         normals[~keep] = np.nan
@@ -500,7 +586,8 @@ def fuse_scans(
         colors=np.concatenate(cols), faces=np.concatenate(faces),
         camera=np.concatenate(cams), pixel=np.concatenate(pix),
         correspondences=corr, priority=priority, duplicates_removed=removed,
-        spikes_removed=spikes_removed,
+        points_rejected={s.name: {"spike": spikes_removed[s.name],
+                                  "off_surface": off_surface[s.name]} for s in scans},
     )
 
 
