@@ -270,19 +270,22 @@ def test_binarize_marks_crests(ridges):
 def test_block_quality_shapes():
     img = sinusoid((100, 130), 8.0)
     mask = np.ones(img.shape, bool)
-    q = block_quality(img, mask, block_px=32)
+    q = block_quality(img, mask, block_px=32, step_px=32)
     assert q["grid"].shape == (3, 4) and q["grid"].dtype == np.float32
     for key in ("rows", "cols", "period_px", "clarity"):
         assert q[key].shape == (12,)
     assert ((q["clarity"] >= 0) & (q["clarity"] <= 1)).all()
     np.testing.assert_allclose(sorted(set(q["rows"])), [15.5, 47.5, 79.5])
+    # default: blocks overlap by half
+    half = block_quality(img, mask, block_px=32)
+    assert half["grid"].shape == (5, 7) and half["step_px"] == 16
 
 
 def test_block_quality_only_blocks_inside_the_mask():
     img = sinusoid((96, 96), 8.0)
     mask = np.ones(img.shape, bool)
     mask[40, 70] = False  # spoils block (1, 2)
-    q = block_quality(img, mask, block_px=32)
+    q = block_quality(img, mask, block_px=32, step_px=32)
     assert q["clarity"].size == 8
     assert np.isnan(q["grid"][1, 2]) and np.isfinite(np.delete(q["grid"].ravel(), 5)).all()
     empty = block_quality(img, np.zeros(img.shape, bool), block_px=32)
@@ -306,12 +309,9 @@ def test_block_quality_period_on_a_bin_in_default_blocks(angle):
     assert q["clarity"].min() > 0.85
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "block_quality, 32 px blocks: the ±25 % ring about the peak bin is narrower than the Hann "
-    "window's main lobe at ridge frequencies (3–4 cycles per block), so the period snaps to the "
-    "FFT bin (9.5 px → 10.47 px at 0°) and a clean sinusoid has clarity ≈ 0.54"))
 @pytest.mark.parametrize("angle", [0.0, 77.0])
 def test_block_quality_recovers_period_between_bins(angle):
+    # regression: 32 px blocks snapped the period to the FFT bin (9.5 px read as 10.47 px)
     img = sinusoid((128, 128), 9.5, angle)
     q = block_quality(img, np.ones(img.shape, bool))
     np.testing.assert_allclose(q["period_px"], 9.5, rtol=0.02)
@@ -377,17 +377,12 @@ def test_ridge_signal_no_valid_pixels():
         ridge_signal(scan)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "local_normalize divides by max(rms, 1e-12): the float32 rounding ripple of a constant "
-    "field (reduce=3 on a 160 x 180 grid) is blown up to unit RMS (max |z| ≈ 4.9) instead of "
-    "0, so a uniform albedo adds 0.3 x noise to ridge_signal (correlation 0.963, not 0.9999)"))
 def test_ridge_signal_uniform_albedo_adds_nothing():
     xyz, h = plane_with_relief()
     with_albedo = ridge_signal(grid_scan(xyz, (4.0, 4.0, 100.0)))  # albedo 0.6 everywhere
     assert _corr(with_albedo, h) > 0.99
 
 
-@pytest.mark.xfail(strict=True, reason="local_normalize amplifies rounding noise of a constant")
 def test_local_normalize_of_a_constant_is_zero():
     values = np.full((160, 180), 0.6, np.float32)
     out = local_normalize(values, np.ones(values.shape, bool), 20.0, reduce=3)
@@ -408,9 +403,6 @@ def test_masked_gaussian_reduced_agrees_with_full(reduce, tol):
     np.testing.assert_allclose(fast[inner], full[inner], atol=tol)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "masked_gaussian with reduce > 1 returns float64, not the documented float32: the "
-    "bilinear weights (float32 positions minus intp indices) are float64"))
 def test_masked_gaussian_reduced_keeps_float32():
     values = np.ones((40, 50), np.float32)
     out = masked_gaussian(values, np.ones(values.shape, bool), 6.0, reduce=2)

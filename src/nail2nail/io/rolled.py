@@ -8,7 +8,7 @@ Layout (``docs/capture-format.md``)::
     OUT/print_binary.png    ridges black on white (thesis Figure 37)
     OUT/print_mask.png      255 where the print has data
     OUT/print_coverage.png  each camera's share of the blend as a colour (RGB: cameras 0, 1, 2)
-    OUT/print_quality.png   ridge clarity per block (grey: 0 → 1), upsampled to the print
+    OUT/print_quality.png   ridge clarity per block (grey: 0 → 1), painted on the print
     OUT/print.json          metadata (RolledPrint.metadata() and the files)
 
 Every file is written to a temporary name and renamed; ``print.json`` is written last, so a
@@ -86,11 +86,15 @@ def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
     rgb = np.where(rolled.mask[..., None], rgb, 255)
     _write_png(out / "print_coverage.png", np.clip(rgb, 0, 255).astype(np.uint8), ppi)
     files["coverage"] = "print_coverage.png"
+    # each block's clarity painted over the central step × step part of its window
     grid = np.nan_to_num(np.asarray(rolled.quality["grid"], np.float32), nan=0.0)
-    block = int(rolled.quality["block_px"])
-    big = np.kron(grid, np.ones((block, block), np.float32))
+    step, n = int(rolled.quality["step_px"]), int(rolled.quality["block_px"])
+    big = np.kron(grid, np.ones((step, step), np.float32))
     q = np.zeros(rolled.image.shape, np.float32)
-    q[: big.shape[0], : big.shape[1]] = big
+    off = (n - step) // 2
+    hh = max(0, min(big.shape[0], q.shape[0] - off))
+    ww = max(0, min(big.shape[1], q.shape[1] - off))
+    q[off: off + hh, off: off + ww] = big[:hh, :ww]
     _write_png(out / "print_quality.png", np.clip(q * 255 + 0.5, 0, 255).astype(np.uint8), ppi)
     files["quality"] = "print_quality.png"
     meta = rolled.metadata()

@@ -77,8 +77,8 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
         ``similarity`` (scale, rotation in degrees, reflected: False), ``scale_error``
         (median, p95, max of the local scale error, fraction), ``displacement_mm`` (median,
         p95, max of the residual), ``pixels`` compared; with `truth_sampler`, ``period_ratio``
-        (median and p90 of |ratio − 1| of block periods, print / truth) and ``truth_on_grid``
-        ((H, W) uint8, the true print through the similarity); with `maps`,
+        (median and p90 of |ratio − 1| of the periods of 3.2 mm blocks, print / truth) and
+        ``truth_on_grid`` ((H, W) uint8, the true print through the similarity); with `maps`,
         ``scale_error_map`` and ``displacement_map`` ((H, W) float32, NaN where not measured).
     """
     grid = rolled.grid
@@ -159,7 +159,7 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
         tuv = scale * grid.plane(gr, gc) @ rot.T + t
         truth = np.full((h, w), 255.0)
         truth[gr, gc] = 127.5 - 127.5 * truth_sampler(tuv[:, 0], tuv[:, 1])
-        block = round(1.6 / grid.pitch)
+        block = round(3.2 / grid.pitch)
         qa = block_quality(rolled.image, rolled.mask, block_px=block)
         qb = block_quality(truth, rolled.mask, block_px=block)
         both = (qa["clarity"] > 0.3) & (qb["clarity"] > 0.3)

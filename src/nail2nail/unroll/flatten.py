@@ -70,7 +70,7 @@ def _frame(axis, pad) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a = _unit(axis)
     n = np.asarray(pad, dtype=np.float64) - np.dot(pad, a) * a
     if np.linalg.norm(n) < 1e-6:
-        raise ValueError("pad direction: parallel to the finger axis")
+        raise ValueError("pad_direction: parallel to the finger axis")
     n = _unit(n)
     return a, n, np.cross(a, n)
 
@@ -322,7 +322,11 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
     pts = _sample(_check_points(xyz), n_max)
     centroid = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
-    a0 = vt[0] if np.dot(vt[0], tip_direction) >= 0 else -vt[0]
+    # start from the principal direction nearest the tip direction (a patch may be wider
+    # around the finger than it is long, so the first principal direction can run across it)
+    tip = _unit(tip_direction)
+    a0 = vt[int(np.argmax(np.abs(vt @ tip)))]
+    a0 = a0 if np.dot(a0, tip) >= 0 else -a0
     _, n0, e0 = _frame(a0, pad_direction)
 
     def unpack(p):
@@ -357,6 +361,7 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
         pts = pts[keep]
         fit = scipy.optimize.least_squares(residual, fit.x, method="lm")
     a, c = unpack(fit.x)
+    a = a if np.dot(a, tip) >= 0 else -a
     c = c + np.dot(centroid - c, a) * a
     a, n, _ = _frame(a, pad_direction)
     return CylinderMap(center=c, axis=a, pad=n, radius=float(abs(fit.x[4])))

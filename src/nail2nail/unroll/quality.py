@@ -1,11 +1,13 @@
-"""Local ridge period and ridge clarity of a print, block by block.
+"""Local ridge period and ridge clarity of a print, in overlapping blocks.
 
-Each block of ``block_px`` × ``block_px`` pixels (fully inside the print's mask) is windowed
-(Hann) and Fourier transformed; the ridge period is the inverse radius of the spectral peak
-(refined by a centroid of the peak's neighbourhood), and the clarity is the fraction of the
-block's AC energy within ±25 % of the peak frequency (1 for a clean sinusoidal ridge pattern,
-low for noise or blur; in the spirit of NFIQ 2's frequency-domain features, Tabassi et al.,
-NISTIR 8382, 2021).
+Blocks of ``block_px`` × ``block_px`` pixels (fully inside the print's mask), every ``step_px``,
+are windowed (Hann), zero-padded to twice their size and Fourier transformed; the ridge period
+is the inverse radius of the spectral peak, refined by the energy-weighted radius of the peak's
+ring, and the clarity is the fraction of the block's AC energy in that ring (±25 % of the peak
+frequency, widened by the window's resolution ``1 / block_px``): near 1 for a clean ridge
+pattern, about 0.1 for noise (in the spirit of NFIQ 2's frequency-domain features, Tabassi et
+al., NISTIR 8382, 2021). A block must hold five or more ridges for the period to be resolved
+to a few per cent: 64 px (3.2 mm) at 500 ppi.
 """
 
 from __future__ import annotations
@@ -15,8 +17,8 @@ import numpy as np
 __all__ = ["block_quality"]
 
 
-def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
-                  max_period_px: float = 25.0) -> dict:
+def block_quality(gray, mask, *, block_px: int = 64, step_px: int | None = None,
+                  min_period_px: float = 4.0, max_period_px: float = 25.0) -> dict:
     """Ridge period and clarity per block.
 
     Parameters
@@ -26,7 +28,9 @@ def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
     mask : (H, W) bool
         Pixels with data; only blocks wholly inside are measured.
     block_px : int
-        Block size, px (32 px = 1.6 mm at 500 ppi: three to four ridges).
+        Block size, px.
+    step_px : int, optional
+        Distance between blocks, px (default ``block_px // 2``: blocks overlap by half).
     min_period_px, max_period_px : float
         Band searched for the ridge frequency.
 
@@ -35,35 +39,49 @@ def block_quality(gray, mask, *, block_px: int = 32, min_period_px: float = 4.0,
     dict
         ``rows, cols`` (B,) block centres (px); ``period_px`` (B,) float; ``clarity`` (B,)
         float in [0, 1]; ``grid`` (Hb, Wb) float32 clarity map (NaN where not measured), block
-        ``[i, j]`` covering rows ``i·block_px …`` and columns ``j·block_px …``; ``block_px``.
+        ``[i, j]`` covering rows ``i·step_px … i·step_px + block_px − 1`` (and columns alike);
+        ``block_px``, ``step_px``.
+
+    Examples
+    --------
+    >>> x = np.arange(128)
+    >>> img = np.tile(np.cos(2 * np.pi * x / 9.5), (128, 1))
+    >>> q = block_quality(img, np.ones(img.shape, bool))
+    >>> bool(abs(np.median(q["period_px"]) - 9.5) < 0.2), bool(q["clarity"].min() > 0.8)
+    (True, True)
     """
     img = np.asarray(gray, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
+    n = int(block_px)
+    step = int(step_px) if step_px else max(1, n // 2)
     h, w = img.shape
-    nb_r, nb_c = h // block_px, w // block_px
-    blocks = img[: nb_r * block_px, : nb_c * block_px].reshape(nb_r, block_px, nb_c, block_px)
-    full = mask[: nb_r * block_px, : nb_c * block_px].reshape(
-        nb_r, block_px, nb_c, block_px).all(axis=(1, 3))
+    empty = {"rows": np.zeros(0), "cols": np.zeros(0), "period_px": np.zeros(0),
+             "clarity": np.zeros(0), "block_px": n, "step_px": step}
+    if h < n or w < n:
+        return {**empty, "grid": np.full((0, 0), np.nan, np.float32)}
+    view = np.lib.stride_tricks.sliding_window_view
+    full = view(mask, (n, n))[::step, ::step].all(axis=(2, 3))
+    grid = np.full(full.shape, np.nan, dtype=np.float32)
     br, bc = np.nonzero(full)
-    grid = np.full((nb_r, nb_c), np.nan, dtype=np.float32)
     if not br.size:
-        return {"rows": np.zeros(0), "cols": np.zeros(0), "period_px": np.zeros(0),
-                "clarity": np.zeros(0), "grid": grid, "block_px": block_px}
-    b = blocks[br, :, bc, :]  # (B, block, block)
+        return {**empty, "grid": grid}
+    b = view(img, (n, n))[::step, ::step][br, bc]  # (B, n, n)
     b = b - b.mean(axis=(1, 2), keepdims=True)
-    win = np.hanning(block_px)
-    spec = np.abs(np.fft.fft2(b * np.outer(win, win))) ** 2
-    f = np.fft.fftfreq(block_px)
-    radius = np.hypot(f[:, None], f[None, :])
+    win = np.hanning(n)
+    m = 2 * n  # zero padding: a finer frequency grid for the peak
+    spec = np.abs(np.fft.rfft2(b * np.outer(win, win), s=(m, m))) ** 2
+    fy = np.fft.fftfreq(m)[:, None]
+    fx = np.fft.rfftfreq(m)[None, :]
+    radius = np.hypot(fy, fx)
     band = (radius >= 1 / max_period_px) & (radius <= 1 / min_period_px)
     total = spec[:, radius > 0].sum(axis=1)
-    masked = np.where(band, spec, 0)
-    peak = masked.reshape(len(b), -1).argmax(axis=1)
+    peak = np.where(band, spec, 0).reshape(len(b), -1).argmax(axis=1)
     r_peak = radius.ravel()[peak]
-    near = np.abs(radius[None] - r_peak[:, None, None]) <= 0.25 * r_peak[:, None, None]
-    e_near = np.where(near & band, spec, 0)
-    # the energy-weighted radius of the peak's ring refines the frequency beyond the FFT grid
-    r_mean = (e_near * radius).sum(axis=(1, 2)) / np.maximum(e_near.sum(axis=(1, 2)), 1e-300)
-    clarity = e_near.sum(axis=(1, 2)) / np.maximum(total, 1e-300)
+    half_width = 0.25 * r_peak + 1.0 / n
+    ring = np.abs(radius[None] - r_peak[:, None, None]) <= half_width[:, None, None]
+    e_ring = np.where(ring & (radius[None] > 0), spec, 0)
+    r_mean = (e_ring * radius).sum(axis=(1, 2)) / np.maximum(e_ring.sum(axis=(1, 2)), 1e-300)
+    clarity = np.clip(e_ring.sum(axis=(1, 2)) / np.maximum(total, 1e-300), 0, 1)
     grid[br, bc] = clarity
-    return {"rows": (br + 0.5) * block_px - 0.5, "cols": (bc + 0.5) * block_px - 0.5,
-            "period_px": 1.0 / r_mean, "clarity": clarity, "grid": grid, "block_px": block_px}
+    return {**empty, "rows": br * step + (n - 1) / 2, "cols": bc * step + (n - 1) / 2,
+            "period_px": 1.0 / np.maximum(r_mean, 1e-12), "clarity": clarity, "grid": grid}

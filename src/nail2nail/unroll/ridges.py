@@ -94,6 +94,7 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
         top = out[r0][:, c0] * (1 - fc) + out[r0][:, c1] * fc
         bottom = out[r1][:, c0] * (1 - fc) + out[r1][:, c1] * fc
         out = top * (1 - fr) + bottom * fr
+    out = out.astype(np.float32, copy=False)
     return out[..., 0] if squeeze else out
 
 
@@ -109,8 +110,11 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     mean = masked_gaussian(v, valid, sigma_px, reduce=reduce)
     d = v - mean
     rms = np.sqrt(masked_gaussian(d * d, valid & np.isfinite(d), sigma_px, reduce=reduce))
+    # a floor relative to the values' magnitude: a constant field stays 0 instead of its
+    # rounding noise being blown up to unit RMS
+    floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = d / np.maximum(rms, 1e-12)
+        out = d / np.maximum(rms, floor)
     return np.where(valid, out, np.nan).astype(np.float32)
 
 

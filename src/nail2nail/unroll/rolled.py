@@ -117,8 +117,9 @@ class RolledPrint:
             "distortion": self.distortion,
             "coverage": coverage,
             "quality": {
-                "measure": "ridge clarity per 32 px block: fraction of spectral energy within "
-                           "±25 % of the ridge frequency (1 = clean ridges)",
+                "measure": "ridge clarity per 3.2 mm block (overlapping by half): fraction of "
+                           "spectral energy in the ring of the ridge frequency (1 = clean "
+                           "ridges, about 0.1 for noise)",
                 "blocks": int(clarity.size),
                 "clarity_median": _r(np.median(clarity)) if clarity.size else None,
                 "clarity_p10": _r(np.percentile(clarity, 10)) if clarity.size else None,
@@ -175,8 +176,8 @@ def unroll_scans(
         Every camera's scan of one finger with all its valid pixels (the output of
         :func:`nail2nail.scanning.scan_capture`), in one world frame; overlaps are blended.
     method : {"cylinder", "sphere", "rolled", "isometric"}
-        Flattening (:mod:`nail2nail.unroll.flatten`); ``isometric`` by default, the method with
-        the least distortion.
+        Flattening (:mod:`nail2nail.unroll.flatten`); ``rolled`` by default, the method with
+        the smallest geometric error against the true skin coordinates (``docs/unroll.md``).
     ppi : float
         Resolution of the print, pixels per inch (500 is the FBI's rolled-print standard).
     tip_direction : (3,) float
@@ -250,7 +251,7 @@ def unroll_scans(
     image = to_gray(value, mask, sigma_px=1.0 / pitch, reduce=max(1, int(0.25 / pitch)))
     binary = binarize(image, mask, period_px=0.48 / pitch)
     lap("render")
-    quality = block_quality(image, mask, block_px=round(1.6 / pitch))
+    quality = block_quality(image, mask, block_px=round(3.2 / pitch))
     distortion = map_distortion(flat, mesh)
     lap("quality")
     return RolledPrint(image=image, mask=mask, binary=binary, ridge=value, share=share,
