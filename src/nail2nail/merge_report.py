@@ -63,14 +63,23 @@ def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
 
 def _save_mapping(path: Path, corr) -> Path:
     # float32 (µm-level values at mm scale keep ~7 digits) halves the files
-    return write_npz(path, {
+    arrays = {
         "mapping": corr.mapping, "parent_rc": corr.parent_rc.astype(np.int32),
         "child_rc": corr.child_rc.astype(np.float32),
         "xyz_parent": corr.xyz_parent.astype(np.float32),
         "xyz_child": corr.xyz_child.astype(np.float32),
         "distance_mm": corr.distance_mm.astype(np.float32),
         "residual_px": corr.residual_px.astype(np.float32),
-    })
+    }
+    if corr.rejected is not None:  # the rejected pairs too: nothing is hidden
+        r = corr.rejected
+        arrays |= {
+            "rejected_parent_rc": r.parent_rc.astype(np.int32),
+            "rejected_child_rc": r.child_rc.astype(np.float32),
+            "rejected_distance_mm": r.distance_mm.astype(np.float32),
+            "rejected_reason": np.asarray(r.reason, dtype=str),
+        }
+    return write_npz(path, arrays)
 
 
 def write_merge(
@@ -87,7 +96,9 @@ def write_merge(
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
-    Per pair ``P-C``: ``merge_P-C_mapping.npz`` (the thesis's mapping matrix and the pairs),
+    Per pair ``P-C``: ``merge_P-C_mapping.npz`` (the thesis's mapping matrix, the kept pairs
+    and the rejected ones with their reason: ``rejected_parent_rc``, ``rejected_child_rc``,
+    ``rejected_distance_mm``, ``rejected_reason``),
     and with `figures` ``merge_P-C_heatmap.png``, ``_histogram.png``, ``_points3d.png``,
     ``_marked.png``. With `super_scan`: ``super.ply``, the super mat5 ``superC.bmp`` …
     (:func:`nail2nail.fusion.super_mat5_scan`), and with `figures` ``super_front.png``,
@@ -114,9 +125,13 @@ def write_merge(
     Returns
     -------
     dict
-        ``{"out", "merge": {"P-C": {parent, child, stride, sampled, pairs, dropped,
+        ``{"out", "merge": {"P-C": {parent, child, stride, sampled, pairs, dropped, rejected,
         distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
-        files}}, "super_scan": {...} | None, "outputs": [paths]}``.
+        before_rejection: {pairs, distance_mm, squared_mm2}, files}}, "super_scan": {...} |
+        None, "outputs": [paths]}``. ``distance_mm`` is over the kept pairs; ``rejected``
+        counts the pairs rejected per reason (:data:`nail2nail.merge.REJECT_REASONS`) and
+        ``before_rejection`` gives the statistics of all pairs found. The super scan's
+        ``rejected_pairs`` and ``points_rejected`` count what fusion left out.
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
