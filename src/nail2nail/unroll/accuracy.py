@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .quality import block_quality
+from .ridges import scan_valid
 from .rolled import RolledPrint
 
 __all__ = ["geometric_accuracy", "similarity_fit"]
@@ -87,7 +88,7 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
     for scan, (tu, tv) in zip(scans, truth_uv, strict=True):
         tu = np.asarray(tu, dtype=np.float64)
         tv = np.asarray(tv, dtype=np.float64)
-        ok = np.isfinite(scan.xyz).all(axis=-1) & np.asarray(scan.mask, bool) \
+        ok = scan_valid(scan) \
             & np.isfinite(tu) & np.isfinite(tv)
         st_all.append(rolled.flattening(np.asarray(scan.xyz, dtype=np.float64)[ok]))
         uv_all.append(np.stack([tu[ok], tv[ok]], -1))

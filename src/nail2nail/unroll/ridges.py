@@ -13,21 +13,37 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from ..merge import valid_mask
 from ..reconstruction import Scan
 
 __all__ = [
     "camera_layer",
+    "finite_points",
     "local_normalize",
     "masked_gaussian",
     "pixel_spacing_mm",
     "ridge_signal",
+    "scan_valid",
 ]
+
+
+def _norm3(a) -> np.ndarray:
+    """``|a|`` over the last axis of ``(..., 3)`` (faster than ``linalg.norm`` on small axes)."""
+    return np.sqrt(np.einsum("...k,...k->...", a, a))
+
+
+def finite_points(xyz) -> np.ndarray:
+    """``(H, W) bool``: rows of ``(H, W, 3)`` points with all three coordinates finite."""
+    return np.isfinite(xyz[..., 0] + xyz[..., 1] + xyz[..., 2])
+
+
+def scan_valid(scan: Scan) -> np.ndarray:
+    """Valid pixels of a scan: in its mask with a finite point (``(H, W) bool``)."""
+    return np.asarray(scan.mask, dtype=bool) & finite_points(scan.xyz)
 
 
 def pixel_spacing_mm(xyz, valid) -> float:
     """Median distance between horizontally adjacent valid points, mm."""
-    step = np.linalg.norm(np.diff(xyz, axis=1), axis=-1)
+    step = _norm3(np.diff(xyz, axis=1))
     ok = valid[:, 1:] & valid[:, :-1]
     step = step[ok]
     if not step.size:
@@ -87,13 +103,13 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
             else np.zeros(h, np.intp)
         c0 = np.minimum(cols.astype(np.intp), out.shape[1] - 2) if out.shape[1] > 1 \
             else np.zeros(w, np.intp)
-        fr = (rows - r0)[:, None, None]
-        fc = (cols - c0)[None, :, None]
+        fr = (rows - r0).astype(np.float32)[:, None, None]
+        fc = (cols - c0).astype(np.float32)[None, :, None]
         r1 = np.minimum(r0 + 1, out.shape[0] - 1)
         c1 = np.minimum(c0 + 1, out.shape[1] - 1)
-        top = out[r0][:, c0] * (1 - fc) + out[r0][:, c1] * fc
-        bottom = out[r1][:, c0] * (1 - fc) + out[r1][:, c1] * fc
-        out = top * (1 - fr) + bottom * fr
+        # separable: rows first on the small grid, then columns (two full-size gathers)
+        tall = out[r0] * (1 - fr) + out[r1] * fr
+        out = tall[:, c0] * (1 - fc) + tall[:, c1] * fc
     out = out.astype(np.float32, copy=False)
     return out[..., 0] if squeeze else out
 
@@ -124,7 +140,7 @@ def _normals(xyz) -> np.ndarray:
     d_c = np.gradient(xyz, axis=1)
     n = np.cross(d_r, d_c)
     with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        n /= _norm3(n)[..., None]
     return n
 
 
@@ -156,7 +172,8 @@ def camera_layer(
 
     The ridge signal is the relief ``h = (X − X̄)·n`` from the smooth surface ``X̄`` (σ
     `surface_sigma_mm`), lightly smoothed against depth noise, normalised by its local RMS,
-    plus `albedo_weight` × the albedo's normalised local contrast, normalised again. The
+    plus `albedo_weight` × the albedo's normalised local contrast, divided by
+    ``√(1 + albedo_weight²)``. The
     blending weight is fringe modulation × cos² (viewing angle of the smooth surface) × a
     feather rising over `feather_px` camera pixels from the edge of the valid region, so that
     cameras cross-fade over about a millimetre.
@@ -191,7 +208,7 @@ def camera_layer(
     ValueError
         If the scan has no valid pixels.
     """
-    valid = valid_mask(scan)
+    valid = scan_valid(scan)
     if not valid.any():
         raise ValueError(f"scan {scan.name!r}: no valid pixels")
     rows = np.flatnonzero(valid.any(axis=1))
@@ -206,7 +223,7 @@ def camera_layer(
     normals = _normals(smooth)
     if scan.camera_center is not None:
         view = np.asarray(scan.camera_center, np.float32) - smooth
-        view /= np.linalg.norm(view, axis=-1, keepdims=True)
+        view /= _norm3(view)[..., None]
         cos = np.einsum("...k,...k->...", normals, view)
         # orient the normals towards the camera
         normals *= np.where(cos < 0, -1, 1).astype(np.float32)[..., None]
@@ -214,7 +231,7 @@ def camera_layer(
     else:
         cos = np.ones(m.shape, np.float32)
     relief = np.einsum("...k,...k->...", np.nan_to_num(xyz - smooth), np.nan_to_num(normals))
-    m = m & np.isfinite(smooth).all(axis=-1) & np.isfinite(normals).all(axis=-1)
+    m = m & finite_points(smooth) & finite_points(normals)
     if noise_sigma_mm > 0:
         relief = masked_gaussian(relief, m, noise_sigma_mm / spacing)
     csig = contrast_sigma_mm / spacing
@@ -224,8 +241,10 @@ def camera_layer(
         albedo = np.asarray(scan.albedo[box], dtype=np.float32)
         if noise_sigma_mm > 0:
             albedo = masked_gaussian(albedo, m, noise_sigma_mm / spacing)
-        signal = signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)
-        signal = local_normalize(signal, m, csig, reduce=creduce)
+        # both parts have unit local RMS: the sum is brought back to about unit RMS (the grey
+        # print is normalised again on the print grid)
+        signal = (signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)) \
+            / np.float32(np.sqrt(1 + albedo_weight**2))
     modulation = np.clip(np.nan_to_num(np.asarray(scan.modulation[box], np.float32)), 0, None)
     weight = modulation * np.nan_to_num(cos) ** 2 * _feather(m, feather_px, max(1, reduce // 2))
     out_signal = np.full(valid.shape, np.nan, dtype=np.float32)

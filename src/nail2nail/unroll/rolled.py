@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..merge import valid_mask
 from ..reconstruction import Scan
 from .flatten import METHODS, fit_flattening, map_distortion
 from .quality import block_quality
@@ -26,7 +25,7 @@ from .render import (
     print_grid,
     to_gray,
 )
-from .ridges import camera_layer
+from .ridges import camera_layer, scan_valid
 
 __all__ = ["DEFAULT_METHOD", "RolledPrint", "unroll_scans"]
 
@@ -223,7 +222,7 @@ def unroll_scans(
 
     points = []
     for s in scans:
-        v = valid_mask(s)
+        v = scan_valid(s)
         if not v.any():
             raise ValueError(f"scans: {s.name!r} has no valid pixels")
         points.append(np.asarray(s.xyz, dtype=np.float64)[v][::4])
