@@ -8,8 +8,9 @@ is its fringe modulation × the cosine of its viewing angle × a feather that fa
 edge of the camera's valid region, so the fused surface joins the single-camera surfaces beside
 it without a step. Only reliable pairs are averaged (:data:`nail2nail.merge.REJECT_REASONS`:
 a rejected pair keeps the better-viewed camera's point), and points that stand off their
-neighbours (spikes) or, left unfused, off the other cameras' surface are dropped. Holes stay holes; the mesh joins neighbouring pixels of one grid (two triangles
-per 2 × 2 block, no triangle with a long edge), so the fused region is meshed from one camera.
+neighbours (spikes) or, left unfused, off the other cameras' surface are dropped. Holes stay
+holes; the mesh joins neighbouring pixels of one grid (two triangles per 2 × 2 block, no
+triangle with a long edge), so the fused region is meshed from one camera.
 
 The **super mat5** (the thesis's merged file set, chapter five) is defined here as one mat5 grid
 holding the cameras side by side, left to right in scan order, separated by `gap_px` invalid
