@@ -76,39 +76,32 @@ def _frame(axis, pad) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @dataclass
-class CylinderMap:
-    """Unrolling on a circular cylinder: ``s = R θ``, ``t`` along the axis (thesis, chapter five).
+class _AxisMap:
+    """Shared part of the parametric maps: an axis, the pad direction and a radius.
 
     Attributes
     ----------
     center : (3,) float
-        A point on the axis, world mm (the origin of ``t``).
+        A point on the axis (cylinder) or the centre (sphere), world mm.
     axis : (3,) float
         Unit axis direction, towards the fingertip.
     pad : (3,) float
         Unit direction from the axis to the pad centre (``θ = 0``), perpendicular to `axis`.
     radius : float
-        Cylinder radius, mm.
+        Radius, mm.
     """
 
     center: np.ndarray
     axis: np.ndarray
     pad: np.ndarray
     radius: float
-    name = "cylinder"
+    name = ""
 
-    def angles(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``θ`` (rad, 0 on the pad), ``t`` (mm along the axis) and the radius (mm) of points."""
+    def _local(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Coordinates of points along ``axis × pad``, ``pad`` and ``axis`` from `center`."""
         a, n, e = _frame(self.axis, self.pad)
         d = np.asarray(xyz, dtype=np.float64) - self.center
-        t = d @ a
-        x, z = d @ e, d @ n
-        return np.arctan2(x, z), t, np.hypot(x, z)
-
-    def __call__(self, xyz) -> np.ndarray:
-        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
-        theta, t, _ = self.angles(xyz)
-        return np.stack([self.radius * theta, t], axis=-1)
+        return d @ e, d @ n, d @ a
 
     def describe(self) -> dict:
         """JSON-ready parameters."""
@@ -118,34 +111,42 @@ class CylinderMap:
 
 
 @dataclass
-class SphereMap:
+class CylinderMap(_AxisMap):
+    """Unrolling on a circular cylinder: ``s = R θ``, ``t`` along the axis (thesis, chapter five).
+
+    `center` is a point on the axis (the origin of ``t``); see :class:`_AxisMap`.
+    """
+
+    name = "cylinder"
+
+    def angles(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``θ`` (rad, 0 on the pad), ``t`` (mm along the axis) and the radius (mm) of points."""
+        x, z, t = self._local(xyz)
+        return np.arctan2(x, z), t, np.hypot(x, z)
+
+    def __call__(self, xyz) -> np.ndarray:
+        """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
+        theta, t, _ = self.angles(xyz)
+        return np.stack([self.radius * theta, t], axis=-1)
+
+
+@dataclass
+class SphereMap(_AxisMap):
     """Fit-sphere unwrapping: longitude and latitude as arc lengths (Wang et al. 2010).
 
     ``s = R λ`` with ``λ`` the longitude around the finger axis (0 on the pad) and ``t = R φ``
     with ``φ`` the latitude from the sphere's equator (perpendicular to the axis), positive
-    towards the tip.
+    towards the tip; `center` is the sphere's centre.
     """
 
-    center: np.ndarray
-    axis: np.ndarray
-    pad: np.ndarray
-    radius: float
     name = "sphere"
 
     def __call__(self, xyz) -> np.ndarray:
         """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
-        a, n, e = _frame(self.axis, self.pad)
-        d = np.asarray(xyz, dtype=np.float64) - self.center
-        along = d @ a
-        lon = np.arctan2(d @ e, d @ n)
-        lat = np.arctan2(along, np.hypot(d @ e, d @ n))
+        x, z, along = self._local(xyz)
+        lon = np.arctan2(x, z)
+        lat = np.arctan2(along, np.hypot(x, z))
         return np.stack([self.radius * lon, self.radius * lat], axis=-1)
-
-    def describe(self) -> dict:
-        """JSON-ready parameters."""
-        return {"method": self.name, "center_mm": np.round(self.center, 4).tolist(),
-                "axis": np.round(self.axis, 6).tolist(), "pad": np.round(self.pad, 6).tolist(),
-                "radius_mm": round(float(self.radius), 4)}
 
 
 @dataclass
