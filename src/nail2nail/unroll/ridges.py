@@ -167,6 +167,7 @@ def camera_layer(
     contrast_sigma_mm: float = 1.0,
     albedo_weight: float = 0.3,
     feather_px: float = 40.0,
+    max_view_angle_deg: float = 75.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
 
@@ -193,6 +194,10 @@ def camera_layer(
         only).
     feather_px : float
         Width of the weight's ramp at the edge of the valid region, camera px (0: none).
+    max_view_angle_deg : float
+        Pixels that see the smooth surface at a larger angle from its normal get no weight (at
+        grazing view a camera pixel spreads over several ridges and the relief is smeared;
+        merging rejects pairs beyond 70° for the same reason). Needs ``camera_center``.
 
     Returns
     -------
@@ -246,7 +251,9 @@ def camera_layer(
         signal = (signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)) \
             / np.float32(np.sqrt(1 + albedo_weight**2))
     modulation = np.clip(np.nan_to_num(np.asarray(scan.modulation[box], np.float32)), 0, None)
-    weight = modulation * np.nan_to_num(cos) ** 2 * _feather(m, feather_px, max(1, reduce // 2))
+    cos = np.nan_to_num(cos)
+    weight = modulation * cos**2 * _feather(m, feather_px, max(1, reduce // 2))
+    weight[cos < np.cos(np.radians(max_view_angle_deg))] = 0
     out_signal = np.full(valid.shape, np.nan, dtype=np.float32)
     out_signal[box] = np.where(m, signal, np.nan)
     out_weight = np.zeros(valid.shape, dtype=np.float32)
