@@ -28,13 +28,10 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
-from functools import partial
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 
-from nail2nail import markers
 from nail2nail.calibration import calibrate_from_observations
 from nail2nail.distortion import estimate_from_decoded, ideal_from_panel
 from nail2nail.io.calibration import RigCalibration
@@ -63,11 +60,8 @@ def calibrations(work: Path) -> dict:
     fit = estimate_from_decoded({n: (d.xp, d.yp, d.mask) for n, d in decode_cameras(plane)}).fit
     capture = read_capture(work / "target", load=False)
     observations = target_observations(capture)
-    # refined mark centroids (find_target_marks(refine=True)); target_observations does not
-    # pass the option through yet
-    refined = partial(markers.find_target_marks, refine=True)
-    with mock.patch.object(markers, "find_target_marks", refined):
-        observations_refined = target_observations(capture)
+    # refined mark centroids (find_target_marks(refine=True))
+    observations_refined = target_observations(capture, refine_marks=True)
     target = TargetGeometry()
     common = {"model": "joint", "surface": target.signed_distance,
               "projector_size": default_pattern_set().panel_size,

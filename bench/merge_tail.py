@@ -50,11 +50,13 @@ def calibrations(work: Path, scale: float) -> dict:
                              pattern_set=pattern_set, seed=0, write_truth=scene == "finger")
     plane = read_capture(work / "plane", load=False)
     fit = estimate_from_decoded({n: (d.xp, d.yp, d.mask) for n, d in decode_cameras(plane)}).fit
-    observations = target_observations(read_capture(work / "target", load=False))
+    observations = target_observations(read_capture(work / "target", load=False),
+                                       refine_marks=True)
     best = calibrate_from_observations(
         observations, model="joint", surface=TargetGeometry().signed_distance,
         projector_size=pattern_set.panel_size,
-        initial_distortion={"center": list(fit.center), "rho": fit.rho})[0]
+        initial_distortion={"center": list(fit.center), "rho": fit.rho},
+        target=TargetGeometry())[0]
     finger = read_capture(work / "finger", load=False)
     return {"best (joint)": best, "true": RigCalibration.from_dict(ideal_calibration(finger.rig()))}
 

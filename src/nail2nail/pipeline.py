@@ -11,8 +11,8 @@ Steps, each written under ``out``:
 4. ``calib/``: calibrations from the target captures: the thesis's per-camera DLT on plain
    patterns ("before"), the same on LUT-corrected patterns ("thesis_lut"), the same on plain
    patterns with the estimated distortion compensated in the model ("model_dlt"), and the
-   joint calibration with one shared projector whose distortion is modelled, refined on the
-   target's surface ("best").
+   joint calibration with one shared projector whose distortion is modelled, the marks'
+   projected discs modelled on the cylinder, refined on the target's surface ("best").
 5. ``scans/`` and ``merge/``: per configuration and object, the per-camera scans (mat5, PLY)
    and the merge error of camera pairs in projector space (thesis chapter four).
 6. Super scans (PLY, super mat5, renders) of the target in every configuration and of the
@@ -144,6 +144,10 @@ def run_demo(
     surface = TargetGeometry().signed_distance
     obs_plain = target_observations(read_capture(captures["target"], load=False))
     obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
+    # the joint calibration models each mark's projected disc on the cylinder, so it gets
+    # the marks re-measured against the local background (unbiased centroids)
+    obs_refined = target_observations(read_capture(captures["target"], load=False),
+                                      refine_marks=True)
     calibs = {
         "before": calibrate_from_observations(obs_plain, model="dlt")[0],
         "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
@@ -151,11 +155,12 @@ def run_demo(
             obs_plain, model="dlt", projector_distortion={"center": list(center), "rho": rho}
         )[0],
         "best": calibrate_from_observations(
-            obs_plain,
+            obs_refined,
             model="joint",
             surface=surface,
             projector_size=pattern_set.panel_size,
             initial_distortion={"center": list(center), "rho": rho},
+            target=TargetGeometry(),
         )[0],
     }
     calib_paths = {}

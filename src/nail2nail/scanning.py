@@ -239,6 +239,7 @@ def target_observations(
     mark_diameter_px: float | None = None,
     progress: bool = False,
     surface_stride: int = 8,
+    refine_marks: bool = False,
     **decode_options,
 ) -> list:
     """Decode a capture of the cylindrical target and measure its reference marks.
@@ -254,6 +255,11 @@ def target_observations(
     mark_diameter_px : float, optional
         Approximate mark diameter in the images; by default from the nominal rig in the capture
         manifest.
+    refine_marks : bool
+        Re-measure each mark against a plane fitted to the surface around it
+        (:func:`nail2nail.markers.find_target_marks` with ``refine=True``): unbiased centroids
+        for a calibration that models the marks' projected discs (``target=`` of
+        :func:`nail2nail.calibration.calibrate_from_observations`).
 
     Returns
     -------
@@ -276,7 +282,7 @@ def target_observations(
                 )
             rig = capture.rig()
             diameter = nominal_diameter(rig.cameras[rig.camera_names.index(name)])
-        marks = find_target_marks(decoded.albedo, mark_diameter_px=diameter)
+        marks = find_target_marks(decoded.albedo, mark_diameter_px=diameter, refine=refine_marks)
         # Sampling at the centroid itself: measured against the simulator's truth, the decoded
         # coordinates there are within 0.03 projector px (rms) of the true ones.
         xp = sample_bilinear(decoded.xp, marks.xy)

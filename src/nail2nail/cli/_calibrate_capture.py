@@ -22,10 +22,14 @@ def run_capture(args: argparse.Namespace) -> int:
     if args.output is None:
         raise ValueError("calibrate CAPTURE_DIR: give the calibration file to write with -o")
     capture = read_capture(args.source)
-    observations = target_observations(capture, progress=not args.json)
-    surface = TargetGeometry().signed_distance if args.model == "joint" else None
+    joint = args.model == "joint"
+    # the joint model predicts each mark's projected disc on the cylinder: it takes the marks
+    # re-measured against their local background (unbiased centroids)
+    observations = target_observations(capture, progress=not args.json, refine_marks=joint)
+    surface = TargetGeometry().signed_distance if joint else None
     calib, summary = calibrate_from_observations(
-        observations, model=args.model, method=args.method, use=args.use, surface=surface)
+        observations, model=args.model, method=args.method, use=args.use, surface=surface,
+        **({"target": TargetGeometry()} if joint else {}))
     out_dir = Path(args.output).parent
     tables = {}
     for obs in observations:
