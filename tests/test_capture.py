@@ -84,10 +84,24 @@ def test_cli_simulate_finger(tmp_path, capsys):
     assert cap.pattern_set == default_pattern_set()
     assert len(cap.camera("cam2")["frames"]) == 24
     assert (out / "cam0" / "023.png").is_file()
+    # the truth print: nail edge to nail edge (~31 mm with its margins), tip to 25 mm below
     with Image.open(out / "truth" / "rolled_print.png") as im:
-        assert im.mode == "L" and im.size[0] > 900
+        assert im.mode == "L" and 600 < im.size[0] < 640 and 520 < im.size[1] < 545
+        truth = np.asarray(im)
     fingerprint = json.loads((out / "truth" / "fingerprint.json").read_text())
     assert fingerprint["ppi"] == pytest.approx(500) and len(fingerprint["minutiae"]) > 50
+    assert fingerprint["shape"] == list(truth.shape)
+    assert fingerprint["n_minutiae"] == len(fingerprint["minutiae"])
+    assert fingerprint["ridge_arc_deg"] == 110 and fingerprint["rolled_length_mm"] == 25
+    extent = fingerprint["rolled_extent"]
+    assert extent["v_tip_mm"] - extent["v_min_mm"] == pytest.approx(25)
+    assert fingerprint["skin_grid"]["shape"][1] > 900  # ridges all over the skin grid
+    pitch = fingerprint["pitch_mm"]
+    for m in fingerprint["minutiae"]:
+        assert 0 <= m["col"] < truth.shape[1] and 0 <= m["row"] < truth.shape[0]
+        assert m["col"] == round((fingerprint["u_of_col0_mm"] - m["u"]) / pitch)
+        assert m["row"] == round((fingerprint["v_of_row0_mm"] - m["v"]) / pitch)
+    assert cap.manifest["scene"]["ridge_arc_deg"] == 110
     assert cap.manifest["rig"]["projector_distortion"]["rho"] == -0.004
 
 

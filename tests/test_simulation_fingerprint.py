@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.ndimage as ndi
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -277,17 +278,116 @@ def test_rolled_print():
     scene = make_scene("finger")
     image, mask = scene.rolled_print()
     fp = scene.fingerprint
-    assert image.shape == fp.shape and image.dtype == np.uint8
+    assert image.shape == mask.shape and image.dtype == np.uint8
     assert fp.ppi == pytest.approx(500)
     assert np.all(image[~mask] == 255)
     # the tip: above y0 + meridian length nothing maps onto the finger
-    _, v = scene.uv_from_legacy_pixel(0, np.arange(fp.shape[0]))
+    _, v = scene.uv_from_legacy_pixel(0, np.arange(image.shape[0]))
     assert not np.any(mask[v > scene.y0 + scene._m[-1] + 0.1])
-    assert np.all(mask[v < scene.y0 - 1][:, fp.shape[1] // 2])
+    assert np.all(mask[(v < scene.y0 - 1) & (v > scene.v_tip - 24)][:, image.shape[1] // 2])
     # ridges dark: the ink of ridge crests
-    assert image[mask][fp.ridges[mask] > 0.9].mean() < 30
-    assert len(fp.minutiae) > 50
+    r0, r1, c0, c1 = scene._box
+    crest = (fp.ridges[r0:r1, c0:c1] > 0.9) & mask
+    assert image[crest].mean() < 60
+    assert len(fp.minutiae) > 50 and len(scene.rolled_print_minutiae()) > 50
     assert np.linalg.norm(fp.cores.mean(axis=0) - scene.pad_center) <= 1.5 * np.sqrt(2)
+
+
+def test_ridge_envelope_pad_and_back():
+    # friction-ridge skin on the palmar side only: the envelope is 1 on the pad, 0 on the back
+    scene = make_scene("finger")
+    phi = np.radians([0.0, 60.0, -100.0, 115.0, 150.0, 180.0, -130.0])
+    for y in (-10.0, 0.0, 5.0):
+        xyz = np.column_stack([scene.ax * np.sin(phi), np.full(len(phi), y),
+                               scene.az * np.cos(phi)])
+        u, v = scene.print_coordinates(xyz)
+        np.testing.assert_array_equal(scene.ridge_envelope(u, v), [1, 1, 1, 0, 0, 0, 0])
+        # no relief and no albedo contrast on the back, ridges on the pad
+        albedo = scene.surface(xyz).albedo
+        np.testing.assert_allclose(albedo[3:], scene.skin_albedo, atol=1e-12)
+        np.testing.assert_allclose(scene.implicit(xyz)[3:], 0.0, atol=1e-6)
+        assert np.abs(scene.implicit(xyz)[:3]).max() > 1e-4
+    # the fall: ridge_edge_mm of arc before the nail edge, on the cap at the same angle
+    s_edge = np.interp(np.radians(110.0), scene._phi, scene._s)
+    e = scene.ridge_envelope(np.array([s_edge - 1.0, s_edge - 0.5, s_edge]), np.zeros(3))
+    np.testing.assert_allclose(e, [1.0, 0.5, 0.0], atol=1e-12)
+    psi = np.radians(60.0)
+    v_cap = scene.y0 + np.interp(psi, scene._psi, scene._m)
+    e = scene.ridge_envelope(np.cos(psi) * np.array([s_edge - 1.0, s_edge + 0.1]), v_cap)
+    np.testing.assert_allclose(e, [1.0, 0.0], atol=1e-9)
+    assert scene.ridge_envelope(0.0, scene.v_tip) == 1.0  # the apex
+    # all round, or a print from an image: no envelope
+    assert np.all(Finger(ridge_arc_deg=180).ridge_envelope(np.array([0.0, 24.0]), 0.0) == 1)
+
+
+def test_rolled_print_extent_and_size():
+    # the truth print: nail edge to nail edge (|phi| <= 110 deg), tip to 25 mm below it, cut
+    # to its bounding box plus 1 mm, 500 ppi
+    scene = make_scene("finger")
+    image, mask = scene.rolled_print()
+    pitch = scene.fingerprint.pitch
+    arc = np.interp(np.radians(110.0), scene._phi, scene._s)
+    assert image.shape[1] == pytest.approx((2 * arc + 2) / pitch, abs=3)
+    assert image.shape[0] == pytest.approx((25 + 2) / pitch, abs=3)
+    geometry = scene.rolled_print_geometry()
+    assert geometry["shape"] == list(image.shape)
+    assert geometry["ridge_arc_deg"] == 110 and geometry["rolled_length_mm"] == 25
+    assert geometry["rolled_extent"]["u_max_mm"] == pytest.approx(arc, abs=1e-6)
+    u, v = scene.uv_from_legacy_pixel(np.arange(image.shape[1])[None, :],
+                                      np.arange(image.shape[0])[:, None])
+    assert (u[0, 0], v[0, 0]) == (geometry["u_of_col0_mm"], geometry["v_of_row0_mm"])
+    # about 1 mm margins all round, white
+    assert u[0, 0] == pytest.approx(arc + 1, abs=pitch) and u[0, -1] == pytest.approx(-arc - 1,
+                                                                                        abs=pitch)
+    assert v[0, 0] == pytest.approx(scene.v_tip + 1, abs=pitch)
+    assert v[-1, 0] == pytest.approx(scene.v_tip - 26, abs=pitch)
+    assert not mask[:, :15].any() and not mask[:, -15:].any() and not mask[-15:].any()
+    assert np.all(image[:, :15] == 255) and np.all(image[-15:] == 255)
+    # mask: the rolled extent; inked where the envelope is 1 (ridges span the grey range)
+    np.testing.assert_array_equal(mask, scene.rolled_extent(u, v))
+    body = (np.abs(u) < arc - 1.5) & (v < scene.y0) & (v > scene.v_tip - 23)
+    assert mask[body].all() and image[body].min() < 20 and image[body].max() > 235
+    # a longer or narrower print
+    longer = Finger(rolled_length_mm=30, ridge_arc_deg=90)
+    shape = longer.rolled_print()[0].shape
+    assert shape[0] == pytest.approx(32 / pitch, abs=3)
+    assert shape[1] == pytest.approx((2 * np.interp(np.pi / 2, scene._phi, scene._s) + 2) / pitch,
+                                     abs=3)
+
+
+def test_legacy_print_pixel_hits_the_truth_pixel():
+    # a skin point inside the rolled extent: print coordinates -> legacy pixel of the truth
+    # print -> the ink of the ridge field at that point
+    scene = make_scene("finger")
+    image, mask = scene.rolled_print()
+    phi = np.radians(np.linspace(-95, 95, 23))
+    y = np.linspace(-5.0, 5.0, 23)
+    xyz = np.column_stack([scene.ax * np.sin(phi), y, scene.az * np.cos(phi)])
+    u, v = scene.print_coordinates(xyz)
+    col, row = scene.legacy_print_pixel(u, v)
+    assert scene.rolled_extent(u, v).all()
+    ci, ri = np.rint(col).astype(int), np.rint(row).astype(int)
+    assert np.all(mask[ri, ci])
+    # the pixel centre's skin point is within half a pixel, and its ink is the ridge field
+    uc, vc = scene.uv_from_legacy_pixel(ci, ri)
+    pitch = scene.fingerprint.pitch
+    assert np.all(np.abs(uc - u) <= pitch / 2 + 1e-9) and np.all(np.abs(vc - v) <= pitch / 2 + 1e-9)
+    expected = np.rint(127.5 - 127.5 * scene.fingerprint.sample(uc, vc))
+    np.testing.assert_allclose(image[ri, ci], expected, atol=2)
+    # between pixel centres: the print interpolated at (col, row) is the surface's ridge
+    # field at the point (dark = ridge crest = raised relief)
+    printed = ndi.map_coordinates(image.astype(float), [row, col], order=1)
+    relief = (scene._base_distance(xyz) - scene.implicit(xyz)) / scene._hmax
+    np.testing.assert_allclose(printed, 127.5 - 127.5 * relief, atol=15)
+
+
+def test_finger_bad_skin_parameters():
+    for kwargs, match in (({"ridge_arc_deg": 0}, "ridge_arc_deg"),
+                          ({"ridge_edge_mm": 0}, "ridge_edge_mm"),
+                          ({"rolled_length_mm": -1}, "rolled_length_mm"),
+                          ({"rolled_length_mm": np.inf}, "rolled_length_mm")):
+        with pytest.raises(ValueError, match=match):
+            Finger(**kwargs)
 
 
 def test_rolled_print_is_the_mirror_of_the_pad_view():
@@ -300,7 +400,7 @@ def test_rolled_print_is_the_mirror_of_the_pad_view():
     u, v = scene.print_coordinates(xyz)
     col, row = scene.legacy_print_pixel(u, v)
     assert col[0] < col[1] and row[2] < row[0]
-    mid = (scene.fingerprint.shape[1] - 1) / 2
+    mid = (scene.rolled_print()[0].shape[1] - 1) / 2
     assert col[0] < mid < col[1]
     u2, v2 = scene.uv_from_legacy_pixel(col, row)
     np.testing.assert_allclose(np.column_stack([u2, v2]), np.column_stack([u, v]), atol=1e-9)

@@ -187,7 +187,9 @@ def simulate_capture(
         As :func:`simulate`; `pattern_names` names the pattern files of a directory source.
     seed : int
     write_truth : bool
-        Write ``truth/`` (geometry per camera, rig, ideal calibration, rolled print).
+        Write ``truth/`` (geometry per camera, rig, ideal calibration, rolled print: for a
+        synthetic print the friction-ridge skin from nail edge to nail edge and from the tip
+        to ``Finger.rolled_length_mm``, ``docs/capture-format.md``).
     progress : bool
         Show a progress bar.
     print_image : (H, W) uint8, optional
@@ -275,19 +277,25 @@ def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
     write_json(truth / "calibration.json", ideal_calibration(sim.rig))
     entries["calibration"] = "truth/calibration.json"
     if isinstance(sim.scene, Finger):
-        image, _ = sim.scene.rolled_print()
-        fp = sim.scene.fingerprint
-        # legacy convention; a print from an image is written back unchanged
+        finger = sim.scene
+        image, _ = finger.rolled_print()
+        fp = finger.fingerprint
+        minutiae = finger.rolled_print_minutiae()
+        # legacy convention; a synthetic print cut to the rolled extent (nail edge to nail
+        # edge, tip to rolled_length_mm), a print from an image written back unchanged
         write_print_image(truth / "rolled_print.png", image, ppi=fp.ppi)
         write_json(truth / "fingerprint.json", {
             **fp.describe(),
+            **finger.rolled_print_geometry(),
+            "skin_grid": fp.geometry(),
             "image": "truth/rolled_print.png",
+            "n_minutiae": len(minutiae),
             "minutiae": [
                 {"u": round(float(m[0]), 4), "v": round(float(m[1]), 4),
                  "col": int(m[2]), "row": int(m[3]),
                  "kind": "ending" if m[4] == 1 else "bifurcation",
-                 "orientation_rad": round(float(fp.orientation[int(m[3]), int(m[2])]), 4)}
-                for m in fp.minutiae
+                 "orientation_rad": round(float(m[5]), 4)}
+                for m in minutiae
             ],
         })
         entries["rolled_print"] = "truth/rolled_print.png"

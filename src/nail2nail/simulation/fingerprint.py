@@ -43,6 +43,7 @@ __all__ = [
     "arch_orientation",
     "find_minutiae",
     "generate_fingerprint",
+    "legacy_geometry",
     "orientation_field",
     "pattern_for_seed",
 ]
@@ -268,11 +269,7 @@ class Fingerprint:
 
     def geometry(self) -> dict:
         """The legacy image's placement on the rolled-print plane (JSON-ready)."""
-        return {"convention": _CONVENTION, "ppi": self.ppi, "pitch_mm": self.pitch,
-                "shape": list(self.shape), "u_of_col0_mm": self.u0, "v_of_row0_mm": self.v0,
-                "col_direction": "-u", "row_direction": "-v",
-                "mapping": "col = (u_of_col0_mm - u) / pitch_mm; "
-                           "row = (v_of_row0_mm - v) / pitch_mm (pixel centres)"}
+        return legacy_geometry(self.u0, self.v0, self.pitch, self.shape)
 
     def describe(self) -> dict:
         """JSON-ready summary: pattern, geometry, singular points, minutiae count."""
@@ -280,6 +277,27 @@ class Fingerprint:
                 "ridge_period_mm": self.ridge_period,
                 "cores": self.cores.round(4).tolist(), "deltas": self.deltas.round(4).tolist(),
                 "n_minutiae": len(self.minutiae)}
+
+
+def legacy_geometry(u0: float, v0: float, pitch: float, shape) -> dict:
+    """Placement of a legacy-convention image on the rolled-print plane (JSON-ready).
+
+    Pixel ``(col, row)`` of an image of `shape` ``(H, W)`` is the skin point
+    ``u = u0 − col · pitch``, ``v = v0 − row · pitch`` (mm, pixel centres); the keys are those
+    of ``truth/fingerprint.json`` (``docs/capture-format.md``).
+
+    Examples
+    --------
+    >>> g = legacy_geometry(1.0, 2.0, 0.0508, (3, 4))
+    >>> g["u_of_col0_mm"], g["shape"], g["col_direction"]
+    (1.0, [3, 4], '-u')
+    """
+    return {"convention": _CONVENTION, "ppi": MM_PER_INCH / float(pitch),
+            "pitch_mm": float(pitch), "shape": [int(n) for n in shape],
+            "u_of_col0_mm": float(u0), "v_of_row0_mm": float(v0),
+            "col_direction": "-u", "row_direction": "-v",
+            "mapping": "col = (u_of_col0_mm - u) / pitch_mm; "
+                       "row = (v_of_row0_mm - v) / pitch_mm (pixel centres)"}
 
 
 def _mod_pi(theta):

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..markers import TargetGeometry
-from .fingerprint import Fingerprint, generate_fingerprint
+from .fingerprint import Fingerprint, generate_fingerprint, legacy_geometry
 
 __all__ = [
     "SCENES",
@@ -310,6 +310,12 @@ def _cached_fingerprint(u_range, v_range, center, seed, pattern) -> Fingerprint:
                                 pattern=pattern)
 
 
+def _smoothstep(x):
+    """``3x² − 2x³`` of `x` clipped to ``[0, 1]``: 0 → 1 with zero slope at both ends."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
 @dataclass
 class Finger(Scene):
     """A fingertip with friction-ridge relief, pad towards ``+Z`` (the centre camera).
@@ -318,8 +324,8 @@ class Finger(Scene):
     half-ellipsoid of semi-axes ``(ax, ay, az)`` for ``y > y0`` (tip at ``y0 + ay``). With
     scaled coordinates ``q = (x/ax, max(y − y0, 0)/ay, z/az)`` the base is ``|q| = 1`` and
     ``D = (|q| − 1) / |∇|q||`` approximates the signed distance to it. The surface is
-    ``f = D − h(u, v) = 0`` with the ridge height ``h`` of the fingerprint at the rolled-print
-    coordinates of the point:
+    ``f = D − e · h(u, v) = 0`` with the ridge height ``h`` of the fingerprint at the
+    rolled-print coordinates of the point and ``e`` the friction-ridge envelope:
 
     - ``φ = atan2(qx, qz)`` (angle around the finger from the pad), ``ψ = asin(q̂y)`` (0 on the
       body, up to 90° at the tip), ``q̂ = q / |q|``;
@@ -327,16 +333,43 @@ class Finger(Scene):
       centre (exact arc length around the body), ``v = y`` on the body and
       ``v = y0 + M(ψ)`` on the cap, ``M`` the arc length of the pad meridian (ellipse ``az, ay``).
 
+    Friction-ridge skin (glabrous skin) covers only the palmar side of a finger, from nail edge
+    to nail edge; the back (nail plate, nail folds, dorsal skin) is smooth. The envelope
+    ``e = smoothstep((S(φ_r) − |S(φ)|) / ridge_edge_mm)`` (``φ_r`` = `ridge_arc_deg`) is 1 on
+    the pad and falls smoothly to 0 over the last `ridge_edge_mm` of arc before ``|φ| = φ_r``,
+    on the body and, at the same ``φ``, on the tip's cap; beyond, the skin is smooth. With
+    ``ridge_arc_deg >= 180`` (or a print from an image) ``e = 1`` everywhere.
+
     Ridges are relief of ``relief_height`` mm peak to valley; the albedo is
-    ``skin_albedo · (1 + albedo_contrast · r)`` with ``r ∈ [−1, 1]`` the ridge field (+1 on
-    ridge crests).
+    ``skin_albedo · (1 + albedo_contrast · e · r)`` with ``r ∈ [−1, 1]`` the ridge field (+1
+    on ridge crests).
 
     The print: `fingerprint` if given; else `print_image` (a real print, ``(H, W)`` uint8 in
     the legacy convention, ridges dark, at `print_ppi`) centred on the pad centre
-    ``(u, v) = (0, y0 − 2)`` (:meth:`Fingerprint.from_image`, flat skin beyond it); else a
-    synthetic print of `pattern` (by default drawn by `seed`) with its core near the pad
-    centre. Print images (``rolled_print``) are in the legacy convention:
-    :meth:`legacy_print_pixel` maps ``(u, v)`` to ``(col, row)``.
+    ``(u, v) = (0, y0 − 2)`` (:meth:`Fingerprint.from_image`, flat skin beyond it, no
+    envelope); else a synthetic print of `pattern` (by default drawn by `seed`) with its core
+    near the pad centre, grown over the whole skin (ridges continue below the rolled extent,
+    as on the middle phalanx). Print images (:meth:`rolled_print`) are in the legacy
+    convention: :meth:`legacy_print_pixel` maps ``(u, v)`` to ``(col, row)``.
+
+    Friction-ridge skin and the truth print
+    ---------------------------------------
+    ridge_arc_deg : float
+        Half the angular extent ``φ_r`` of the friction-ridge skin around the finger from the
+        pad centre, degrees (default 110). The boundary between palmar and dorsal skin runs
+        along the finger's sides just dorsal of the mid-lateral line, up to the lateral nail
+        folds: on this cross-section (17 × 14 mm) ±110° puts the nail edges at
+        ``x = ±8.0 mm``, 2.4 mm behind the centre, and leaves 140° (about 20 mm of arc) of
+        nail and dorsal skin smooth; a nail-to-nail rolled print of it is
+        ``2 S(110°) ≈ 29 mm`` wide, as inked rolls of index fingers are (25–30 mm).
+    ridge_edge_mm : float
+        Width of the envelope's fall to smooth skin, mm of arc (default 1: the ridges fade out
+        over two ridge periods into the nail folds).
+    rolled_length_mm : float
+        Length of the truth rolled print from the fingertip along the pad's profile, mm
+        (default 25): a rolled print records the distal phalanx from the tip to about the
+        distal interphalangeal crease, some 22–28 mm on adult fingers (ridges go on below it
+        on the skin, but not on the print).
     """
 
     fingerprint: Fingerprint | None = None
@@ -352,11 +385,23 @@ class Finger(Scene):
     pattern: str | None = None
     print_image: np.ndarray | None = field(default=None, repr=False, compare=False)
     print_ppi: float = 500.0
+    ridge_arc_deg: float = 110.0
+    ridge_edge_mm: float = 1.0
+    rolled_length_mm: float = 25.0
     name = "finger"
 
     def __post_init__(self):
         if not 0 <= self.relief_height < 0.5:
             raise ValueError(f"relief_height: expected 0 <= h < 0.5 mm, got {self.relief_height}")
+        if not (np.isfinite(self.ridge_arc_deg) and 0 < self.ridge_arc_deg):
+            raise ValueError(f"ridge_arc_deg: expected a positive angle (degrees, 180 or more "
+                             f"for ridges all around), got {self.ridge_arc_deg}")
+        if not (np.isfinite(self.ridge_edge_mm) and self.ridge_edge_mm > 0):
+            raise ValueError(f"ridge_edge_mm: expected a positive width (mm), got "
+                             f"{self.ridge_edge_mm}")
+        if not (np.isfinite(self.rolled_length_mm) and self.rolled_length_mm > 0):
+            raise ValueError(f"rolled_length_mm: expected a positive length (mm), got "
+                             f"{self.rolled_length_mm}")
         phi = np.linspace(-np.pi, np.pi, 8193)
         ds = np.hypot(self.ax * np.cos(phi), self.az * np.sin(phi))
         s = np.concatenate([[0], np.cumsum(0.5 * (ds[1:] + ds[:-1]) * np.diff(phi))])
@@ -375,6 +420,12 @@ class Finger(Scene):
                 self.pad_center, int(self.seed), self.pattern,
             )
         self._hmax = self.relief_height / 2
+        s_max = float(self._s[-1])
+        self._synthetic = self.fingerprint.image is None
+        self._all_round = not self._synthetic or self.ridge_arc_deg >= 180.0
+        self._s_ridge = s_max if self._all_round else float(
+            np.interp(np.radians(self.ridge_arc_deg), self._phi, self._s))
+        self._box = self._rolled_box()
 
     # rolled-print coordinates --------------------------------------------------------------
     def _scaled(self, xyz):
@@ -382,15 +433,24 @@ class Finger(Scene):
         qy = np.maximum(y - self.y0, 0.0) / self.ay
         return x / self.ax, qy, z / self.az
 
-    def print_coordinates(self, xyz) -> tuple[np.ndarray, np.ndarray]:
-        """Rolled-print coordinates ``u, v`` (mm) of points ``(N, 3)`` (see the class doc)."""
-        xyz = np.asarray(xyz, dtype=float)
+    def _skin(self, xyz):
+        """``u, v`` (mm) and the arc length ``S(φ)`` around the body (mm) of points."""
         qx, qy, qz = self._scaled(xyz)
         norm = np.sqrt(qx * qx + qy * qy + qz * qz)
         psi = np.arcsin(np.clip(qy / np.maximum(norm, 1e-12), 0.0, 1.0))
-        phi = np.arctan2(qx, qz)
-        u = np.cos(psi) * np.interp(phi, self._phi, self._s)
+        s = np.interp(np.arctan2(qx, qz), self._phi, self._s)
+        u = np.cos(psi) * s
         v = np.where(qy > 0, self.y0 + np.interp(psi, self._psi, self._m), xyz[:, 1])
+        return u, v, s
+
+    def _envelope_of_arc(self, s):
+        if self._all_round:
+            return np.ones_like(s)
+        return _smoothstep((self._s_ridge - np.abs(s)) / self.ridge_edge_mm)
+
+    def print_coordinates(self, xyz) -> tuple[np.ndarray, np.ndarray]:
+        """Rolled-print coordinates ``u, v`` (mm) of points ``(N, 3)`` (see the class doc)."""
+        u, v, _ = self._skin(np.asarray(xyz, dtype=float))
         return u, v
 
     @property
@@ -398,14 +458,94 @@ class Finger(Scene):
         """``(u, v)`` of the pad centre, mm: ``(0, y0 − 2)``, where prints are centred."""
         return 0.0, self.y0 - 2.0
 
+    @property
+    def v_tip(self) -> float:
+        """``v`` of the fingertip (the cap's apex), mm: ``y0 + M(90°)``."""
+        return self.y0 + float(self._m[-1])
+
+    def _half_width(self, v, s_limit):
+        """``|u|`` of the arc ``S = s_limit`` at `v` (``cos ψ · s_limit`` on the cap)."""
+        dv = np.asarray(v, dtype=float) - self.y0
+        psi = np.interp(np.clip(dv, 0, None), self._m, self._psi)
+        return np.where(dv <= 0, s_limit, np.cos(psi) * s_limit)
+
+    def ridge_envelope(self, u, v) -> np.ndarray:
+        """Friction-ridge envelope ``e`` at rolled-print coordinates ``(u, v)`` mm.
+
+        1 on the pad, falling smoothly (``3x² − 2x³``) to 0 over the last `ridge_edge_mm` of
+        arc before ``φ = ±ridge_arc_deg`` (the nail edges), 0 beyond; 1 everywhere for a print
+        from an image or ``ridge_arc_deg >= 180``. The ridge relief and the albedo contrast are
+        multiplied by it (see the class doc).
+
+        Examples
+        --------
+        >>> from nail2nail.simulation.fingerprint import Fingerprint
+        >>> fp = Fingerprint(ridges=np.zeros((3, 3), np.float32), u0=1.0, v0=1.0, pitch=1.0)
+        >>> finger = Finger(fingerprint=fp)
+        >>> [float(e) for e in finger.ridge_envelope(np.array([0.0, 20.0]), np.zeros(2))]
+        [1.0, 0.0]
+        """
+        u, v = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(v, dtype=float))
+        if self._all_round:
+            return np.ones(u.shape)
+        # S(φ) = u / cos ψ; at the apex (cos ψ = 0, u = 0) the pad centre line
+        c = self._half_width(v, 1.0)
+        s = np.divide(np.abs(u), c, out=np.zeros(u.shape), where=c > 1e-12)
+        return self._envelope_of_arc(s)
+
+    def rolled_extent(self, u, v) -> np.ndarray:
+        """Whether rolled-print coordinates ``(u, v)`` mm lie in the truth print's extent.
+
+        A synthetic print: the friction-ridge skin (``|φ| ≤ ridge_arc_deg``) from the tip down
+        to `rolled_length_mm` along the pad's profile (``v ≥ v_tip − rolled_length_mm``). A
+        print from an image: the skin, the whole finger (the image is its own extent).
+        """
+        u, v = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(v, dtype=float))
+        inside = (np.abs(u) <= self._half_width(v, self._s_ridge)) & (v <= self.v_tip)
+        if self._synthetic:
+            inside &= v >= self.v_tip - self.rolled_length_mm
+        return inside
+
+    def _rolled_box(self):
+        """``(r0, r1, c0, c1)``: the truth print's rows and columns of the ridge grid.
+
+        A synthetic print: the rolled extent's bounding box plus 1 mm, clipped to the grid; a
+        print from an image: the whole image.
+        """
+        fp = self.fingerprint
+        h, w = fp.shape
+        if not self._synthetic:
+            return 0, h, 0, w
+        margin = 1.0
+        u_hi = self._s_ridge + margin
+        v_hi = self.v_tip + margin
+        v_lo = self.v_tip - self.rolled_length_mm - margin
+        c0 = int(np.floor((fp.u0 - u_hi) / fp.pitch + 1e-9))
+        c1 = int(np.ceil((fp.u0 + u_hi) / fp.pitch - 1e-9)) + 1
+        r0 = int(np.floor((fp.v0 - v_hi) / fp.pitch + 1e-9))
+        r1 = int(np.ceil((fp.v0 - v_lo) / fp.pitch - 1e-9)) + 1
+        r0, r1 = max(r0, 0), min(r1, h)
+        c0, c1 = max(c0, 0), min(c1, w)
+        if r1 <= r0 or c1 <= c0:
+            raise ValueError("fingerprint: its grid does not cover the rolled extent of the "
+                             "finger (ridge_arc_deg, rolled_length_mm)")
+        return r0, r1, c0, c1
+
+    @property
+    def _print_origin(self) -> tuple[float, float]:
+        """``(u0, v0)`` of pixel ``[0, 0]`` of :meth:`rolled_print`, mm."""
+        r0, _, c0, _ = self._box
+        fp = self.fingerprint
+        return fp.u0 - c0 * fp.pitch, fp.v0 - r0 * fp.pitch
+
     def legacy_print_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
         """``(col, row)`` in :meth:`rolled_print` of rolled-print coordinates ``(u, v)`` mm.
 
         Legacy convention (the mirror of the pad view, tip up), pixel centres at integers:
         ``col = (u0 − u) / pitch``, ``row = (v0 − v) / pitch`` with ``u0``, ``v0``, ``pitch``
-        of :attr:`fingerprint` (``truth/fingerprint.json``: ``u_of_col0_mm``,
-        ``v_of_row0_mm``, ``pitch_mm``). Use with :meth:`print_coordinates` to find the truth
-        pixel of a surface point.
+        of :meth:`rolled_print_geometry` (``truth/fingerprint.json``: ``u_of_col0_mm``,
+        ``v_of_row0_mm``, ``pitch_mm``; for a print from an image those of the image). Use with
+        :meth:`print_coordinates` to find the truth pixel of a surface point.
 
         Examples
         --------
@@ -415,33 +555,82 @@ class Finger(Scene):
         >>> [float(x) for x in finger.legacy_print_pixel(0.0508, 0.0)]
         [1.0, 2.0]
         """
-        return self.fingerprint.pixel_from_uv(u, v)
+        u0, v0 = self._print_origin
+        pitch = self.fingerprint.pitch
+        return (u0 - np.asarray(u, dtype=float)) / pitch, (v0 - np.asarray(v, dtype=float)) / pitch
 
     def uv_from_legacy_pixel(self, col, row) -> tuple[np.ndarray, np.ndarray]:
         """Rolled-print coordinates ``(u, v)`` mm of :meth:`rolled_print` pixels (inverse)."""
-        return self.fingerprint.uv_from_pixel(col, row)
+        u0, v0 = self._print_origin
+        pitch = self.fingerprint.pitch
+        return u0 - pitch * np.asarray(col, dtype=float), v0 - pitch * np.asarray(row, dtype=float)
+
+    def rolled_print_geometry(self) -> dict:
+        """Placement of :meth:`rolled_print` on the rolled-print plane and its extent (JSON).
+
+        The keys of :func:`~nail2nail.simulation.fingerprint.legacy_geometry` for the truth
+        image, plus `ridge_arc_deg`, `ridge_edge_mm`, `rolled_length_mm` and
+        ``rolled_extent``: ``u_max_mm`` (the arc ``S(ridge_arc_deg)`` on the body),
+        ``v_tip_mm``, ``v_min_mm`` (``v_tip − rolled_length_mm``); for a print from an image
+        ``rolled_extent`` is None (the image is the truth).
+        """
+        r0, r1, c0, c1 = self._box
+        u0, v0 = self._print_origin
+        extent = None
+        if self._synthetic:
+            extent = {"u_max_mm": round(self._s_ridge, 6), "v_tip_mm": round(self.v_tip, 6),
+                      "v_min_mm": round(self.v_tip - self.rolled_length_mm, 6)}
+        return {**legacy_geometry(u0, v0, self.fingerprint.pitch, (r1 - r0, c1 - c0)),
+                "ridge_arc_deg": self.ridge_arc_deg, "ridge_edge_mm": self.ridge_edge_mm,
+                "rolled_length_mm": self.rolled_length_mm, "rolled_extent": extent}
 
     def rolled_print(self) -> tuple[np.ndarray, np.ndarray]:
         """Ground-truth rolled print: ``(image (H, W) uint8, mask (H, W) bool)``.
 
-        The fingerprint laid flat by arc length (``u``, ``v``) in the legacy convention of
-        inked rolls and live scans: the mirror of the pad seen from outside, fingertip up
-        (:meth:`legacy_print_pixel`), ridges dark on white. A synthetic print is 500 ppi and
-        white where ``mask`` is False; a print from an image is that image unchanged.
-        ``mask`` marks the pixels that map onto the finger surface.
+        What an inked roll or a live scan records, in their legacy convention: the mirror of
+        the pad seen from outside, fingertip up (:meth:`legacy_print_pixel`), ridges dark on
+        white, 500 ppi. A synthetic print covers the friction-ridge skin from nail edge to nail
+        edge (``|φ| ≤ ridge_arc_deg``) and from the tip down to `rolled_length_mm` along the
+        pad (:meth:`rolled_extent`, ``mask``), cut to that extent's bounding box plus 1 mm
+        (:meth:`rolled_print_geometry`) and white outside it; the ink is
+        ``I = 255 − k (127.5 + 127.5 r)`` with ``k`` the ridge envelope (fading into the nail
+        folds) times a fade over `ridge_edge_mm` above the bottom edge. A print from an image
+        is that image unchanged, ``mask`` the pixels that map onto the finger surface.
         """
         fp = self.fingerprint
-        h, w = fp.shape
-        u, v = fp.uv_from_pixel(np.arange(w)[None, :], np.arange(h)[:, None])
-        s_max = float(self._s[-1])
-        dv = v - self.y0
-        psi = np.interp(np.clip(dv, 0, None), self._m, self._psi)
-        half = np.where(dv <= 0, s_max, np.cos(psi) * s_max)
-        mask = (np.abs(u) <= half) & (dv <= self._m[-1])
-        if fp.image is not None:
+        r0, r1, c0, c1 = self._box
+        u, v = self.uv_from_legacy_pixel(np.arange(c1 - c0)[None, :],
+                                         np.arange(r1 - r0)[:, None])
+        mask = self.rolled_extent(u, v)
+        if not self._synthetic:
             return fp.image.copy(), mask
-        image = np.where(mask, np.rint(127.5 - 127.5 * fp.ridges), 255).astype(np.uint8)
-        return image, mask
+        v_min = self.v_tip - self.rolled_length_mm
+        ink = self.ridge_envelope(u, v) * _smoothstep((v - v_min) / self.ridge_edge_mm)
+        ridges = fp.ridges[r0:r1, c0:c1].astype(np.float64)
+        image = np.where(mask, np.rint(255.0 - ink * (127.5 + 127.5 * ridges)), 255)
+        return image.astype(np.uint8), mask
+
+    def rolled_print_minutiae(self) -> np.ndarray:
+        """Minutiae of :meth:`rolled_print`: ``(M, 6)`` ``u, v, col, row, kind, orientation``.
+
+        Those of the synthetic print inside the rolled extent where the ink is at least half
+        (:meth:`rolled_print`), ``col, row`` in the truth image, the ridge orientation
+        (radians in ``[0, π)``) from the print's orientation field; ``(0, 6)`` for an image.
+        """
+        fp = self.fingerprint
+        if not self._synthetic or len(fp.minutiae) == 0 or fp.orientation is None:
+            return np.zeros((0, 6))
+        m = fp.minutiae
+        u, v = m[:, 0], m[:, 1]
+        v_min = self.v_tip - self.rolled_length_mm
+        ink = self.ridge_envelope(u, v) * _smoothstep((v - v_min) / self.ridge_edge_mm)
+        col, row = self.legacy_print_pixel(u, v)
+        h, w = self._box[1] - self._box[0], self._box[3] - self._box[2]
+        keep = (self.rolled_extent(u, v) & (ink >= 0.5) & (col > -0.5) & (col < w - 0.5)
+                & (row > -0.5) & (row < h - 0.5))
+        theta = fp.orientation[m[keep, 3].astype(np.intp), m[keep, 2].astype(np.intp)]
+        return np.column_stack([u[keep], v[keep], np.rint(col[keep]), np.rint(row[keep]),
+                                m[keep, 4], theta])
 
     def _base_distance(self, xyz):
         qx, qy, qz = self._scaled(xyz)
@@ -453,8 +642,8 @@ class Finger(Scene):
     def implicit(self, xyz) -> np.ndarray:
         """``f (N,)``: positive outside the finger, zero on its surface, ~mm near it."""
         xyz = np.asarray(xyz, dtype=float)
-        u, v = self.print_coordinates(xyz)
-        r = self.fingerprint.sample(u, v)
+        u, v, s = self._skin(xyz)
+        r = self.fingerprint.sample(u, v) * self._envelope_of_arc(s)
         return self._base_distance(xyz) - self._hmax * r
 
     def _shell_t(self, o, d, offset):
@@ -486,8 +675,8 @@ class Finger(Scene):
     def surface(self, xyz):
         xyz = np.asarray(xyz, dtype=float)
         normal = _normal_from_gradient(self.implicit, xyz)
-        u, v = self.print_coordinates(xyz)
-        r = self.fingerprint.sample(u, v)
+        u, v, s = self._skin(xyz)
+        r = self.fingerprint.sample(u, v) * self._envelope_of_arc(s)
         albedo = np.clip(self.skin_albedo * (1 + self.albedo_contrast * r), 0, 1)
         return SurfaceInfo(normal, albedo, {"u": u, "v": v})
 
@@ -495,7 +684,8 @@ class Finger(Scene):
         return {"name": self.name, "ax": self.ax, "ay": self.ay, "az": self.az, "y0": self.y0,
                 "relief_height": self.relief_height, "skin_albedo": self.skin_albedo,
                 "albedo_contrast": self.albedo_contrast, "seed": self.seed,
-                "pad_center": list(self.pad_center),
+                "pad_center": list(self.pad_center), "ridge_arc_deg": self.ridge_arc_deg,
+                "ridge_edge_mm": self.ridge_edge_mm, "rolled_length_mm": self.rolled_length_mm,
                 "fingerprint": self.fingerprint.describe()}
 
 

@@ -4,7 +4,10 @@ A finger capture's truth holds, per camera, the rolled-print coordinates ``(u, v
 true surface point each pixel sees (``param_u``, ``param_v`` of ``truth/camN.npz``), and the
 true rolled print in the legacy convention with its geometry (``truth/rolled_print.png``,
 ``truth/fingerprint.json``: ``col = (u_of_col0_mm − u) / pitch_mm``,
-``row = (v_of_row0_mm − v) / pitch_mm``).
+``row = (v_of_row0_mm − v) / pitch_mm``). For a synthetic print that image covers what a
+rolled print records, the friction-ridge skin from nail edge to nail edge and from the tip to
+``rolled_length_mm`` (``Finger.rolled_print``); skin seen by the cameras outside it (the sides
+beyond the nail edges, the finger below the distal crease) is white in it.
 """
 
 from __future__ import annotations
@@ -58,7 +61,8 @@ def truth_print_sampler(capture_dir: str | os.PathLike):
     """``(image (H, W) uint8, sampler)``: the true print and ``sampler(u, v) -> ridge field``.
 
     The sampler interpolates the print bilinearly at rolled-print coordinates (mm) and returns
-    ``(127.5 − I) / 127.5`` (positive on ridges, which are dark); white (0 ridge) outside.
+    ``(127.5 − I) / 127.5`` (positive on ridges, which are dark); white paper (−1) outside the
+    image, as inside it beyond the rolled extent.
     """
     from PIL import Image
     from scipy.ndimage import map_coordinates
