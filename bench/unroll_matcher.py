@@ -89,7 +89,7 @@ def best_calibration(out: Path, rig, scale: float):
     from nail2nail.patterns import default_pattern_set, make_patterns
     from nail2nail.scanning import decode_cameras, target_observations
 
-    path = out / "calib" / f"rig_best_scale{scale:g}.json"
+    path = out / "calib" / f"rig_best_v2_scale{scale:g}.json"  # v2: mark model
     if path.is_file():
         log(f"calibration: cached {path}")
         return load_calibration(path), str(path)
@@ -107,11 +107,13 @@ def best_calibration(out: Path, rig, scale: float):
                                     for name, d in decode_cameras(plane)})
     center, rho = report.fit.center, report.fit.rho
     log("calibration: joint calibration on the target")
-    observations = target_observations(read_capture(work / "target", load=False))
+    observations = target_observations(read_capture(work / "target", load=False),
+                                       refine_marks=True)
     calib = calibrate_from_observations(
         observations, model="joint", surface=TargetGeometry().signed_distance,
         projector_size=pattern_set.panel_size,
-        initial_distortion={"center": list(center), "rho": rho})[0]
+        initial_distortion={"center": list(center), "rho": rho},
+        target=TargetGeometry())[0]
     save_calibration(path, calib)
     shutil.rmtree(work)  # the frames are only needed once
     log(f"calibration: {time.perf_counter() - t0:.0f} s, saved {path}")
