@@ -156,6 +156,20 @@ def _region_quality(q, share, cameras) -> dict:
     return out
 
 
+def _cut_length(grid: PrintGrid, value, mask, share, length_mm: float):
+    """Drop the rows more than `length_mm` below the print's top row with data; crop."""
+    if not length_mm > 0:
+        raise ValueError(f"length_mm: expected a positive length, got {length_mm}")
+    rows = np.flatnonzero(mask.any(axis=1))
+    last = min(mask.shape[0] - 1, rows[0] + int(np.floor(length_mm / grid.pitch)))
+    keep = min(mask.shape[0], last + 1 + int(np.ceil(1.0 / grid.pitch)))  # 1 mm margin
+    mask = mask[:keep].copy()
+    mask[last + 1:] = False
+    value = np.where(mask, value[:keep], np.nan).astype(np.float32)
+    share = share[:, :keep] * mask
+    return PrintGrid(grid.s0, grid.t0, grid.pitch, mask.shape), value, mask, share
+
+
 def unroll_scans(
     scans,
     *,
@@ -166,6 +180,7 @@ def unroll_scans(
     ridge_options: dict | None = None,
     feather_px: float = 40.0,
     grid_mm: float = 0.5,
+    length_mm: float | None = None,
 ) -> RolledPrint:
     """Unroll a finger scanned by one or more cameras into a rolled-equivalent print.
 
@@ -191,6 +206,10 @@ def unroll_scans(
         Width of each camera's cross-fade at the edge of its valid region, camera px.
     grid_mm : float
         Cell size of the coarse mesh the flattening is fitted and judged on, mm.
+    length_mm : float, optional
+        Keep only the skin within this distance (print-plane ``t``) below the fingertip, as a
+        rolled-print card box does (about 25 mm reaches the distal crease of an adult finger);
+        default: everything the cameras saw.
 
     Returns
     -------
@@ -246,6 +265,8 @@ def unroll_scans(
     lap("blend")
     if not mask.any():
         raise ValueError("scans: the print has no pixel with data")
+    if length_mm is not None:
+        grid, value, mask, share = _cut_length(grid, value, mask, share, length_mm)
     pitch = grid.pitch
     image = to_gray(value, mask, sigma_px=1.0 / pitch, reduce=max(1, int(0.25 / pitch)))
     binary = binarize(image, mask, period_px=0.48 / pitch)
