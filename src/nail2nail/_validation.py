@@ -2,9 +2,23 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
-__all__ = ["as_float_array", "as_int", "as_matrix", "as_points"]
+__all__ = [
+    "as_float_array",
+    "as_int",
+    "as_matrix",
+    "as_name",
+    "as_points",
+    "check_format",
+    "check_unique",
+    "confined_path",
+    "describe_error",
+    "one_line",
+]
 
 
 def as_float_array(value, name: str, *, dtype=np.float64) -> np.ndarray:
@@ -69,3 +83,120 @@ def as_int(value, name: str, *, minimum: int) -> int:
     if value < minimum:
         raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value}")
     return int(value)
+
+
+def check_format(data, *, fmt: str, where: str, versions: tuple[int, ...] = (1,)) -> dict:
+    """Check that the parsed file `data` is an object of format `fmt` and a known version.
+
+    Raises
+    ------
+    ValueError
+        Naming `where` (the file): not an object, another ``format``, or a ``version`` missing
+        or not one of `versions` (``bool`` and strings are refused, ``"1"`` included).
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
+    if data.get("format") != fmt:
+        raise ValueError(f"{where}: not a {fmt.replace('-', ' ', 1)} file (format is "
+                         f"{data.get('format')!r})")
+    if "version" not in data:
+        raise ValueError(f"{where}: no 'version' (this nail2nail reads version(s) "
+                         f"{', '.join(map(str, versions))})")
+    version = data["version"]
+    if isinstance(version, bool) or not isinstance(version, int) or version not in versions:
+        raise ValueError(f"{where}: unknown version {version!r} (this nail2nail reads "
+                         f"version(s) {', '.join(map(str, versions))})")
+    return data
+
+
+_FORBIDDEN_IN_NAMES = ("/", "\\", ":", "\0")
+
+
+def as_name(value, where: str) -> str:
+    """Return `value` if it is a plain name: usable as a file name, never as a path.
+
+    A name is a non-empty string of at most 100 characters with no ``/``, ``\\``, ``:``,
+    control characters or surrounding spaces, and is not ``.`` or ``..``; names come from files
+    and become file names in output directories, so they must not climb out of them.
+
+    Raises
+    ------
+    ValueError
+        Naming `where`, if it is not.
+    """
+    if not isinstance(value, str):
+        raise ValueError(f"{where}: expected a name (a string), got {type(value).__name__}")
+    bad = (
+        not value
+        or value in (".", "..")
+        or len(value) > 100
+        or value != value.strip()
+        or any(c in value for c in _FORBIDDEN_IN_NAMES)
+        or any(ord(c) < 32 or ord(c) == 127 for c in value)
+    )
+    if bad:
+        raise ValueError(f"{where}: {value!r} is not a plain name (non-empty, no '/', '\\', "
+                         "':', '..' or control characters)")
+    return value
+
+
+def check_unique(names, where: str) -> None:
+    """Raise a ``ValueError`` naming `where` and the first repeated name, if any."""
+    seen: set = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"{where}: two cameras are named {name!r}; names must be unique")
+        seen.add(name)
+
+
+def confined_path(directory: str | os.PathLike, relative, where: str) -> Path:
+    """``directory / relative``, refused unless it stays inside `directory`.
+
+    `relative` must be a relative path (a string) whose resolved location (symbolic links
+    followed) lies inside the resolved `directory`: files named by a manifest are read from the
+    manifest's directory and nowhere else.
+
+    Raises
+    ------
+    ValueError
+        Naming `where`: not a string, empty, absolute, or leading outside `directory`.
+    """
+    if not isinstance(relative, str) or not relative or "\0" in relative:
+        raise ValueError(f"{where}: expected a relative file path, got {relative!r}")
+    if os.path.isabs(relative) or Path(relative).is_absolute() or relative.startswith("\\"):
+        raise ValueError(f"{where}: {relative!r} is an absolute path; files must lie inside "
+                         f"{directory}")
+    base = Path(directory)
+    target = base / relative
+    try:
+        inside = target.resolve().is_relative_to(base.resolve())
+    except (OSError, RuntimeError) as exc:  # symlink loop
+        raise ValueError(f"{where}: cannot resolve {relative!r} ({exc})") from exc
+    if not inside:
+        raise ValueError(f"{where}: {relative!r} leads outside {directory}")
+    return target
+
+
+def one_line(text) -> str:
+    """`text` (or an exception's message) on one line: its lines joined by ``"; "``."""
+    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+def describe_error(exc: BaseException) -> str:
+    """The user's words for a bad-input exception, on one line.
+
+    A ``KeyError`` of a bare key (``KeyError('npz')``) becomes "an input file lacks the required
+    entry 'npz'"; an ``OSError`` becomes "FILE: reason"; anything else its message.
+    """
+    if isinstance(exc, KeyError):
+        key = exc.args[0] if exc.args else None
+        if isinstance(key, str) and " " in key.strip():
+            return one_line(key)  # already a sentence ("capture has no camera 'x' …")
+        return f"an input file lacks the required entry {key!r}"
+    if isinstance(exc, OSError) and exc.strerror:
+        where = exc.filename if exc.filename is not None else ""
+        if exc.filename2 is not None:
+            where = f"{where} -> {exc.filename2}"
+        text = exc.strerror[:1].lower() + exc.strerror[1:]
+        return f"{where}: {text}" if where else text
+    return one_line(exc) or type(exc).__name__

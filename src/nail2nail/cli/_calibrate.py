@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..calibration import calibrate_points
+from ..io._json import dumps_json
 from ..io.calibration import CameraCalibration, RigCalibration, save_calibration
 from ..io.points import read_points
 
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         out["compare"] = {m: {"rms_mm": r.rms_mm.round(6).tolist()} for m, r in results.items()}
         if args.output:
             out["output"] = str(args.output)
-        print(json.dumps(out, indent=2))
+        print(dumps_json(out))
     else:
         print(f"Calibration of {args.source} ({len(table)} points)\n")
         print(format_table(report, table))

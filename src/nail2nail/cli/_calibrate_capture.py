@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..calibration import calibrate_from_observations
+from ..io._json import dumps_json
 from ..io.calibration import save_calibration
 from ..io.capture import read_capture
 from ..io.points import PointsTable, write_points
@@ -42,7 +42,7 @@ def run_capture(args: argparse.Namespace) -> int:
     calib.extra["source"] = str(args.source)
     save_calibration(args.output, calib)
     if args.json:
-        print(json.dumps({"output": str(args.output), "model": args.model, "cameras": summary,
+        print(dumps_json({"output": str(args.output), "model": args.model, "cameras": summary,
                           "points_tables": tables,
                           "projector_distortion": calib.projector_distortion}, indent=2))
     else:

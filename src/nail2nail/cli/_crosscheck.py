@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..calibration import calibrate_points, crosscheck
+from ..io._json import dumps_json
 from ..io.points import read_points
 
 __all__ = ["add_parser", "run"]
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                 "values": cc.squared_mm2.round(6).tolist(),
             },
         }
-        print(json.dumps(out, indent=2))
+        print(dumps_json(out))
         return 0
     print(f"{'A':>4} {'B':>4} {'Xw':>8} {'Yw':>8} {'Zw':>8} {'dist_mm':>8} {'sq_mm2':>8}")
     for i, j, x, d in zip(cc.index_a, cc.index_b, cc.xyz_world, cc.distance_mm, strict=True):

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..calibration import calibrate_points, crosscheck
+from ..io._json import dumps_json
 from ..io.points import thesis_table
 from ._calibrate import format_table
 
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(args.out, scale=args.scale, progress=True)
     result["thesis"] = thesis
     if args.json:
-        print(json.dumps(result, indent=2, default=float))
+        print(dumps_json(result, default=float))
     else:
         print(format_summary(result))
     return 0

@@ -9,7 +9,6 @@ grid), drawn from the decoded projector coordinates.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from ..distortion import (
     grid_from_decoded,
 )
 from ..io._atomic import atomic_path
-from ..io._json import write_json
+from ..io._json import dumps_json, write_json
 
 __all__ = ["add_parser", "run"]
 
@@ -103,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         result["written"] = written
 
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(dumps_json(result))
         return 0
     fit, thesis = report.fit, report.thesis
     print(f"non-linear (all cameras): center = ({fit.center[0]:.2f}, {fit.center[1]:.2f}) px "

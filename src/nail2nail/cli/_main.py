@@ -1,15 +1,29 @@
 """Entry point: parses arguments and dispatches to one module per subcommand.
 
 Each subcommand lives in ``cli/_<name>.py`` with ``add_parser(subparsers)`` registering it and
-setting ``func``; errors from the library (``ValueError``, ``TypeError``, ``OSError``) become one
-line on stderr and exit code 2.
+setting ``func``. Exit codes (``docs/conventions.md``, "Errors"): 0 success; 2 bad input
+(``ValueError``, ``TypeError``, ``OSError``, ``KeyError`` from the library, and argparse's usage
+errors), one line on stderr naming the file or argument; 130 interrupted (Ctrl-C); 1 any other
+exception, an internal error, one line asking for a report. No traceback unless the environment
+variable ``NAIL2NAIL_DEBUG`` is set to a non-empty value other than ``0``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
+
+from .._validation import describe_error, one_line
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "build_parser", "main"]
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 1
+EXIT_INTERRUPTED = 130
+REPORT_URL = "the nail2nail issue tracker"
 
 # Subcommand modules, in pipeline order.
 COMMANDS = [
@@ -29,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nail2nail",
         description="Touchless 3D fingerprint capture: calibrate, simulate, scan, merge, unroll.",
+        epilog="Exit codes: 0 success, 2 bad input, 130 interrupted, 1 internal error. "
+        "NAIL2NAIL_DEBUG=1 prints the traceback of an error.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
@@ -42,14 +58,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _debug() -> bool:
+    return os.environ.get("NAIL2NAIL_DEBUG", "") not in ("", "0")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run the command line `argv` (default ``sys.argv[1:]``) and return the exit code."""
+    command = "nail2nail"
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        command = f"nail2nail {args.command}"
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        if _debug():
+            traceback.print_exc()
+        print(f"{command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except (ValueError, TypeError, OSError, KeyError) as exc:
-        print(f"nail2nail {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        if _debug():
+            traceback.print_exc()
+        print(f"{command}: error: {describe_error(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:
+        if _debug():
+            traceback.print_exc()
+        print(
+            f"{command}: internal error: {type(exc).__name__}: {one_line(exc)} "
+            f"(a bug: please report it to {REPORT_URL} with the command line; "
+            "NAIL2NAIL_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,10 +7,10 @@ calls :func:`nail2nail.merge_report.write_merge` and prints the summary.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from ..io._json import dumps_json
 from ..io.scans import load_scans
 from ..merge_report import parse_pairs, write_merge
 
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     )
     summary = {"scan_dir": str(args.scan_dir), **summary}
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(dumps_json(summary))
         return 0
     print(f"{'pair':>6} {'pairs':>8} {'median µm':>10} {'p95 µm':>8} {'max µm':>8} "
           f"{'<0.05mm':>8}  dropped (parent border / child border / residual)")

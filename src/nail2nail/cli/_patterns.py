@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from ..io._atomic import atomic_path
-from ..io._json import write_json
+from ..io._json import dumps_json, write_json
 from ..patterns import PatternSet, default_pattern_set, frame_table, grid_pattern, make_patterns
 
 __all__ = ["add_parser", "run"]
@@ -91,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(out), "n_frames": len(files), "panel_size": list(pattern_set.panel_size),
                "spec": "patterns.json", "grid": manifest.get("grid")}
     if args.json:
-        print(json.dumps(summary))
+        print(dumps_json(summary, indent=None))
     else:
         print(f"wrote {len(files)} patterns ({pattern_set.panel_size[0]} x "
               f"{pattern_set.panel_size[1]}) to {out}")

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from ..io._json import dumps_json
 from ..io.calibration import load_calibration
 from ..io.capture import read_capture
 from ..io.scans import save_scans
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
             files["mat5"] = str(args.out / cam["mat5"])
         summary["cameras"][cam["name"]] = {"valid_pixels": cam["valid_pixels"], **files}
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(dumps_json(summary))
     else:
         for name, s in summary["cameras"].items():
             print(f"{name}: {s['valid_pixels']} valid pixels -> {s.get('mat5', s['npz'])}")

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
+from ..io._json import dumps_json
 from ..simulation.scenes import SCENES
 
 __all__ = ["add_parser", "run"]
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         "seconds": round(elapsed, 2),
     }
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(dumps_json(summary))
     else:
         cams = ", ".join(f"{c['name']} {c['size'][0]}x{c['size'][1]}" for c in summary["cameras"])
         print(f"wrote {args.out}: scene {args.scene}, {summary['n_frames']} frames x "

@@ -8,10 +8,10 @@ Thin command layer: reads a scan directory (:func:`nail2nail.io.scans.load_scans
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
+from ..io._json import dumps_json
 from ..unroll import DEFAULT_METHOD, METHODS
 
 __all__ = ["add_parser", "run"]
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
                               extra={"scan_dir": str(args.scan_dir),
                                      "seconds": round(time.perf_counter() - start, 3)})
     if args.json:
-        print(json.dumps(meta, indent=2, allow_nan=False))
+        print(dumps_json(meta))
         return 0
     w, h = meta["print_size_mm"]
     d = meta["distortion"]

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import as_name, check_format, check_unique
 from ..camera_models import Pinhole
 from ._json import read_json, write_json
 
@@ -112,8 +113,7 @@ class RigCalibration:
     @classmethod
     def from_dict(cls, data: dict, *, where: str = "calibration") -> RigCalibration:
         """Inverse of :meth:`to_dict`; ``ValueError`` naming `where` on bad content."""
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ValueError(f"{where}: not a nail2nail calibration file (format != {FORMAT!r})")
+        check_format(data, fmt=FORMAT, where=where)
         cams = data.get("cameras")
         if not isinstance(cams, list) or not cams:
             raise ValueError(f"{where}: 'cameras' must be a non-empty list")
@@ -121,15 +121,22 @@ class RigCalibration:
         for i, c in enumerate(cams):
             if not isinstance(c, dict):
                 raise ValueError(f"{where}: cameras[{i}] must be an object")
-            name = c.get("name", f"cam{i}")
+            name = as_name(c.get("name", f"cam{i}"), f"{where}: cameras[{i}].name")
             camera = model_from_dict(c.get("camera"), where=f"{where}: cameras[{i}].camera")
             projector = model_from_dict(
                 c.get("projector"), where=f"{where}: cameras[{i}].projector"
             )
             size = c["camera"].get("size")
+            if size is not None and not (
+                isinstance(size, list) and len(size) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
+            ):
+                raise ValueError(f"{where}: cameras[{i}].camera.size must be [W, H] in pixels, "
+                                 f"got {size!r}")
             cameras.append(
                 CameraCalibration(name, camera, projector, tuple(size) if size else None)
             )
+        check_unique([c.name for c in cameras], where)
         dist = data.get("projector_distortion")
         if dist is not None:
             if not isinstance(dist, dict) or not ({"center", "rho"} <= set(dist)):

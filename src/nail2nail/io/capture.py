@@ -20,8 +20,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from .._validation import as_name, check_format, check_unique, confined_path, describe_error
 from ._atomic import atomic_path
 from ._json import read_json, write_json
+from ._npz import read_npz
 
 __all__ = [
     "CAPTURE_FORMAT",
@@ -34,6 +36,7 @@ __all__ = [
 ]
 
 CAPTURE_FORMAT = "nail2nail-capture"
+BIT_DEPTHS = (8, 10, 12, 16)
 MANIFEST = "capture.json"
 
 
@@ -76,12 +79,35 @@ class Capture:
         raise KeyError(f"capture has no camera {name!r} (has {self.camera_names})")
 
     def load_frames(self, name: str) -> np.ndarray:
-        """Read (and cache) the frames of camera `name`: ``(n_frames, H, W) float32``."""
+        """Read (and cache) the frames of camera `name`: ``(n_frames, H, W) float32``.
+
+        Raises
+        ------
+        ValueError
+            Naming the frame file: unreadable, not grey, its pixel values not of the manifest's
+            ``bit_depth``, or its size not the camera's ``size`` (or, without one, not the size
+            of the camera's first frame).
+        """
         if name not in self.frames:
-            files = self.camera(name)["frames"]
-            self.frames[name] = np.stack(
-                [read_frame(self.path / f, bit_depth=self.bit_depth) for f in files]
-            )
+            cam = self.camera(name)
+            files = cam["frames"]
+            size = cam.get("size")
+            shape = (int(size[1]), int(size[0])) if size is not None else None
+            stack = None
+            for i, f in enumerate(files):
+                file = self.path / f
+                frame = read_frame(file, bit_depth=self.bit_depth)
+                if shape is None:
+                    shape = frame.shape
+                if frame.shape != shape:
+                    said = (f"camera {name}'s size in {self.path / MANIFEST} is" if size
+                            is not None else f"camera {name}'s first frame is")
+                    raise ValueError(f"{file}: frame is {frame.shape[1]} x {frame.shape[0]} px "
+                                     f"(W x H), but {said} {shape[1]} x {shape[0]}")
+                if stack is None:
+                    stack = np.empty((len(files), *shape), dtype=np.float32)
+                stack[i] = frame
+            self.frames[name] = stack
         return self.frames[name]
 
     def rig(self):
@@ -94,19 +120,57 @@ class Capture:
 
 
 def read_frame(path: str | os.PathLike, *, bit_depth: int = 8) -> np.ndarray:
-    """One frame as ``(H, W) float32`` in ``[0, 1]`` (16-bit PNGs: left-aligned `bit_depth`)."""
+    """One frame as ``(H, W) float32`` in ``[0, 1]``.
+
+    `bit_depth` 8 wants an 8-bit grey PNG; 10, 12 and 16 want a 16-bit grey PNG holding the
+    values left-aligned (``v << (16 - bit_depth)``, ``docs/capture-format.md``).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: unreadable, truncated or corrupt; not single-channel grey (palette,
+        colour, alpha, bilevel, float); or pixel values that are not `bit_depth`-bit values
+        stored as the format says (a 16-bit PNG under ``bit_depth`` 8, an 8-bit PNG under 10,
+        12 or 16, or low bits set under 10 or 12: values right-aligned, not left-aligned).
+    """
     path = Path(path)
+    if isinstance(bit_depth, bool) or bit_depth not in BIT_DEPTHS:
+        raise ValueError(f"bit_depth: expected one of {BIT_DEPTHS}, got {bit_depth!r}")
     try:
         with Image.open(path) as im:
+            mode = im.mode
             raw = np.asarray(im)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read frame ({exc})") from exc
-    if raw.ndim != 2:
-        raise ValueError(f"{path}: expected a grey image, got shape {raw.shape}")
-    if raw.dtype == np.uint8:
+    except Exception as exc:
+        raise ValueError(f"{path}: cannot read frame ({_short(exc)})") from exc
+    if mode not in ("L", "I;16", "I;16L", "I;16B", "I") or raw.ndim != 2:
+        raise ValueError(f"{path}: expected a single-channel grey image (8- or 16-bit), got "
+                         f"PIL mode {mode} with shape {raw.shape}")
+    if mode == "I":  # a 16-bit PNG opened as 32-bit integers
+        if raw.size and (raw.min() < 0 or raw.max() > 65535):
+            raise ValueError(f"{path}: pixel values outside 0 … 65535")
+        raw = raw.astype(np.uint16)
+    if bit_depth == 8:
+        if raw.dtype != np.uint8:
+            raise ValueError(f"{path}: a 16-bit image, but the capture's bit_depth is 8 "
+                             "(8-bit frames are 8-bit PNGs)")
         return raw.astype(np.float32) / np.float32(255)
-    values = raw.astype(np.uint32) >> (16 - bit_depth)
+    if raw.dtype != np.uint16:
+        raise ValueError(f"{path}: an 8-bit image, but the capture's bit_depth is {bit_depth} "
+                         "(stored in 16-bit PNGs, left-aligned)")
+    shift = 16 - bit_depth
+    if shift and np.any(raw & np.uint16((1 << shift) - 1)):
+        raise ValueError(
+            f"{path}: {bit_depth}-bit values must be stored left-aligned (value << {shift}) "
+            f"but the low {shift} bits are set (largest raw value {int(raw.max())}; "
+            f"right-aligned values, or a deeper image than bit_depth {bit_depth}?)"
+        )
+    values = raw >> np.uint16(shift)
     return values.astype(np.float32) / np.float32(2**bit_depth - 1)
+
+
+def _short(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def write_frame(path: str | os.PathLike, frame: np.ndarray, *, compress_level: int = 1) -> None:
@@ -136,17 +200,36 @@ def write_manifest(directory: str | os.PathLike, manifest: dict) -> Path:
 def _check_manifest(data, *, where: str) -> None:
     if not isinstance(data, dict):
         raise ValueError(f"{where}: expected a JSON object")
+    bit_depth = data.get("bit_depth", 8)
+    if isinstance(bit_depth, bool) or bit_depth not in BIT_DEPTHS:
+        raise ValueError(f"{where}: bit_depth {bit_depth!r} is not one of {BIT_DEPTHS}")
     cams = data.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise ValueError(f"{where}: 'cameras' must be a non-empty list")
     n = data.get("n_frames")
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+        raise ValueError(f"{where}: n_frames must be a positive integer, got {n!r}")
     for i, cam in enumerate(cams):
         if not isinstance(cam, dict) or not {"name", "frames"} <= set(cam):
             raise ValueError(f"{where}: cameras[{i}] needs 'name' and 'frames'")
-        if n is not None and len(cam["frames"]) != n:
+        as_name(cam["name"], f"{where}: cameras[{i}].name")
+        frames = cam["frames"]
+        if not isinstance(frames, list) or not frames or not all(
+            isinstance(f, str) for f in frames
+        ):
+            raise ValueError(f"{where}: cameras[{i}].frames must be a non-empty list of paths")
+        if n is not None and len(frames) != n:
             raise ValueError(
-                f"{where}: cameras[{i}] lists {len(cam['frames'])} frames, n_frames is {n}"
+                f"{where}: cameras[{i}] lists {len(frames)} frames, n_frames is {n}"
             )
+        size = cam.get("size")
+        if size is not None and not (
+            isinstance(size, list) and len(size) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
+        ):
+            raise ValueError(f"{where}: cameras[{i}].size must be [W, H] in pixels, got "
+                             f"{size!r}")
+    check_unique([cam["name"] for cam in cams], where)
 
 
 def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
@@ -174,11 +257,11 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
     if not manifest_path.is_file():
         raise ValueError(f"{path}: not a capture directory (no {MANIFEST})")
     manifest = read_json(manifest_path)
-    if not isinstance(manifest, dict) or manifest.get("format") != CAPTURE_FORMAT:
-        raise ValueError(f"{manifest_path}: not a nail2nail capture (format != "
-                         f"{CAPTURE_FORMAT!r})")
+    check_format(manifest, fmt=CAPTURE_FORMAT, where=str(manifest_path))
     _check_manifest(manifest, where=str(manifest_path))
-    for cam in manifest["cameras"]:
+    for i, cam in enumerate(manifest["cameras"]):
+        for f in cam["frames"]:
+            confined_path(path, f, f"{manifest_path}: cameras[{i}].frames")
         missing = [f for f in cam["frames"] if not (path / f).is_file()]
         if missing:
             raise ValueError(f"{path}: camera {cam['name']}: {len(missing)} frame file(s) "
@@ -187,7 +270,10 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
     if manifest.get("pattern_set") is not None:
         from ..patterns import PatternSet
 
-        pattern_set = PatternSet.from_dict(manifest["pattern_set"])
+        try:
+            pattern_set = PatternSet.from_dict(manifest["pattern_set"])
+        except (ValueError, TypeError, KeyError) as exc:
+            raise ValueError(f"{manifest_path}: pattern_set: {describe_error(exc)}") from exc
     capture = Capture(path=path, manifest=manifest, pattern_set=pattern_set)
     if load:
         for name in capture.camera_names:
@@ -200,5 +286,4 @@ def read_truth(path: str | os.PathLike, camera: str) -> dict[str, np.ndarray]:
     file = Path(path) / "truth" / f"{camera}.npz"
     if not file.is_file():
         raise ValueError(f"{path}: no ground truth for camera {camera!r} ({file} missing)")
-    with np.load(file) as data:
-        return {k: data[k] for k in data.files}
+    return read_npz(file, what="ground-truth file")

@@ -15,9 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import as_name, check_format, check_unique, confined_path
 from ..reconstruction import Scan
 from ._atomic import write_npz
 from ._json import read_json, write_json
+from ._npz import read_npz
 
 __all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "save_scan_npz", "save_scans"]
 
@@ -36,16 +38,10 @@ def save_scan_npz(path: str | os.PathLike, scan: Scan) -> None:
 def load_scan_npz(path: str | os.PathLike) -> Scan:
     """Read a scan written by :func:`save_scan_npz`; ``ValueError`` naming the file if bad."""
     path = Path(path)
-    try:
-        with np.load(path) as data:
-            missing = [k for k in _ARRAYS if k not in data]
-            if missing:
-                raise ValueError(f"{path}: missing array(s) {missing}")
-            arrays = {k: data[k] for k in _ARRAYS}
-            center = data["camera_center"] if "camera_center" in data else None
-            name = str(data["name"]) if "name" in data else path.stem
-    except (OSError, EOFError) as exc:
-        raise ValueError(f"{path}: not a readable scan file ({exc})") from exc
+    data = read_npz(path, required=_ARRAYS, what="scan file")
+    arrays = {k: data[k] for k in _ARRAYS}
+    center = data.get("camera_center")
+    name = str(data["name"]) if "name" in data else path.stem
     shape = arrays["mask"].shape
     if arrays["xyz"].shape != (*shape, 3):
         raise ValueError(f"{path}: xyz has shape {arrays['xyz'].shape}, mask {shape}")
@@ -58,6 +54,9 @@ def save_scans(
 ) -> dict:
     """Write a scan directory and return its manifest (also written as ``scan.json``)."""
     out = Path(out_dir)
+    for i, scan in enumerate(scans):
+        as_name(scan.name, f"scans[{i}].name")
+    check_unique([scan.name for scan in scans], "scans")
     out.mkdir(parents=True, exist_ok=True)
     cameras = []
     for scan in scans:
@@ -83,12 +82,28 @@ def save_scans(
 
 
 def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
-    """Read every camera's scan of a scan directory, in manifest order."""
+    """Read every camera's scan of a scan directory, in manifest order.
+
+    Raises
+    ------
+    ValueError
+        Naming the file: no or bad ``scan.json`` (format, version, camera entries, names not
+        plain or not unique, an ``npz`` path leading outside `scan_dir`), or a bad ``.npz``.
+    """
     scan_dir = Path(scan_dir)
     manifest_path = scan_dir / "scan.json"
-    if not manifest_path.exists():
+    if not manifest_path.is_file():
         raise ValueError(f"{scan_dir}: not a scan directory (no scan.json)")
-    manifest = read_json(manifest_path)
-    if not isinstance(manifest, dict) or manifest.get("format") != SCAN_FORMAT:
-        raise ValueError(f"{manifest_path}: not a nail2nail scan manifest")
-    return [load_scan_npz(scan_dir / cam["npz"]) for cam in manifest["cameras"]]
+    manifest = check_format(read_json(manifest_path), fmt=SCAN_FORMAT, where=str(manifest_path))
+    cams = manifest.get("cameras")
+    if not isinstance(cams, list) or not cams:
+        raise ValueError(f"{manifest_path}: 'cameras' must be a non-empty list")
+    files = []
+    for i, cam in enumerate(cams):
+        where = f"{manifest_path}: cameras[{i}]"
+        if not isinstance(cam, dict) or not {"name", "npz"} <= set(cam):
+            raise ValueError(f"{where} needs 'name' and 'npz'")
+        as_name(cam["name"], f"{where}.name")
+        files.append(confined_path(scan_dir, cam["npz"], f"{where}.npz"))
+    check_unique([cam["name"] for cam in cams], str(manifest_path))
+    return [load_scan_npz(file) for file in files]
