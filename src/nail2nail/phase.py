@@ -41,6 +41,7 @@ import numba
 import numpy as np
 import scipy.ndimage as ndi
 
+from nail2nail._numba_cache import cache_enabled
 from nail2nail.patterns import PatternSet
 
 __all__ = [
@@ -454,6 +455,10 @@ def decode(
 # ------------------------------------------------------------------------------------------------
 # Fused fast path
 # ------------------------------------------------------------------------------------------------
+# cache=True unless no directory at all can hold numba's cache (nail2nail._numba_cache)
+_CACHE = cache_enabled()
+
+
 @numba.njit(inline="always", fastmath=True)
 def _atan2_0_2pi(y, x):  # pragma: no cover - compiled
     """``atan2(y, x)`` mapped to ``[0, 2 pi)``, branch-free, |error| < 1.1e-5 rad.
@@ -474,7 +479,7 @@ def _atan2_0_2pi(y, x):  # pragma: no cover - compiled
     return r if r < np.float32(6.2831855) else np.float32(0.0)
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(parallel=True, fastmath=True, cache=_CACHE)
 def _fused_kernel(frames, cos_d, sin_d, group_start, group_steps, group_bscale, group_ratio,
                   group_first,
                   dir_groups, dir_coef, dir_origin, dir_size, inv_scale, sat_native,
@@ -559,7 +564,7 @@ def _fused_kernel(frames, cos_d, sin_d, group_start, group_steps, group_bscale, 
             out_mod[r, c] = np.sqrt(fine_b[c])
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(parallel=True, fastmath=True, cache=_CACHE)
 def _finish_kernel(pix_reason, u_raw, erode, max_gradient, keep_invalid, table_dir, num, den,
                    modulation, out_reason, out_u, out_int, out_xyz):  # pragma: no cover
     """Neighbourhood checks (as :func:`neighbourhood_reasons`), masking and triangulation.
