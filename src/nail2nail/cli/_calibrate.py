@@ -99,9 +99,12 @@ def run(args: argparse.Namespace) -> int:
     table = read_points(args.source)
     results = {}
     for method in ("thesis", "normalized"):
-        results[method] = calibrate_points(
-            table.xyz_world, table.xy_camera, table.xy_projector, method=method, use=args.use
-        )
+        try:
+            results[method] = calibrate_points(
+                table.xyz_world, table.xy_camera, table.xy_projector, method=method, use=args.use
+            )
+        except (ValueError, TypeError) as exc:  # the table's points: say which table
+            raise ValueError(f"{args.source}: {exc}") from exc
     report = results[args.method]
     if args.output:
         calib = RigCalibration(

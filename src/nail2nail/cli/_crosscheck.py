@@ -39,15 +39,24 @@ def _stats(values: np.ndarray) -> dict:
     }
 
 
+def _calibrate(table, path, args):
+    """Calibrate from one table; an error says which table."""
+    try:
+        return calibrate_points(
+            table.xyz_world, table.xy_camera, table.xy_projector, method=args.method, use=args.use
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     ta, tb = read_points(args.table_a), read_points(args.table_b)
-    ra = calibrate_points(
-        ta.xyz_world, ta.xy_camera, ta.xy_projector, method=args.method, use=args.use
-    )
-    rb = calibrate_points(
-        tb.xyz_world, tb.xy_camera, tb.xy_projector, method=args.method, use=args.use
-    )
-    cc = crosscheck(ra, ta.xyz_world, rb, tb.xyz_world)
+    ra, rb = (_calibrate(table, path, args) for table, path in ((ta, args.table_a),
+                                                                (tb, args.table_b)))
+    try:
+        cc = crosscheck(ra, ta.xyz_world, rb, tb.xyz_world)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{args.table_a} and {args.table_b}: {exc}") from exc
     if args.json:
         out = {
             "pairs": int(cc.distance_mm.size),

@@ -91,14 +91,18 @@ def read_points(path: str | os.PathLike) -> PointsTable:
     Raises
     ------
     ValueError
-        Naming the file: missing required columns, a non-numeric cell (with its line), or
-        no rows.
+        Naming the file: missing required columns, a non-numeric, NaN or infinite cell in a
+        required column (with its line), or no rows. A byte-order mark (Excel's UTF-8 or
+        UTF-16 exports) is accepted.
     """
     path = Path(path)
+    raw = path.read_bytes()
+    # Excel writes a byte-order mark: UTF-8 ("CSV UTF-8") or UTF-16 ("Unicode text")
+    encoding = "utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
     try:
-        text = path.read_text()
+        text = raw.decode(encoding)
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a text points table") from exc
+        raise ValueError(f"{path}: not a text points table (not {encoding.upper()})") from exc
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise ValueError(f"{path}: empty points table")
@@ -135,6 +139,11 @@ def read_points(path: str | os.PathLike) -> PointsTable:
                     f"{path}: line {bad + 2}, column {name}: {cells[bad]!r} is not a number"
                 ) from None
             continue  # a non-numeric extra column is ignored
+        if name in REQUIRED_COLUMNS and not np.all(np.isfinite(columns[name])):
+            bad = int(np.flatnonzero(~np.isfinite(columns[name]))[0])
+            raise ValueError(
+                f"{path}: line {bad + 2}, column {name}: {cells[bad]!r} is not a finite number"
+            )
     return PointsTable(columns=columns, labels=labels or [str(i + 1) for i in range(len(body))])
 
 
