@@ -49,6 +49,9 @@ def add_parser(sub) -> None:
     p.add_argument("--tip-direction", type=_vector, default=(0.0, 1.0, 0.0),
                    help="rough direction of the fingertip in the world frame, X,Y,Z "
                    "(default 0,1,0: +Y, docs/conventions.md)")
+    p.add_argument("--length", type=float, default=None, metavar="MM",
+                   help="keep only the skin within MM below the fingertip, as a rolled-print "
+                   "card does (about 25 reaches the distal crease; default: all that was seen)")
     p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
     p.add_argument("--json", action="store_true", help="print the metadata as JSON")
     p.set_defaults(func=run)
@@ -63,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
     scans = load_scans(args.scan_dir)
     start = time.perf_counter()
+    if args.length is not None and not args.length > 0:
+        raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
-                          tip_direction=args.tip_direction)
+                          tip_direction=args.tip_direction, length_mm=args.length)
     meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,
                               extra={"scan_dir": str(args.scan_dir),
                                      "seconds": round(time.perf_counter() - start, 3)})
