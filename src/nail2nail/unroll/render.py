@@ -99,7 +99,7 @@ def _splat(grid: PrintGrid, st, values, weights, *, count: bool = False):
 
 
 def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
-                  min_support: float = 0.3):
+                  min_support: float = 0.3, edge_sigma_px: float = 0.0):
     """Blend per-camera samples ``(st (N, 2), value (N,), weight (N,))`` on the print grid.
 
     Parameters
@@ -111,6 +111,8 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
         σ of the normalised Gaussian that fills gaps between splatted samples, print px.
     min_support : float
         A pixel has data where the smoothed sample density (samples per pixel) is at least this.
+    edge_sigma_px : float
+        σ of the Gaussian that smooths the outline of the data region, print px (0: none).
 
     Returns
     -------
@@ -142,6 +144,11 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
     mask = ndi.binary_closing(mask, iterations=2, border_value=0)
     mask = ndi.binary_fill_holes(mask)
     mask &= den_s > 1e-9 * max(float(den_s.max()), 1e-300)
+    if edge_sigma_px > 0:
+        # a smooth outline: the support's edge is frayed along the ridges (grazing pixels on
+        # ridge flanks come and go), and every frayed tip would read as a ridge ending
+        mask = ndi.gaussian_filter(mask.astype(np.float32), edge_sigma_px) > 0.5
+        mask &= den_s > 1e-9 * max(float(den_s.max()), 1e-300)
     label, n = ndi.label(mask)
     if n > 1:
         sizes = np.bincount(label.ravel())

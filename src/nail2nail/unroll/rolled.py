@@ -261,7 +261,8 @@ def unroll_scans(
     lap("ridges")
     samples = [camera_samples(s, sig, wt, flat) for s, (sig, wt) in zip(scans, layers, strict=True)]
     grid = print_grid(np.concatenate([st for st, _, _ in samples]), ppi=ppi)
-    value, mask, share = blend_cameras(grid, samples)
+    # the outline smoothed over about one ridge period (0.5 mm)
+    value, mask, share = blend_cameras(grid, samples, edge_sigma_px=0.25 / grid.pitch)
     lap("blend")
     if not mask.any():
         raise ValueError("scans: the print has no pixel with data")
