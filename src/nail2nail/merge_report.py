@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from ._validation import as_int
 from .fusion import fuse_scans, write_super_mat5, write_super_ply
-from .io._atomic import write_npz
+from .io._atomic import atomic_directory, write_npz
 from .io._json import write_json
 from .merge import correspond
 from .plots import (
@@ -109,7 +109,9 @@ def write_merge(
     scans : sequence of Scan
         One per camera, in camera order (world mm).
     out : path-like
-        Output directory (created).
+        Output directory, written as a whole (:func:`nail2nail.io._atomic.atomic_directory`):
+        an earlier merge there is replaced only once the new one is complete; a non-empty
+        directory without ``merge.json`` is refused.
     pairs : list of (int, int), optional
         ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``.
     stride, max_residual_px, border_px
@@ -139,8 +141,34 @@ def write_merge(
     for i, j in pairs:
         if not (0 <= i < len(scans) and 0 <= j < len(scans)) or i == j:
             raise ValueError(f"pairs: ({i}, {j}) is not a pair of two of the {len(scans)} scans")
+    max_residual_px = float(max_residual_px)
+    if not max_residual_px > 0:
+        raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
+    border_px = as_int(border_px, "border_px", minimum=0)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with atomic_directory(out, marker="merge.json") as tmp:
+        summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,
+                               max_residual_px=max_residual_px, border_px=border_px,
+                               figures=figures, super_scan=super_scan, progress=progress)
+        summary = _relocate(summary, str(tmp), str(out))
+        write_json(tmp / "merge.json", summary)
+    return summary
+
+
+def _relocate(obj, old: str, new: str):
+    """`obj` with every string path under `old` moved under `new` (dicts and lists walked)."""
+    if isinstance(obj, dict):
+        return {k: _relocate(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_relocate(v, old, new) for v in obj]
+    if isinstance(obj, str) and (obj == old or obj.startswith(old + os.sep)):
+        return new + obj[len(old):]
+    return obj
+
+
+def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
+                 super_scan, progress) -> dict:
+    """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary."""
     outputs: list[str] = []
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": outputs}
     for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
@@ -178,9 +206,7 @@ def write_merge(
         files = {k: str(v) for k, v in files.items()}
         outputs.extend(v for k, v in files.items() if k != "mat5")
         summary["super_scan"] = {**sup.summary(), "files": files}
-    report = out / "merge.json"
-    outputs.append(str(report))
-    write_json(report, summary)
+    outputs.append(str(out / "merge.json"))
     return summary
 
 

@@ -76,7 +76,10 @@ def run_demo(
     Parameters
     ----------
     out : path-like
-        Output directory (created).
+        Output directory (created). Its ``summary.json`` is removed first and written last
+        (a directory without it is incomplete); every sub-directory (``captures/NAME``,
+        ``distortion``, ``calib``, ``scans/C/O``, ``merge/C/O``, ``print``) is replaced as a
+        whole (:func:`nail2nail.io._atomic.atomic_directory`).
     scale : float
         Camera resolution scale (1 = 1024 × 1280; 0.25 for a quick run).
     seed : int
@@ -95,6 +98,7 @@ def run_demo(
     """
     from .calibration import calibrate_from_observations
     from .distortion import apply_lut, distortion_lut, estimate_from_decoded
+    from .io._atomic import atomic_directory
     from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
@@ -107,10 +111,15 @@ def run_demo(
     from .simulation.capture import simulate_capture
     from .simulation.rig import default_rig
 
+    rig = default_rig(scale, projector_distortion="thesis")  # checks `scale` before any write
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
+    # summary.json goes first and comes back last: without it the directory is visibly
+    # incomplete; every sub-directory is replaced as a whole (atomic_directory)
+    (out / "summary.json").unlink(missing_ok=True)
     step = _Progress(progress, 16)
-    rig = default_rig(scale, projector_distortion="thesis")
     pattern_set = default_pattern_set()
     patterns = make_patterns(pattern_set)
     captures = {}
@@ -131,7 +140,8 @@ def run_demo(
         {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane)}
     )
     distortion = report.to_dict(truth=None)
-    write_json(out / "distortion" / "projector_distortion.json", distortion)
+    with atomic_directory(out / "distortion", marker="projector_distortion.json") as tmp:
+        write_json(tmp / "projector_distortion.json", distortion)
     center, rho = report.fit.center, report.fit.rho
     lut_patterns = apply_lut(patterns, distortion_lut(pattern_set.panel_size, center, rho))
 
@@ -164,10 +174,11 @@ def run_demo(
         )[0],
     }
     calib_paths = {}
-    for name, calib in calibs.items():
-        path = out / "calib" / f"rig_{name}.json"
-        save_calibration(path, calib)
-        calib_paths[name] = str(path)
+    names = [f"rig_{name}.json" for name in calibs]
+    with atomic_directory(out / "calib", marker=tuple(names)) as tmp:
+        for name, calib in calibs.items():
+            save_calibration(tmp / f"rig_{name}.json", calib)
+            calib_paths[name] = str(out / "calib" / f"rig_{name}.json")
 
     comparison: dict = {}
     merges: dict = {}
@@ -233,6 +244,7 @@ def run_demo(
 
 def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
     """Unroll with every method, compare each with the truth, write the default's print."""
+    from .io._atomic import atomic_directory
     from .io._json import write_json
     from .io.rolled import write_rolled_print
     from .simulation.truth import truth_print_sampler, truth_skin_coordinates
@@ -253,14 +265,17 @@ def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
         methods[method] = {"seconds": round(seconds, 3), "distortion": rolled.distortion,
                            **acc}
     rolled, truth_on_grid = prints[DEFAULT_METHOD]
-    meta = write_rolled_print(out, rolled, extra={"accuracy": methods[DEFAULT_METHOD]})
-    outputs = [str(out / f) for f in meta["files"].values()] + [str(out / "print.json")]
-    write_json(out / "methods.json", methods)
-    outputs.append(str(out / "methods.json"))
-    if figures:
-        from .unroll.figures import save_print_figures
+    with atomic_directory(out, marker="print.json") as tmp:  # print, methods, figures: whole
+        meta = write_rolled_print(tmp, rolled, extra={"accuracy": methods[DEFAULT_METHOD]})
+        names = [*meta["files"].values(), "print.json"]
+        write_json(tmp / "methods.json", methods)
+        names.append("methods.json")
+        if figures:
+            from .unroll.figures import save_print_figures
 
-        outputs += [str(p) for p in save_print_figures(out, prints, maps)]
+            names += [str(Path(p).relative_to(tmp))
+                      for p in save_print_figures(tmp, prints, maps)]
+    outputs = [str(out / name) for name in names]
     return {"method": DEFAULT_METHOD, "dir": str(out), "methods": methods,
             "shape": meta["shape"], "print_size_mm": meta["print_size_mm"],
             "outputs": outputs}

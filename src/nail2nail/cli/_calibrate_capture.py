@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration import calibrate_from_observations
+from ..io._atomic import atomic_files
 from ..io._json import dumps_json
 from ..io.calibration import save_calibration
 from ..io.capture import read_capture
@@ -31,16 +32,17 @@ def run_capture(args: argparse.Namespace) -> int:
         observations, model=args.model, method=args.method, use=args.use, surface=surface,
         **({"target": TargetGeometry()} if joint else {}))
     out_dir = Path(args.output).parent
-    tables = {}
-    for obs in observations:
-        path = out_dir / f"{Path(args.output).stem}_points_{obs.name}.tsv"
-        extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
-                                                 "grid_col": obs.grid[:, 1]}
-        write_points(path, PointsTable.from_arrays(obs.xyz_world, obs.xy_camera,
-                                                   obs.xy_projector, extra=extra))
-        tables[obs.name] = str(path)
+    names = {obs.name: f"{Path(args.output).stem}_points_{obs.name}.tsv" for obs in observations}
+    tables = {name: str(out_dir / file) for name, file in names.items()}
     calib.extra["source"] = str(args.source)
-    save_calibration(args.output, calib)
+    # the points tables and the calibration, all or none; the calibration moved in last
+    with atomic_files(out_dir, [*names.values(), Path(args.output).name]) as tmp:
+        for obs in observations:
+            extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
+                                                     "grid_col": obs.grid[:, 1]}
+            write_points(tmp / names[obs.name], PointsTable.from_arrays(
+                obs.xyz_world, obs.xy_camera, obs.xy_projector, extra=extra))
+        save_calibration(tmp / Path(args.output).name, calib)
     if args.json:
         print(dumps_json({"output": str(args.output), "model": args.model, "cameras": summary,
                           "points_tables": tables,

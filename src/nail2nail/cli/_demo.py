@@ -55,6 +55,8 @@ def thesis_part(quiet: bool) -> dict:
 def run(args: argparse.Namespace) -> int:
     from ..pipeline import format_summary, run_demo
 
+    if not args.scale > 0:
+        raise ValueError(f"--scale: expected a positive number, got {args.scale}")
     thesis = thesis_part(args.json)
     if not args.json:
         print(f"\n== Virtual scanner: the whole pipeline (scale {args.scale}) -> {args.out} ==")

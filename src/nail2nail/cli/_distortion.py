@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from .._validation import as_int
 from ..distortion import (
     ProjectorDistortion,
     estimate_from_decoded,
     grid_from_decoded,
 )
-from ..io._atomic import atomic_path
+from ..io._atomic import atomic_directory, atomic_path
 from ..io._json import dumps_json, write_json
 
 __all__ = ["add_parser", "run"]
@@ -77,13 +78,18 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # every option checked before anything is read or written
+    for flag, value, minimum in (("--stride", args.stride, 1), ("--spacing", args.spacing, 2),
+                                 ("--line-width", args.line_width, 1)):
+        if value is not None:
+            as_int(value, flag, minimum=minimum)
     views, albedo, models, truth, panel_size = _load(args.capture_dir)
     report = estimate_from_decoded(views, primary=args.camera, cameras=models,
                                    stride=args.stride)
     result = report.to_dict(truth=truth)
 
     if args.out is not None:
-        written = []
+        images = {}
         for name, (xp, yp, mask) in views.items():
             plain = grid_from_decoded(xp, yp, mask, panel_size=panel_size, spacing=args.spacing,
                                       width=args.line_width, background=albedo[name])
@@ -92,14 +98,16 @@ def run(args: argparse.Namespace) -> int:
                                           center=report.fit.center, rho=report.fit.rho,
                                           background=albedo[name])
             for kind, image in (("distorted", plain), ("corrected", corrected)):
-                path = args.out / f"grid_{kind}_{name}.png"
-                _write_png(path, image)
-                written.append(str(path))
+                images[f"grid_{kind}_{name}.png"] = image
         estimate = ProjectorDistortion(report.fit.center, report.fit.rho)
-        path = args.out / "projector_distortion.json"
-        write_json(path, {"projector_distortion": estimate.to_dict()})
-        written.append(str(path))
-        result["written"] = written
+        # the directory as a whole: the old one or the new one, never a mix
+        with atomic_directory(args.out, marker="projector_distortion.json") as tmp:
+            for file, image in images.items():
+                _write_png(tmp / file, image)
+            write_json(tmp / "projector_distortion.json",
+                       {"projector_distortion": estimate.to_dict()})
+        result["written"] = [str(args.out / f)
+                             for f in [*images, "projector_distortion.json"]]
 
     if args.json:
         print(dumps_json(result))

@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .._validation import as_int
 from ..io._json import dumps_json
 from ..io.scans import load_scans
 from ..merge_report import parse_pairs, write_merge
@@ -43,6 +44,11 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # every option checked before anything is read or written
+    as_int(args.stride, "--stride", minimum=1)
+    if not args.max_residual > 0:
+        raise ValueError(f"--max-residual: expected a positive number, got {args.max_residual}")
+    as_int(args.border, "--border", minimum=0)
     scans = load_scans(args.scan_dir)
     if len(scans) < 2:
         raise ValueError(f"{args.scan_dir}: need at least two cameras to merge, got {len(scans)}")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import atomic_path
+from ..io._atomic import atomic_directory, atomic_path
 from ..io._json import dumps_json, write_json
 from ..patterns import PatternSet, default_pattern_set, frame_table, grid_pattern, make_patterns
 
@@ -66,12 +66,11 @@ def run(args: argparse.Namespace) -> int:
             lut = distortion_lut(pattern_set.panel_size, predistortion.center, predistortion.rho)
             frames = apply_lut(frames, lut)
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    for i, frame in enumerate(frames):
-        name = f"pattern_{i:03d}.png"
-        _write_png(out / name, frame)
-        files.append(name)
+    grid = None
+    if args.grid:  # every image is made before anything is written
+        grid = grid_pattern(panel_size=pattern_set.panel_size, spacing=args.grid_spacing)
+        grid = grid if lut is None else apply_lut(grid, lut)
+    files = [f"pattern_{i:03d}.png" for i in range(len(frames))]
     manifest = {
         "pattern_set": pattern_set.to_dict(),
         "frames": [
@@ -82,11 +81,14 @@ def run(args: argparse.Namespace) -> int:
     }
     if lut is not None:
         manifest["predistortion"] = predistortion.to_dict()
-    if args.grid:
-        grid = grid_pattern(panel_size=pattern_set.panel_size, spacing=args.grid_spacing)
-        _write_png(out / "grid.png", grid if lut is None else apply_lut(grid, lut))
+    if grid is not None:
         manifest["grid"] = "grid.png"
-    write_json(out / "patterns.json", manifest)
+    with atomic_directory(out, marker="patterns.json") as tmp:  # the directory as a whole
+        for name, frame in zip(files, frames, strict=True):
+            _write_png(tmp / name, frame)
+        if grid is not None:
+            _write_png(tmp / "grid.png", grid)
+        write_json(tmp / "patterns.json", manifest)
     summary = {"out": str(out), "n_frames": len(files), "panel_size": list(pattern_set.panel_size),
                "spec": "patterns.json", "grid": manifest.get("grid")}
     if args.json:

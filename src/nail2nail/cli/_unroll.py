@@ -64,10 +64,10 @@ def run(args: argparse.Namespace) -> int:
 
     if not 100 <= args.ppi <= 4000:
         raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
-    scans = load_scans(args.scan_dir)
-    start = time.perf_counter()
     if args.length is not None and not args.length > 0:
         raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
+    scans = load_scans(args.scan_dir)
+    start = time.perf_counter()
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
                           tip_direction=args.tip_direction, length_mm=args.length)
     meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,

@@ -1,16 +1,23 @@
-"""Write-then-rename, so that an interrupted or failed write never leaves a partial file."""
+"""Write-then-rename, so that an interrupted or failed write never leaves a partial file.
+
+:func:`atomic_path` does it for one file, :func:`atomic_directory` for a whole output directory
+(a capture, a scan or merge directory, a print, a pattern set), :func:`atomic_files` for a group
+of files beside each other (a calibration and its points tables). ``docs/conventions.md``,
+"Files".
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "write_npz"]
+__all__ = ["atomic_directory", "atomic_files", "atomic_path", "write_npz"]
 
 
 @contextlib.contextmanager
@@ -40,6 +47,108 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _usual_mode(path: Path, mode: int) -> None:
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, mode & ~umask)  # mkdtemp makes 0700; give the usual permissions
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike, *, marker: str | tuple[str, ...] | None = None
+                     ) -> Iterator[Path]:
+    """Yield an empty temporary directory that replaces the directory `path` as a whole.
+
+    The block writes the new result into the yielded directory, a sibling of `path` named
+    ``.NAME.tmp-XXXXXXXX``. When the block succeeds the old `path` (if any) is moved aside, the
+    new directory renamed into its place and the old one deleted; when it fails or is
+    interrupted (an exception, Ctrl-C) the temporary directory is removed and `path` is left
+    as it was. So `path` always holds the old result or the new one, never a mix; a run killed
+    outright (``SIGKILL``, power loss) leaves only the hidden temporary directory behind.
+
+    Parameters
+    ----------
+    path : path-like
+        The output directory; its parent is created if needed. A symbolic link to a directory
+        is followed: the directory it points to is replaced.
+    marker : str or tuple of str, optional
+        The file (any of the files) that marks a directory as this writer's earlier result,
+        e.g. ``"capture.json"``. An existing, non-empty `path` holding none of them is not
+        replaced: it may be the user's other data (``--out .``).
+
+    Raises
+    ------
+    ValueError
+        `path` exists and is not a directory, or is a non-empty directory without `marker`.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> target = pathlib.Path(tempfile.mkdtemp()) / "out"
+    >>> with atomic_directory(target, marker="a.txt") as tmp:
+    ...     _ = (tmp / "a.txt").write_text("new")
+    >>> sorted(p.name for p in target.iterdir())
+    ['a.txt']
+    """
+    path = Path(path)
+    if path.is_symlink() and path.is_dir():
+        path = Path(os.path.realpath(path))
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path}: exists and is not a directory")
+    if marker is not None and path.is_dir():
+        markers = (marker,) if isinstance(marker, str) else tuple(marker)
+        if any(path.iterdir()) and not any((path / m).exists() for m in markers):
+            raise ValueError(
+                f"{path}: exists, is not empty and holds no {' or '.join(markers)}, so it is "
+                "not an earlier result of this command: not replaced (remove it or choose "
+                "another directory)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    try:
+        _usual_mode(tmp, 0o777)
+        yield tmp
+        old = None
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old-", dir=path.parent))
+            os.replace(path, old)  # onto the empty directory just made
+        os.replace(tmp, path)
+    except BaseException:
+        _remove(tmp)
+        raise
+    if old is not None:
+        _remove(old)
+
+
+@contextlib.contextmanager
+def atomic_files(directory: str | os.PathLike, names: list[str]) -> Iterator[Path]:
+    """Yield a temporary directory; on success move the files `names` from it into `directory`.
+
+    For a group of files that belong together but share their directory with other files (a
+    calibration JSON and its points tables): the block writes every file of `names` into the
+    yielded directory (a hidden sibling of them), nothing of `directory` changes until it
+    succeeds; then each file replaces its namesake, in the order of `names` (put the file that
+    makes the group usable last). On failure or interrupt the temporary directory is removed.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".nail2nail.tmp-", dir=directory))
+    try:
+        yield tmp
+        for name in names:
+            if not (tmp / name).is_file():
+                raise FileNotFoundError(f"{tmp / name}: not written")
+        for name in names:
+            os.replace(tmp / name, directory / name)
+    finally:
+        _remove(tmp)
 
 
 def write_npz(path: str | os.PathLike, arrays: dict) -> Path:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_path
+from ._atomic import atomic_directory, atomic_path
 from ._json import write_json
 from .prints import write_print_image
 
@@ -47,7 +47,9 @@ def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
     Parameters
     ----------
     out_dir : path-like
-        Output directory (created).
+        Output directory, written as a whole (:func:`nail2nail.io._atomic.atomic_directory`):
+        an earlier print there is replaced only once the new one is complete; a non-empty
+        directory without ``print.json`` is refused.
     rolled : RolledPrint
     wsq : bool
         Also write the compressed print (WSQ at 500 ppi, JPEG 2000 otherwise).
@@ -59,8 +61,11 @@ def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
     dict
         The content of ``print.json``; ``files`` maps each output to its name in `out_dir`.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with atomic_directory(out_dir, marker="print.json") as out:
+        return _write_print(out, rolled, wsq=wsq, extra=extra)
+
+
+def _write_print(out: Path, rolled, *, wsq: bool, extra: dict | None) -> dict:
     ppi = rolled.ppi
     files = {}
     write_print_image(out / "print.png", rolled.image, ppi=ppi)

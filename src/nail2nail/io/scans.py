@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validation import as_name, check_format, check_unique, confined_path
 from ..reconstruction import Scan
-from ._atomic import write_npz
+from ._atomic import atomic_directory, write_npz
 from ._json import read_json, write_json
 from ._npz import read_npz
 
@@ -52,12 +52,21 @@ def save_scans(
     out_dir: str | os.PathLike, scans: list[Scan], *, mat5: bool = True, ply: bool = True,
     extra: dict | None = None,
 ) -> dict:
-    """Write a scan directory and return its manifest (also written as ``scan.json``)."""
+    """Write a scan directory and return its manifest (also written as ``scan.json``).
+
+    The directory is written as a whole (:func:`nail2nail.io._atomic.atomic_directory`): an
+    earlier scan directory there is replaced only once the new one is complete; a non-empty
+    directory without ``scan.json`` is refused.
+    """
     out = Path(out_dir)
     for i, scan in enumerate(scans):
         as_name(scan.name, f"scans[{i}].name")
     check_unique([scan.name for scan in scans], "scans")
-    out.mkdir(parents=True, exist_ok=True)
+    with atomic_directory(out, marker="scan.json") as tmp:
+        return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra)
+
+
+def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra) -> dict:
     cameras = []
     for scan in scans:
         entry = {"name": scan.name, "npz": f"{scan.name}.npz",

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import write_npz
+from ..io._atomic import atomic_directory, write_npz
 from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
 from ..io.prints import write_print_image
@@ -175,7 +175,10 @@ def simulate_capture(
     Parameters
     ----------
     out_dir : path-like
-        Created if needed; existing files of the same names are replaced.
+        Created if needed. Written as a whole (:func:`nail2nail.io._atomic.atomic_directory`):
+        an earlier capture there is replaced only when the new one is complete, and a failed
+        or interrupted run leaves it untouched; a non-empty directory without
+        ``capture.json`` is refused.
     scene : Scene or str
     rig : Rig, optional
         Default: ``default_rig(scale or 1)``.
@@ -212,8 +215,13 @@ def simulate_capture(
                            print_ppi=print_ppi)
     sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
                    progress=progress)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with atomic_directory(out_dir, marker="capture.json") as out:
+        return _write_capture(out, sim, rig, seed=seed, pattern_names=pattern_names,
+                              write_truth=write_truth)
+
+
+def _write_capture(out: Path, sim: SimulatedCapture, rig: Rig, *, seed, pattern_names,
+                   write_truth) -> dict:
     bits = rig.photometry.bit_depth
     cameras = []
     for name, frames in sim.frames.items():
