@@ -17,7 +17,9 @@ from ._validation import as_float_array, as_matrix
 
 __all__ = [
     "Pinhole",
+    "check_rank",
     "dlt_from_pinhole",
+    "handedness",
     "look_at",
     "pinhole_from_dlt",
     "project_dlt",
@@ -231,3 +233,69 @@ def project_dlt(matrix, xyz_world) -> np.ndarray:
     h = xyz @ M[:, :3].T + M[:, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         return h[..., :2] / h[..., 2:3]
+
+
+def _as_dlt(model) -> np.ndarray:
+    if isinstance(model, Pinhole):
+        return model.K @ np.hstack([model.R, model.t[:, None]])
+    return as_matrix(model, "model", (3, 4))
+
+
+def check_rank(model, name: str) -> None:
+    """Refuse a projection model that cannot project: an all-zero or rank-deficient matrix.
+
+    Raises
+    ------
+    ValueError
+        Naming `name`, if the left 3×3 block of the model's matrix (``K R``) is zero or
+        singular (relative condition below 1e-12): such a "camera" maps the whole world onto
+        a line or a point, and every reconstruction with it is NaN or wrong.
+    """
+    M = _as_dlt(model)[:, :3]
+    s = np.linalg.svd(M, compute_uv=False)
+    if not s[0] > 0:
+        raise ValueError(f"{name}: the projection matrix is all zero")
+    if s[2] < 1e-12 * s[0]:
+        raise ValueError(f"{name}: the projection matrix is rank-deficient (its left 3x3 block "
+                         f"is singular, singular values {np.round(s, 6).tolist()})")
+
+
+def handedness(model, *, scene_point=None) -> int:
+    """+1 for a camera (or projector) whose image is seen as is, -1 for a mirrored one.
+
+    0 when undetermined (`scene_point` on the principal plane of a DLT matrix).
+
+    A model is mirrored when its image is a mirror image of the scene: a horizontal (or
+    vertical) flip in the camera driver, a projector set to rear projection, or a left-handed
+    pose (``det(R) < 0``). For a pinhole model that is ``det(R) · fx · fy < 0``. A DLT matrix
+    ``M = λ K [R | t]`` is defined up to a scale of either sign, so its handedness is
+    ``sign(det M[:, :3]) · sign(w)``, with ``w = M[2] · (X, 1)`` the homogeneous depth of a
+    point ``X`` in front of the camera (`scene_point`; by default the world origin).
+
+    Parameters
+    ----------
+    model : (3, 4) float or Pinhole
+        DLT matrix or pinhole model.
+    scene_point : (3,) float, optional
+        A point of the scene, in front of the camera, world mm.
+
+    Examples
+    --------
+    >>> R, t = look_at([0, 0, 100], [0, 0, 0], [0, 1, 0])
+    >>> cam = Pinhole(K=np.diag([1000., 1000, 1]), R=R, t=t)
+    >>> handedness(cam), handedness(-dlt_from_pinhole(cam))
+    (1, 1)
+    >>> flip = np.array([[-1., 0, 1023], [0, 1, 0], [0, 0, 1]])  # x' = W - 1 - x
+    >>> handedness(flip @ dlt_from_pinhole(cam))
+    -1
+    """
+    if isinstance(model, Pinhole):
+        sign = np.linalg.det(model.R) * model.K[0, 0] * model.K[1, 1]
+        return 1 if sign > 0 else -1
+    M = _as_dlt(model)
+    point = np.zeros(3) if scene_point is None else np.asarray(scene_point, dtype=float)
+    w = M[2, :3] @ point + M[2, 3]
+    if abs(w) <= 1e-12 * (np.linalg.norm(M[2, :3]) * np.linalg.norm(point) + abs(M[2, 3])):
+        return 0  # the point lies on the principal plane: undetermined
+    sign = np.linalg.det(M[:, :3]) * w
+    return 1 if sign > 0 else -1

@@ -6,22 +6,64 @@ work itself is done by :mod:`nail2nail.phase` and :mod:`nail2nail.reconstruction
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ._interpolate import bilinear
-from .io.calibration import CameraCalibration, RigCalibration
+from .camera_models import Pinhole
+from .io.calibration import CameraCalibration, RigCalibration, check_handedness
 from .phase import decode
 from .reconstruction import Scan, model_matrix, reconstruct_image
 
 __all__ = [
+    "MIN_KEPT_FRACTION",
+    "REFERENCE_PIXELS",
     "camera_center",
     "decode_cameras",
+    "gradient_limit",
+    "kept_fraction",
     "sample_bilinear",
     "scan_capture",
     "scan_frames",
     "surface_samples",
     "target_observations",
 ]
+
+
+#: Camera size (pixels) at which ``max_gradient`` is stated: the thesis's 1024 × 1280 cameras.
+REFERENCE_PIXELS = 1024 * 1280
+
+#: A camera whose valid points cover less than this fraction of its lit pixels gets a warning.
+MIN_KEPT_FRACTION = 0.2
+
+
+def gradient_limit(max_gradient: float | None, shape) -> float | None:
+    """The steep-pixel limit in projector px per camera px for camera images of `shape`.
+
+    `max_gradient` is stated for a camera of :data:`REFERENCE_PIXELS` (1024 × 1280): a camera
+    with ``s`` times the linear resolution sees every gradient ``1/s`` times as large at the
+    same viewing obliquity, so the limit is ``max_gradient · sqrt(1024 · 1280 / (W · H))``.
+    The pixels kept then depend on the viewing obliquity, not on the resolution.
+
+    Examples
+    --------
+    >>> gradient_limit(2.0, (320, 256))
+    8.0
+    >>> gradient_limit(None, (320, 256)) is None
+    True
+    """
+    if max_gradient is None:
+        return None
+    height, width = shape[-2:]
+    return float(max_gradient) * float(np.sqrt(REFERENCE_PIXELS / (height * width)))
+
+
+def kept_fraction(scan, min_modulation: float = 0.03) -> tuple[int, int]:
+    """``(valid points, lit pixels)`` of a scan; lit: finest fringe amplitude ≥ `min_modulation`."""
+    modulation = np.asarray(scan.modulation)
+    lit = np.isfinite(modulation) & (modulation >= min_modulation)
+    return int(np.count_nonzero(scan.mask)), int(np.count_nonzero(lit))
 
 
 def camera_center(model) -> np.ndarray:
@@ -64,10 +106,13 @@ def scan_frames(
     """
     decoded = decode(frames, pattern_set, **decode_options)
     if decoded.xp is None or decoded.yp is None:
-        if use == "xpyp" or projector_distortion is not None:
+        lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
+        if use == "xpyp" or projector_distortion is not None or lens:
             raise ValueError(
-                "pattern set: both projector directions are needed for use='xpyp' or a "
-                "projector distortion model; use 'yp' or 'xp' with one direction"
+                f"camera {camera.name!r}: the pattern set has one projector direction, but "
+                "use='xpyp', a projector distortion model or a projector lens distortion needs "
+                "both (every point would be lost); use 'yp' or 'xp' with patterns pre-distorted "
+                "and a calibration without projector distortion"
             )
     nan = np.full(decoded.shape, np.nan, np.float32)
     xp = decoded.xp if decoded.xp is not None else nan
@@ -76,6 +121,14 @@ def scan_frames(
         camera.camera, camera.projector, xp, yp, projector_distortion=projector_distortion, use=use
     )
     mask = decoded.mask & np.all(np.isfinite(xyz), axis=-1)
+    if not mask.any():
+        min_modulation = decode_options.get("min_modulation", 0.03)
+        lit = int(np.count_nonzero(decoded.modulation >= min_modulation))
+        why = (f"no pixel has a fringe amplitude ≥ min_modulation {min_modulation:g}"
+               if lit == 0 else
+               f"none of its {lit} lit pixels decoded validly" if not decoded.mask.any() else
+               f"triangulation failed at all {int(decoded.mask.sum())} decoded pixels")
+        raise ValueError(f"camera {camera.name!r}: the scan keeps 0 valid pixels ({why})")
     xyz[~mask] = np.nan
     return Scan(
         name=camera.name,
@@ -97,14 +150,23 @@ def scan_capture(
     use: str = "xpyp",
     progress: bool = False,
     max_gradient: float | None = 2.0,
+    allow_mirrored: bool = False,
+    calibration_name: str = "calibration",
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
 
-    Pixels where the decoded projector coordinates change faster than `max_gradient` projector
-    px per camera px are dropped (``phase.STEEP``): there, at grazing view, a camera pixel
-    spans more than 1/8 of the finest fringe period (16 px) and blur biases the phase; on the
-    virtual scanner at full scale they held every decoding error above 1 px.
+    Pixels where the decoded projector coordinates change faster than the gradient limit are
+    dropped (``phase.STEEP``): there, at grazing view, a camera pixel spans more than 1/8 of the
+    finest fringe period (16 px) and blur biases the phase; on the virtual scanner at full scale
+    they held every decoding error above 1 px. `max_gradient` is stated in projector px per
+    camera px of a 1024 × 1280 camera and scaled to the capture's camera size
+    (:func:`gradient_limit`), so that it limits the viewing obliquity at any resolution.
+
+    Checked first: every calibrated camera's image size (when the calibration states it)
+    against the capture's, and the handedness of every camera (a mirrored one is refused
+    unless `allow_mirrored`). A camera keeping 0 valid pixels is an error; one keeping less
+    than :data:`MIN_KEPT_FRACTION` of its lit pixels a warning (``UserWarning``) with the figure.
 
     Parameters
     ----------
@@ -112,23 +174,53 @@ def scan_capture(
         From :func:`nail2nail.io.capture.read_capture`.
     calibration : RigCalibration
         Camera names must match the capture's.
+    allow_mirrored : bool
+        Scan with mirrored cameras (:func:`nail2nail.io.calibration.check_handedness`).
+    calibration_name : str
+        How errors name the calibration (its file).
+
+    Raises
+    ------
+    ValueError
+        Naming the calibration, capture and camera: sizes that differ, a mirrored camera, a
+        camera with no valid pixel.
     """
     from tqdm.auto import tqdm
 
-    scans = []
     names = capture.camera_names
+    if not allow_mirrored:
+        check_handedness(calibration, calibration_name)
+    sizes = {c.get("name"): c.get("size") for c in capture.manifest.get("cameras", [])
+             if isinstance(c, dict)}
+    for name in names:
+        cam = calibration.camera(name)
+        size = sizes.get(name)
+        if size is None:
+            size = capture.load_frames(name).shape[:0:-1]
+        if cam.size is not None and tuple(cam.size) != tuple(size):
+            raise ValueError(
+                f"{calibration_name}: camera {name!r} was calibrated for {cam.size[0]} x "
+                f"{cam.size[1]} px images, but {capture.path} has {size[0]} x {size[1]} px "
+                "frames: use a calibration made with this capture's cameras")
+    scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
-        scans.append(
-            scan_frames(
-                capture.load_frames(name),
-                capture.pattern_set,
-                calibration.camera(name),
-                projector_distortion=calibration.projector_distortion,
-                use=use,
-                max_gradient=max_gradient,
-                **decode_options,
-            )
+        frames = capture.load_frames(name)
+        scan = scan_frames(
+            frames,
+            capture.pattern_set,
+            calibration.camera(name),
+            projector_distortion=calibration.projector_distortion,
+            use=use,
+            max_gradient=gradient_limit(max_gradient, frames.shape),
+            **decode_options,
         )
+        kept, lit = kept_fraction(scan, decode_options.get("min_modulation", 0.03))
+        if lit and kept < MIN_KEPT_FRACTION * lit:
+            warnings.warn(
+                f"{capture.path}: camera {name!r} keeps {kept} of {lit} lit pixels "
+                f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
+                UserWarning, stacklevel=2)
+        scans.append(scan)
     return scans
 
 

@@ -9,7 +9,12 @@ import numpy as np
 
 from ..calibration import calibrate_points
 from ..io._json import dumps_json
-from ..io.calibration import CameraCalibration, RigCalibration, save_calibration
+from ..io.calibration import (
+    CameraCalibration,
+    RigCalibration,
+    check_handedness,
+    save_calibration,
+)
 from ..io.points import read_points
 
 __all__ = ["add_parser", "format_table", "report_dict", "run"]
@@ -40,6 +45,9 @@ def add_parser(sub) -> None:
     p.add_argument("--model", choices=["dlt", "joint"], default="dlt",
                    help="capture only: per-camera DLT (thesis) or joint pinhole calibration "
                    "with one shared, distorted projector (default: dlt)")
+    p.add_argument("--allow-mirrored", action="store_true",
+                   help="accept a mirrored camera (a flipped image or a left-handed pose; "
+                   "refused by default: its scans would be mirrored)")
     p.add_argument("--json", action="store_true", help="print machine-readable results")
     p.set_defaults(func=run)
 
@@ -106,13 +114,15 @@ def run(args: argparse.Namespace) -> int:
         except (ValueError, TypeError) as exc:  # the table's points: say which table
             raise ValueError(f"{args.source}: {exc}") from exc
     report = results[args.method]
+    calib = RigCalibration(
+        cameras=[
+            CameraCalibration(args.source.stem, report.camera_matrix, report.projector_matrix)
+        ],
+        extra={"source": str(args.source), "method": args.method},
+    )
+    if not args.allow_mirrored:  # depth sign taken at the table's points
+        check_handedness(calib, str(args.source), scene_point=table.xyz_world.mean(axis=0))
     if args.output:
-        calib = RigCalibration(
-            cameras=[
-                CameraCalibration(args.source.stem, report.camera_matrix, report.projector_matrix)
-            ],
-            extra={"source": str(args.source), "method": args.method},
-        )
         save_calibration(args.output, calib)
     if args.json:
         out = report_dict(report, table.labels)

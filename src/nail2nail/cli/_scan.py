@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import warnings
 from pathlib import Path
 
 from ..io._json import dumps_json
@@ -30,8 +32,13 @@ def add_parser(sub) -> None:
     p.add_argument("--min-modulation", type=float, default=0.03,
                    help="smallest accepted fringe amplitude, fraction of full scale")
     p.add_argument("--max-gradient", type=float, default=2.0,
-                   help="drop pixels whose projector coordinates change faster than this, "
-                   "projector px per camera px (default 2; 'inf' keeps all)")
+                   help="drop steep pixels (grazing view): those whose projector coordinates "
+                   "change faster than this many projector px per camera px of a 1024 x 1280 "
+                   "camera, scaled by sqrt(1024*1280 / (W*H)) for W x H cameras, so that it "
+                   "limits the viewing obliquity at any resolution (default 2; 'inf' keeps all)")
+    p.add_argument("--allow-mirrored", action="store_true",
+                   help="accept a calibration with a mirrored camera (a flipped image or a "
+                   "left-handed pose; refused by default: its scans are mirrored)")
     p.add_argument("--no-mat5", action="store_true", help="skip the legacy mat5 files")
     p.add_argument("--no-ply", action="store_true", help="skip the PLY point clouds")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
@@ -39,12 +46,17 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    calibration = load_calibration(args.calib)
+    calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
     capture = read_capture(args.capture)
-    scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
-                         min_modulation=args.min_modulation,
-                         max_gradient=None if args.max_gradient == float("inf")
-                         else args.max_gradient)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
+                             min_modulation=args.min_modulation,
+                             max_gradient=None if args.max_gradient == float("inf")
+                             else args.max_gradient, allow_mirrored=args.allow_mirrored,
+                             calibration_name=str(args.calib))
+    for w in caught:  # one line each (the kept fraction of a camera's lit pixels)
+        print(f"nail2nail scan: warning: {w.message}", file=sys.stderr)
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
                           extra={"capture": str(args.capture), "calibration": str(args.calib)})
     summary = {"out": str(args.out), "cameras": {}}

@@ -20,12 +20,13 @@ from typing import Any
 import numpy as np
 
 from .._validation import as_name, check_format, check_unique
-from ..camera_models import Pinhole
+from ..camera_models import Pinhole, check_rank, handedness
 from ._json import read_json, write_json
 
 __all__ = [
     "CameraCalibration",
     "RigCalibration",
+    "check_handedness",
     "load_calibration",
     "model_from_dict",
     "model_to_dict",
@@ -56,15 +57,21 @@ def model_from_dict(data: dict, *, where: str = "model") -> Model:
         raise ValueError(f"{where}: expected an object with a 'model' key")
     kind = data["model"]
     if kind == "dlt":
-        matrix = np.asarray(data.get("matrix"), dtype=float)
+        try:
+            matrix = np.asarray(data.get("matrix"), dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            matrix = np.empty(0)
         if matrix.shape != (3, 4) or not np.all(np.isfinite(matrix)):
             raise ValueError(f"{where}: 'matrix' must be a finite 3x4 array")
+        check_rank(matrix, where)
         return matrix
     if kind == "pinhole":
         try:
-            return Pinhole.from_dict(data)
+            model = Pinhole.from_dict(data)
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
+        check_rank(model, where)
+        return model
     raise ValueError(f"{where}: unknown model {kind!r} (expected 'dlt' or 'pinhole')")
 
 
@@ -111,8 +118,14 @@ class RigCalibration:
         }
 
     @classmethod
-    def from_dict(cls, data: dict, *, where: str = "calibration") -> RigCalibration:
-        """Inverse of :meth:`to_dict`; ``ValueError`` naming `where` on bad content."""
+    def from_dict(
+        cls, data: dict, *, where: str = "calibration", allow_mirrored: bool = False
+    ) -> RigCalibration:
+        """Inverse of :meth:`to_dict`; ``ValueError`` naming `where` on bad content.
+
+        A mirrored camera or projector is refused (:func:`check_handedness`) unless
+        `allow_mirrored`.
+        """
         check_format(data, fmt=FORMAT, where=where)
         cams = data.get("cameras")
         if not isinstance(cams, list) or not cams:
@@ -141,7 +154,10 @@ class RigCalibration:
         if dist is not None:
             if not isinstance(dist, dict) or not ({"center", "rho"} <= set(dist)):
                 raise ValueError(f"{where}: projector_distortion needs 'center' and 'rho'")
-            center = np.asarray(dist["center"], dtype=float)
+            try:
+                center = np.asarray(dist["center"], dtype=float)
+            except (TypeError, ValueError, OverflowError):
+                center = np.empty(0)
             if center.shape != (2,) or not np.all(np.isfinite(center)):
                 raise ValueError(f"{where}: projector_distortion.center must be [x, y]")
             if not isinstance(dist["rho"], int | float) or not np.isfinite(dist["rho"]):
@@ -151,7 +167,66 @@ class RigCalibration:
             for k, v in data.items()
             if k not in ("format", "version", "cameras", "projector_distortion")
         }
-        return cls(cameras=cameras, projector_distortion=dist, extra=extra)
+        calibration = cls(cameras=cameras, projector_distortion=dist, extra=extra)
+        if not allow_mirrored:
+            check_handedness(calibration, where)
+        return calibration
+
+
+def _scene_point(camera: Model, projector: Model) -> np.ndarray:
+    """A point in front of both models: where their principal axes pass closest (world mm).
+
+    The world origin when the axes are (nearly) parallel.
+    """
+    from ..reconstruction import model_matrix
+
+    centres, axes = [], []
+    for model in (camera, projector):
+        M = model_matrix(model)
+        centres.append(-np.linalg.solve(M[:, :3], M[:, 3]))
+        axes.append(M[2, :3] / np.linalg.norm(M[2, :3]))
+    (c1, c2), (d1, d2) = centres, axes
+    b = d1 @ d2
+    if 1 - b * b < 1e-6:
+        return np.zeros(3)
+    r = c1 - c2
+    s1 = (b * (d2 @ r) - d1 @ r) / (1 - b * b)
+    s2 = (d2 @ r - b * (d1 @ r)) / (1 - b * b)
+    return 0.5 * (c1 + s1 * d1 + c2 + s2 * d2)
+
+
+def check_handedness(calibration: RigCalibration, where: str, *, scene_point=None) -> None:
+    """Refuse a calibration with a mirrored camera or projector (issue 10).
+
+    A mirrored model (a horizontal flip in the camera driver, a projector in rear-projection
+    mode, a left-handed pose: :func:`nail2nail.camera_models.handedness`) gives a mirrored
+    surface, and a mirrored fingerprint matches nobody. The homogeneous depth of a DLT matrix is
+    taken at `scene_point` (world mm), by default where the camera's and the projector's
+    principal axes pass closest. Projectors are checked when they are pinhole models (panel px,
+    x right, y down); a DLT projector matrix is fitted to projector coordinates in the
+    points table's own convention, whose axes may be flipped without mirroring the scan (the
+    thesis's tables give projector matrices of negative handedness and correct scans).
+
+    Raises
+    ------
+    ValueError
+        Naming `where` and the camera.
+    """
+    for cam in calibration.cameras:
+        point = scene_point
+        if point is None:
+            point = _scene_point(cam.camera, cam.projector)
+        for role, model in (("camera", cam.camera), ("projector", cam.projector)):
+            if role == "projector" and not isinstance(model, Pinhole):
+                continue  # a DLT projector's panel axes are the user's (the thesis's: mirrored)
+            if handedness(model, scene_point=point) < 0:
+                what = (f"camera {cam.name!r}" if role == "camera"
+                        else f"the projector (as calibrated with camera {cam.name!r})")
+                raise ValueError(
+                    f"{where}: {what} is mirrored (its image is a mirror image of the scene: a "
+                    "flip in the driver or a left-handed pose); its scans would be mirrored and "
+                    "a mirrored fingerprint matches nobody. Remove the flip and recalibrate, or "
+                    "give --allow-mirrored (allow_mirrored=True) if this is intended")
 
 
 def save_calibration(path: str | os.PathLike, calibration: RigCalibration) -> None:
@@ -159,6 +234,11 @@ def save_calibration(path: str | os.PathLike, calibration: RigCalibration) -> No
     write_json(path, calibration.to_dict())
 
 
-def load_calibration(path: str | os.PathLike) -> RigCalibration:
-    """Read a calibration file; ``ValueError`` naming the file on bad content."""
-    return RigCalibration.from_dict(read_json(path), where=os.fspath(path))
+def load_calibration(path: str | os.PathLike, *, allow_mirrored: bool = False) -> RigCalibration:
+    """Read a calibration file; ``ValueError`` naming the file on bad content.
+
+    Refused: an all-zero or rank-deficient matrix, and (unless `allow_mirrored`) a mirrored
+    camera or projector (:func:`check_handedness`).
+    """
+    return RigCalibration.from_dict(read_json(path), where=os.fspath(path),
+                                    allow_mirrored=allow_mirrored)

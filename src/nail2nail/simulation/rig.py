@@ -25,14 +25,17 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from ..camera_models import Pinhole, look_at
+from .._validation import as_name, check_format, check_unique
+from ..camera_models import Pinhole, handedness, look_at
 from ..distortion import THESIS_CENTER, THESIS_RHO, ideal_from_panel, panel_from_ideal
 from ..io._json import read_json, write_json
 
 __all__ = [
+    "MIN_CAMERA_PX",
     "RIG_FORMAT",
     "Photometry",
     "Rig",
+    "check_camera_sizes",
     "default_rig",
     "ideal_calibration",
     "load_rig",
@@ -41,6 +44,25 @@ __all__ = [
 ]
 
 RIG_FORMAT = "nail2nail-rig"
+
+#: Smallest simulated camera image, px on each side: below it nothing can be decoded or seen.
+MIN_CAMERA_PX = 64
+
+
+def check_camera_sizes(cameras, names, where: str) -> None:
+    """Refuse cameras smaller than :data:`MIN_CAMERA_PX` on a side, naming `where` and the camera.
+
+    Examples
+    --------
+    >>> check_camera_sizes(default_rig(0.0625).cameras, ["a", "b", "c"], "rig")
+    >>> check_camera_sizes(default_rig(0.0625).cameras[:1], ["cam0"], "--scale 0.01")
+    """
+    for cam, name in zip(cameras, names, strict=False):
+        width, height = cam.size
+        if min(width, height) < MIN_CAMERA_PX:
+            raise ValueError(
+                f"{where}: camera {name!r} would be {width} x {height} px; the smallest camera "
+                f"is {MIN_CAMERA_PX} px on each side (--scale ≥ 0.0625 for the default rig)")
 
 
 @dataclass
@@ -205,8 +227,7 @@ class Rig:
     @classmethod
     def from_dict(cls, data: dict, *, where: str = "rig") -> Rig:
         """Inverse of :meth:`to_dict`; ``ValueError`` naming `where` on bad content."""
-        if not isinstance(data, dict) or data.get("format") != RIG_FORMAT:
-            raise ValueError(f"{where}: not a nail2nail rig (format != {RIG_FORMAT!r})")
+        check_format(data, fmt=RIG_FORMAT, where=where)
         cams = data.get("cameras")
         if not isinstance(cams, list) or not cams:
             raise ValueError(f"{where}: 'cameras' must be a non-empty list")
@@ -216,16 +237,23 @@ class Rig:
             cameras = [Pinhole.from_dict(c) for c in cams]
             projector = Pinhole.from_dict(data["projector"])
             photometry = Photometry.from_dict(data.get("photometry", {}))
-            return cls(
+            rig = cls(
                 cameras=cameras,
                 projector=projector,
                 projector_distortion=data.get("projector_distortion"),
                 photometry=photometry,
-                camera_names=[c.get("name", f"cam{i}") for i, c in enumerate(cams)],
+                camera_names=[as_name(c.get("name", f"cam{i}"), f"cameras[{i}].name")
+                              for i, c in enumerate(cams)],
                 scale=float(data.get("scale", 1.0)),
             )
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, AttributeError, IndexError, KeyError, OverflowError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
+        check_unique(rig.camera_names, where)
+        for name, model in [*zip(rig.camera_names, rig.cameras, strict=True),
+                            ("projector", rig.projector)]:
+            if handedness(model) < 0:
+                raise ValueError(f"{where}: {name} is mirrored (det(R) · fx · fy < 0)")
+        return rig
 
 
 def scale_camera(camera: Pinhole, scale: float) -> Pinhole:
@@ -328,6 +356,7 @@ def default_rig(
         R, t = look_at(eye, target, [0.0, 1.0, 0.0])
         cam = Pinhole(K=K, R=R, t=t, dist=camera_distortion or np.zeros(5), size=(width, height))
         cameras.append(scale_camera(cam, scale) if scale != 1 else cam)
+    check_camera_sizes(cameras, [f"cam{i}" for i in range(len(cameras))], f"scale {scale:g}")
     elev = np.radians(projector_elevation_deg)
     eye = target + np.array([0.0, projector_distance_mm * np.tan(elev), projector_distance_mm])
     throw = projector_distance_mm / np.cos(elev)
