@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_directory", "atomic_files", "atomic_path", "write_npz"]
+__all__ = ["atomic_directory", "atomic_files", "atomic_path", "check_output_directory", "write_npz"]
 
 
 @contextlib.contextmanager
@@ -62,6 +62,27 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
+def check_output_directory(path: str | os.PathLike, *,
+                           marker: str | tuple[str, ...] | None = None) -> Path:
+    """Check that :func:`atomic_directory` may replace `path`; return it (links followed).
+
+    Writers call it before their long computation, so that a refusal comes first.
+    """
+    path = Path(path)
+    if path.is_symlink() and path.is_dir():
+        path = Path(os.path.realpath(path))
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path}: exists and is not a directory")
+    if marker is not None and path.is_dir():
+        markers = (marker,) if isinstance(marker, str) else tuple(marker)
+        if any(path.iterdir()) and not any((path / m).exists() for m in markers):
+            raise ValueError(
+                f"{path}: exists, is not empty and holds no {' or '.join(markers)}, so it is "
+                "not an earlier result of this command: not replaced (remove it or choose "
+                "another directory)")
+    return path
+
+
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike, *, marker: str | tuple[str, ...] | None = None
                      ) -> Iterator[Path]:
@@ -98,18 +119,7 @@ def atomic_directory(path: str | os.PathLike, *, marker: str | tuple[str, ...] |
     >>> sorted(p.name for p in target.iterdir())
     ['a.txt']
     """
-    path = Path(path)
-    if path.is_symlink() and path.is_dir():
-        path = Path(os.path.realpath(path))
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"{path}: exists and is not a directory")
-    if marker is not None and path.is_dir():
-        markers = (marker,) if isinstance(marker, str) else tuple(marker)
-        if any(path.iterdir()) and not any((path / m).exists() for m in markers):
-            raise ValueError(
-                f"{path}: exists, is not empty and holds no {' or '.join(markers)}, so it is "
-                "not an earlier result of this command: not replaced (remove it or choose "
-                "another directory)")
+    path = check_output_directory(path, marker=marker)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
     try:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import atomic_directory, write_npz
+from ..io._atomic import atomic_directory, check_output_directory, write_npz
 from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
 from ..io.prints import write_print_image
@@ -207,6 +207,7 @@ def simulate_capture(
     dict
         The manifest written to ``capture.json``.
     """
+    check_output_directory(out_dir, marker="capture.json")  # refused before rendering
     rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
     if print_image is not None:
         if scene != "finger":
