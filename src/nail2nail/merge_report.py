@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -166,6 +167,24 @@ def _relocate(obj, old: str, new: str):
     return obj
 
 
+#: A camera pair keeping less than this fraction of the pairs found gets a warning.
+MIN_KEPT_FRACTION = 0.2
+
+
+def _check_kept(corr) -> None:
+    """0 pairs kept of a camera pair: an error; fewer than :data:`MIN_KEPT_FRACTION`: a warning."""
+    stats = corr.statistics()
+    kept, found = int(stats["pairs"]), int(stats["before_rejection"]["pairs"])
+    pair = f"{corr.parent_name} ↔ {corr.child_name}"
+    if kept == 0:
+        raise ValueError(f"merge {pair}: 0 corresponding points kept of {found} found "
+                         f"({stats['sampled']} sampled): the scans share no usable surface")
+    if kept < MIN_KEPT_FRACTION * found:
+        warnings.warn(f"merge {pair}: keeps {kept} of {found} corresponding points found "
+                      f"({100 * kept / found:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
+                      UserWarning, stacklevel=3)
+
+
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
                  super_scan, progress) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary."""
@@ -175,6 +194,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
                           border_px=border_px)
         key = f"{i}-{j}"
+        _check_kept(corr)
         files = {"mapping": _save_mapping(out / f"merge_{key}_mapping.npz", corr)}
         if figures:
             files["heatmap"] = plot_merge_heatmap(corr, out / f"merge_{key}_heatmap.png",

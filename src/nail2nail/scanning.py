@@ -374,7 +374,12 @@ def target_observations(
                 )
             rig = capture.rig()
             diameter = nominal_diameter(rig.cameras[rig.camera_names.index(name)])
-        marks = find_target_marks(decoded.albedo, mark_diameter_px=diameter, refine=refine_marks)
+        try:
+            marks = find_target_marks(decoded.albedo, mark_diameter_px=diameter,
+                                      refine=refine_marks)
+        except ValueError as exc:  # "image: …": say which camera of which capture
+            raise ValueError(f"{capture.path}: camera {name!r}: "
+                             f"{str(exc).removeprefix('image: ')}") from exc
         # Sampling at the centroid itself: measured against the simulator's truth, the decoded
         # coordinates there are within 0.03 projector px (rms) of the true ones.
         xp = sample_bilinear(decoded.xp, marks.xy)

@@ -10,7 +10,7 @@ import numpy as np
 from ..calibration import calibrate_from_observations
 from ..io._atomic import atomic_files
 from ..io._json import dumps_json
-from ..io.calibration import save_calibration
+from ..io.calibration import check_handedness, save_calibration
 from ..io.capture import read_capture
 from ..io.points import PointsTable, write_points
 from ..markers import TargetGeometry
@@ -31,6 +31,9 @@ def run_capture(args: argparse.Namespace) -> int:
     calib, summary = calibrate_from_observations(
         observations, model=args.model, method=args.method, use=args.use, surface=surface,
         **({"target": TargetGeometry()} if joint else {}))
+    if not args.allow_mirrored:
+        check_handedness(calib, str(args.source),
+                         scene_point=np.mean([o.xyz_world.mean(axis=0) for o in observations], 0))
     out_dir = Path(args.output).parent
     names = {obs.name: f"{Path(args.output).stem}_points_{obs.name}.tsv" for obs in observations}
     tables = {name: str(out_dir / file) for name, file in names.items()}

@@ -62,9 +62,11 @@ def run(args: argparse.Namespace) -> int:
         from ..distortion import apply_lut, distortion_lut, load_projector_distortion
 
         predistortion = load_projector_distortion(args.predistort)
-        if predistortion is not None:
-            lut = distortion_lut(pattern_set.panel_size, predistortion.center, predistortion.rho)
-            frames = apply_lut(frames, lut)
+        if predistortion is None or predistortion.rho == 0:
+            raise ValueError(f"{args.predistort}: --predistort: the file has no projector "
+                             "distortion (nothing to pre-distort); leave --predistort out")
+        lut = distortion_lut(pattern_set.panel_size, predistortion.center, predistortion.rho)
+        frames = apply_lut(frames, lut)
     out: Path = args.out
     grid = None
     if args.grid:  # every image is made before anything is written

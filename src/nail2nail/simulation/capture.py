@@ -19,7 +19,7 @@ from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
 from ..io.prints import write_print_image
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
-from .rig import Rig, default_rig, ideal_calibration, scale_camera
+from .rig import Rig, check_camera_sizes, default_rig, ideal_calibration, scale_camera
 from .scenes import Finger, Scene, make_scene
 
 __all__ = [
@@ -273,6 +273,8 @@ def _configure_rig(rig, *, scale, projector_distortion) -> Rig:
             else:
                 raise ValueError("projector_distortion: expected 'thesis' or 'none', got "
                                  f"{projector_distortion!r}")
+    check_camera_sizes(rig.cameras, rig.camera_names,
+                       "rig" if scale is None else f"scale {scale:g}")
     return rig
 
 
