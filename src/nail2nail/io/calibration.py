@@ -68,7 +68,7 @@ def model_from_dict(data: dict, *, where: str = "model") -> Model:
     if kind == "pinhole":
         try:
             model = Pinhole.from_dict(data)
-        except (ValueError, TypeError) as exc:
+        except (ValueError, TypeError, KeyError, IndexError, OverflowError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
         check_rank(model, where)
         return model

@@ -14,6 +14,7 @@ Frames are 8-bit grey PNGs, or 16-bit PNGs holding 10/12/16-bit values left-alig
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -137,7 +138,8 @@ def read_frame(path: str | os.PathLike, *, bit_depth: int = 8) -> np.ndarray:
     if isinstance(bit_depth, bool) or bit_depth not in BIT_DEPTHS:
         raise ValueError(f"bit_depth: expected one of {BIT_DEPTHS}, got {bit_depth!r}")
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings(), Image.open(path) as im:
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
             mode = im.mode
             raw = np.asarray(im)
     except Exception as exc:

@@ -30,6 +30,7 @@ reproduces the files byte for byte.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -121,14 +122,24 @@ def write_mat5(prefix: str | os.PathLike, scan: Scan) -> list[Path]:
 
 def _read_bmp(path: Path) -> np.ndarray:
     try:
-        with Image.open(path) as image:
+        with warnings.catch_warnings(), Image.open(path) as image:
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
             if image.format != "BMP":
                 raise ValueError(f"{path}: expected a BMP image, got {image.format}")
             return np.asarray(image.convert("RGB") if image.mode not in ("L", "RGB") else image)
     except FileNotFoundError:
         raise
-    except OSError as exc:
-        raise ValueError(f"{path}: not a readable BMP ({exc})") from exc
+    except ValueError as exc:
+        if str(exc).startswith(f"{path}: "):
+            raise
+        raise ValueError(f"{path}: not a readable BMP ({_short(exc)})") from exc
+    except Exception as exc:  # Pillow raises OSError, SyntaxError, DecompressionBombError …
+        raise ValueError(f"{path}: not a readable BMP ({_short(exc)})") from exc
+
+
+def _short(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def read_mat5(prefix: str | os.PathLike, *, name: str | None = None) -> Scan:

@@ -179,37 +179,57 @@ def write_scan_ply(path: str | os.PathLike, scan) -> Path:
                      comments=[f"nail2nail scan {scan.name}"])
 
 
-def _parse_header(fh, path: Path):
-    if fh.readline().strip() != b"ply":
+def _parse_header(fh, path: Path, size: int):
+    if fh.readline(16).strip() != b"ply":
         raise ValueError(f"{path}: not a PLY file (no 'ply' magic)")
     fmt = None
     comments: list[str] = []
     elements: list[tuple[str, int, list]] = []
     while True:
-        line = fh.readline()
+        line = fh.readline(4096)
         if not line:
             raise ValueError(f"{path}: PLY header has no end_header")
-        words = line.decode("ascii", "replace").split()
+        text = line.decode("ascii", "replace")
+        words = text.split()
         if not words:
             continue
         key = words[0]
         if key == "end_header":
             break
         if key == "format":
-            fmt = words[1]
+            fmt = words[1] if len(words) > 1 else None
         elif key in ("comment", "obj_info"):
-            comments.append(line.decode("ascii", "replace").rstrip("\r\n")[len(key) + 1:])
+            comments.append(text.rstrip("\r\n")[len(key) + 1:])
         elif key == "element":
-            elements.append((words[1], int(words[2]), []))
+            if len(words) != 3 or not words[2].isdigit() or not words[2].isascii():
+                raise ValueError(f"{path}: bad header line {text.strip()!r} (expected "
+                                 "'element NAME COUNT')")
+            count = int(words[2])
+            if count > size:  # every element takes at least a byte: a count beyond the file
+                raise ValueError(f"{path}: element {words[1]} claims {count} items, more than "
+                                 f"the file's {size} bytes")
+            elements.append((words[1], count, []))
         elif key == "property":
             if not elements:
                 raise ValueError(f"{path}: property before any element")
-            if words[1] == "list":
+            is_list = len(words) > 1 and words[1] == "list"
+            types = words[2:4] if is_list else words[1:2]
+            if len(words) != (5 if is_list else 3) or any(t not in _TYPES for t in types):
+                raise ValueError(f"{path}: bad header line {text.strip()!r} (expected "
+                                 "'property TYPE NAME' or 'property list TYPE TYPE NAME', "
+                                 f"TYPE one of {', '.join(_TYPES)})")
+            if is_list:
                 elements[-1][2].append((words[4], ("list", _TYPES[words[2]], _TYPES[words[3]])))
             else:
                 elements[-1][2].append((words[2], _TYPES[words[1]]))
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
+    for name, _, props in elements:
+        names = [p[0] for p in props]
+        if len(set(names)) != len(names):
+            raise ValueError(f"{path}: element {name} repeats a property name")
+        if any(isinstance(p[1], tuple) for p in props) and len(props) != 1:
+            raise ValueError(f"{path}: element {name}: only a single list property supported")
     return fmt, comments, elements
 
 
@@ -217,18 +237,28 @@ def _read_element(fh, fmt, count, props, path, name):
     endian = ">" if fmt == "binary_big_endian" else "<"
     lists = [p for p in props if isinstance(p[1], tuple)]
     if fmt == "ascii":
-        rows = [fh.readline().split() for _ in range(count)]
+        rows = []
+        for i in range(count):
+            line = fh.readline()
+            if not line:
+                raise ValueError(f"{path}: truncated element {name} ({i} of {count} rows)")
+            rows.append(line.split())
         if lists:
-            if len(props) != 1:
-                raise ValueError(f"{path}: element {name}: only a single list property supported")
             _, (_, count_t, item_t) = props[0]
-            data = [np.asarray(r[1:1 + int(r[0])], dtype=item_t) for r in rows]
+            data = []
+            for i, r in enumerate(rows):
+                if not r or not r[0].isdigit() or len(r) != 1 + int(r[0]):
+                    raise ValueError(f"{path}: element {name}, row {i}: bad list {r[:8]}")
+                data.append(np.asarray([int(v) for v in r[1:]], dtype=np.int64))
             return {props[0][0]: data}
+        if any(len(r) != len(props) for r in rows):
+            bad = next(i for i, r in enumerate(rows) if len(r) != len(props))
+            raise ValueError(f"{path}: element {name}, row {bad}: {len(rows[bad])} values, "
+                             f"expected {len(props)}")
         table = np.asarray(rows, dtype=np.float64).reshape(count, len(props))
-        return {p[0]: table[:, i].astype(p[1]) for i, p in enumerate(props)}
+        with np.errstate(invalid="ignore", over="ignore"):
+            return {p[0]: table[:, i].astype(p[1]) for i, p in enumerate(props)}
     if lists:
-        if len(props) != 1:
-            raise ValueError(f"{path}: element {name}: only a single list property supported")
         pname, (_, count_t, item_t) = props[0]
         dtype = np.dtype([("n", endian + count_t), ("v", endian + item_t, (3,))])
         raw = fh.read(dtype.itemsize * count)
@@ -237,7 +267,7 @@ def _read_element(fh, fmt, count, props, path, name):
         table = np.frombuffer(raw, dtype=dtype)
         if count and np.any(table["n"] != 3):
             raise ValueError(f"{path}: only triangle faces are supported")
-        return {pname: table["v"].astype(np.int32)}
+        return {pname: table["v"].astype(np.int64)}
     dtype = np.dtype([(p[0], endian + p[1]) for p in props])
     raw = fh.read(dtype.itemsize * count)
     if len(raw) != dtype.itemsize * count:
@@ -257,30 +287,48 @@ def read_ply(path: str | os.PathLike) -> PlyData:
     Raises
     ------
     ValueError
-        If the file is not PLY, uses an unsupported format, has no ``x y z`` vertex properties,
-        non-triangle faces, or is truncated.
+        Naming the file: not PLY, an unsupported format, a malformed header line (unknown
+        type, bad count, a count beyond the file's size), no ``x y z`` vertex properties,
+        non-triangle faces, face indices out of range, or truncated.
     """
     path = Path(path)
     with open(path, "rb") as fh:
-        fmt, comments, elements = _parse_header(fh, path)
-        data = {}
-        for name, count, props in elements:
-            data[name] = _read_element(fh, fmt, count, props, path, name)
+        size = os.fstat(fh.fileno()).st_size
+        try:
+            fmt, comments, elements = _parse_header(fh, path, size)
+            data = {}
+            for name, count, props in elements:
+                data[name] = _read_element(fh, fmt, count, props, path, name)
+        except ValueError as exc:
+            if str(exc).startswith(f"{path}: "):
+                raise
+            raise ValueError(f"{path}: not a valid PLY file ({exc})") from exc
     vertex = data.get("vertex")
     if vertex is None or not all(k in vertex for k in "xyz"):
         raise ValueError(f"{path}: no vertex element with x, y, z")
-    points = np.stack([vertex.pop(k) for k in "xyz"], axis=1).astype(np.float32)
+    if any(isinstance(v, list) for v in vertex.values()):
+        raise ValueError(f"{path}: vertex element with a list property")
     colors = normals = faces = None
-    if all(k in vertex for k in ("red", "green", "blue")):
-        colors = np.stack([vertex.pop(k) for k in ("red", "green", "blue")], 1).astype(np.uint8)
-    if all(k in vertex for k in ("nx", "ny", "nz")):
-        normals = np.stack([vertex.pop(k) for k in ("nx", "ny", "nz")], 1).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):  # doubles beyond float32 become inf
+        points = np.stack([vertex.pop(k) for k in "xyz"], axis=1).astype(np.float32)
+        if all(k in vertex for k in ("red", "green", "blue")):
+            colors = np.stack([vertex.pop(k) for k in ("red", "green", "blue")], 1
+                              ).astype(np.uint8)
+        if all(k in vertex for k in ("nx", "ny", "nz")):
+            normals = np.stack([vertex.pop(k) for k in ("nx", "ny", "nz")], 1
+                               ).astype(np.float32)
     face = data.get("face")
     if face:
         faces = next(iter(face.values()))
+        if isinstance(faces, np.ndarray) and (faces.ndim != 2 or faces.shape[1] != 3):
+            raise ValueError(f"{path}: face element without a vertex_indices list")
         if isinstance(faces, list):
             if any(f.size != 3 for f in faces):
                 raise ValueError(f"{path}: only triangle faces are supported")
-            faces = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
+            faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
+            raise ValueError(f"{path}: face vertex indices must lie in [0, {len(points)}), got "
+                             f"[{faces.min()}, {faces.max()}]")
+        faces = faces.astype(np.int32)
     return PlyData(points=points, colors=colors, normals=normals, faces=faces, extra=vertex,
                    comments=comments)

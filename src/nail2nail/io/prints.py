@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 
 from ._atomic import atomic_path
 
@@ -84,7 +84,8 @@ def read_print_image(path: str | os.PathLike) -> tuple[np.ndarray, float | None]
     if not data:
         raise ValueError(f"{path}: empty file, expected a PNG or WSQ print image")
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings(), Image.open(path) as im:
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
             im.load()
             mode, size, info = im.mode, im.size, dict(im.info)
             if mode in ("I", "I;16", "I;16B", "I;16L", "I;16N", "F"):
@@ -93,8 +94,12 @@ def read_print_image(path: str | os.PathLike) -> tuple[np.ndarray, float | None]
                                  "value >> 8)")
             image = np.asarray(im if mode == "L" else im.convert("L"))
             fmt = im.format
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise ValueError(f"{path}: not a readable image ({exc})") from exc
+    except ValueError as exc:
+        if str(exc).startswith(f"{path}: "):
+            raise
+        raise ValueError(f"{path}: not a readable image ({_short(exc)})") from exc
+    except Exception as exc:  # Pillow and the WSQ decoder raise many types on corrupt data
+        raise ValueError(f"{path}: not a readable image ({_short(exc)})") from exc
     if image.size == 0 or 0 in size:
         raise ValueError(f"{path}: empty image ({size[0]}x{size[1]})")
     if fmt == "WSQ":
@@ -107,6 +112,11 @@ def read_print_image(path: str | os.PathLike) -> tuple[np.ndarray, float | None]
                       "ignored", stacklevel=2)
         ppi = None
     return np.ascontiguousarray(image, dtype=np.uint8), ppi
+
+
+def _short(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def write_print_image(path: str | os.PathLike, image, *, ppi: float = 500.0) -> Path:

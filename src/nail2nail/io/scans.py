@@ -42,9 +42,23 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     arrays = {k: data[k] for k in _ARRAYS}
     center = data.get("camera_center")
     name = str(data["name"]) if "name" in data else path.stem
-    shape = arrays["mask"].shape
-    if arrays["xyz"].shape != (*shape, 3):
-        raise ValueError(f"{path}: xyz has shape {arrays['xyz'].shape}, mask {shape}")
+    mask = arrays["mask"]
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise ValueError(f"{path}: mask must be an (H, W) bool array, got {mask.dtype} "
+                         f"{mask.shape}")
+    shape = mask.shape
+    for key in _ARRAYS[:-1]:
+        want = (*shape, 3) if key == "xyz" else shape
+        if arrays[key].shape != want or not np.issubdtype(arrays[key].dtype, np.floating):
+            raise ValueError(f"{path}: {key} must be a float array of shape {want} (mask "
+                             f"{shape}), got {arrays[key].dtype} {arrays[key].shape}")
+    if center is not None and (center.shape != (3,)
+                               or not np.issubdtype(center.dtype, np.floating)):
+        raise ValueError(f"{path}: camera_center must be 3 floats, got {center.dtype} "
+                         f"{center.shape}")
+    if "name" in data and (data["name"].shape != () or data["name"].dtype.kind != "U"):
+        raise ValueError(f"{path}: name must be a string, got {data['name'].dtype} "
+                         f"{data['name'].shape}")
     return Scan(name=name, camera_center=center, **arrays)
 
 
