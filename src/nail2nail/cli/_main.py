@@ -15,6 +15,7 @@ import importlib
 import os
 import sys
 import traceback
+import warnings
 
 from .._validation import describe_error, one_line
 
@@ -62,6 +63,19 @@ def _debug() -> bool:
     return os.environ.get("NAIL2NAIL_DEBUG", "") not in ("", "0")
 
 
+def _run_with_warnings(args: argparse.Namespace, command: str) -> int:
+    """Run the command; the library's warnings (e.g. a camera that keeps few of its lit
+    pixels, a camera pair that keeps few pairs) become one line each on stderr."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        try:
+            return int(args.func(args) or 0)
+        finally:
+            for w in caught:
+                kind = "" if issubclass(w.category, UserWarning) else f"{w.category.__name__}: "
+                print(f"{command}: warning: {kind}{one_line(w.message)}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line `argv` (default ``sys.argv[1:]``) and return the exit code."""
     command = "nail2nail"
@@ -69,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         command = f"nail2nail {args.command}"
-        return int(args.func(args) or 0)
+        return _run_with_warnings(args, command)
     except KeyboardInterrupt:
         if _debug():
             traceback.print_exc()

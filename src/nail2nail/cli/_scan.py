@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
 from pathlib import Path
 
 from ..io._json import dumps_json
@@ -48,15 +46,12 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
     capture = read_capture(args.capture)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UserWarning)
-        scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
-                             min_modulation=args.min_modulation,
-                             max_gradient=None if args.max_gradient == float("inf")
-                             else args.max_gradient, allow_mirrored=args.allow_mirrored,
-                             calibration_name=str(args.calib))
-    for w in caught:  # one line each (the kept fraction of a camera's lit pixels)
-        print(f"nail2nail scan: warning: {w.message}", file=sys.stderr)
+    # warnings (the kept fraction of a camera's lit pixels) become one line each in cli.main
+    scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
+                         min_modulation=args.min_modulation,
+                         max_gradient=None if args.max_gradient == float("inf")
+                         else args.max_gradient, allow_mirrored=args.allow_mirrored,
+                         calibration_name=str(args.calib))
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
                           extra={"capture": str(args.capture), "calibration": str(args.calib)})
     summary = {"out": str(args.out), "cameras": {}}
