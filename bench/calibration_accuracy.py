@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _scenes import render_scenes
 
 from nail2nail.calibration import calibrate_from_observations
 from nail2nail.distortion import estimate_from_decoded, ideal_from_panel
@@ -38,21 +39,10 @@ from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.markers import TargetGeometry
 from nail2nail.merge import correspond
-from nail2nail.patterns import default_pattern_set, make_patterns
+from nail2nail.patterns import default_pattern_set
 from nail2nail.reconstruction import model_matrix, reconstruct_points_lsq
 from nail2nail.scanning import decode_cameras, scan_capture, target_observations
-from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
-
-
-def render(work: Path, scale: float) -> None:
-    rig = default_rig(scale, projector_distortion="thesis")
-    pattern_set = default_pattern_set()
-    patterns = make_patterns(pattern_set)
-    for scene in ("plane", "target", "finger"):
-        if not (work / scene / "capture.json").exists():
-            simulate_capture(work / scene, scene, rig=rig, patterns=patterns,
-                             pattern_set=pattern_set, seed=0, write_truth=scene == "finger")
+from nail2nail.simulation.rig import ideal_calibration
 
 
 def calibrations(work: Path) -> dict:
@@ -109,7 +99,7 @@ def main() -> None:
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp()) / "calibration_accuracy"
     work.mkdir(parents=True, exist_ok=True)
-    render(work, args.scale)
+    render_scenes(work, args.scale)
     rig = read_capture(work / "finger", load=False).rig()
     points = truth_points(work, rig)
     names = rig.camera_names

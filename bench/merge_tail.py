@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _scenes import render_scenes
 
 from nail2nail.calibration import calibrate_from_observations
 from nail2nail.distortion import estimate_from_decoded
@@ -31,23 +32,17 @@ from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.markers import TargetGeometry
 from nail2nail.merge import correspond
-from nail2nail.patterns import default_pattern_set, make_patterns
+from nail2nail.patterns import default_pattern_set
 from nail2nail.scanning import decode_cameras, scan_capture, target_observations
-from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.rig import ideal_calibration
 
 OFF = {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None}
 FUSE_OFF = {**OFF, "spike_mm": None, "surface_mm": None}
 
 
 def calibrations(work: Path, scale: float) -> dict:
-    rig = default_rig(scale, projector_distortion="thesis")
+    render_scenes(work, scale)
     pattern_set = default_pattern_set()
-    patterns = make_patterns(pattern_set)
-    for scene in ("plane", "target", "finger"):
-        if not (work / scene / "capture.json").exists():
-            simulate_capture(work / scene, scene, rig=rig, patterns=patterns,
-                             pattern_set=pattern_set, seed=0, write_truth=scene == "finger")
     plane = read_capture(work / "plane", load=False)
     fit = estimate_from_decoded({n: (d.xp, d.yp, d.mask) for n, d in decode_cameras(plane)}).fit
     observations = target_observations(read_capture(work / "target", load=False),
