@@ -8,10 +8,12 @@ scratch); the reader must return a valid object or raise ``ValueError``/``TypeEr
 
 Usage::
 
-    python bench/fuzz_readers.py [--cases 10000] [--seed 0] [--only ply,npz]
+    python bench/fuzz_readers.py [--cases 10000] [--seed 0] [--only ply,npz] [--keep DIR]
 
 Prints per reader: cases, failures (distinct messages, first few), seconds; exits 1 if any
-case failed.
+case failed. ``--keep DIR`` copies the case directory of each failing case (the input files
+as the reader saw them) to ``DIR/READER-N/`` with the message in ``problem.txt``, to turn
+into a regression test.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -30,8 +33,18 @@ import test_fuzz_readers as fuzz
 
 
 class _Failures(collections.Counter):
+    def __init__(self, case_dir: Path | None = None, keep: Path | None = None, name: str = ""):
+        super().__init__()
+        self.case_dir, self.keep, self.name = case_dir, keep, name
+
     def update_one(self, message: str) -> None:
         self[message] += 1
+        if self.keep is not None:
+            n = sum(self.values())
+            dest = self.keep / f"{self.name}-{n}"
+            shutil.rmtree(dest, ignore_errors=True)
+            shutil.copytree(self.case_dir, dest, symlinks=True)
+            (dest / "problem.txt").write_text(message + "\n")
 
 
 def main(argv=None) -> dict:
@@ -39,6 +52,8 @@ def main(argv=None) -> dict:
     p.add_argument("--cases", type=int, default=10_000, help="cases per reader")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--only", default="", help="comma-separated reader names")
+    p.add_argument("--keep", type=Path, default=None,
+                   help="copy each failing case directory here (DIR/READER-N/)")
     args = p.parse_args(argv)
     names = [n for n in args.only.split(",") if n] or sorted(fuzz.TARGETS)
     report = {}
@@ -46,7 +61,7 @@ def main(argv=None) -> dict:
         base = Path(tmp)
         originals = fuzz.make_originals(base)
         for name in names:
-            failures = _Failures()
+            failures = _Failures(base / f"case_{name}", args.keep, name)
             start = time.perf_counter()
             cases = fuzz.run_target(name, originals, base / f"case_{name}",
                                     max_examples=args.cases, derandomize=False,

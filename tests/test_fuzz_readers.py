@@ -342,6 +342,7 @@ def valid_calibration(calib):
                 assert model.shape == (3, 4) and _finite(model)
             else:
                 assert _finite(model.K) and _finite(model.R) and _finite(model.t)
+                assert _finite(model.dist) and all(int(v) == v > 0 for v in model.size)
 
 
 def valid_rig(rig):
@@ -797,6 +798,85 @@ def test_reader_only_clean_errors(name, originals):
     root = originals.base / f"case_{name}"
     assert run_target(name, originals, root, max_examples=_CI_CASES[name],
                       derandomize=True) >= 1
+
+
+# --------------------------------------------------------------------------------------------
+# regression cases found by bench/fuzz_readers.py (10⁴ cases per reader; issue 10)
+
+
+def _edit(path: str):
+    """An edit of a JSON value at `path` ("a.0.b"): returns (value, new) -> edited copy."""
+
+    def edit(value, new):
+        value = copy.deepcopy(value)
+        *keys, last = [int(k) if k.isdigit() else k for k in path.split(".")]
+        node = value
+        for k in keys:
+            node = node[k]
+        node[last] = new
+        return value
+
+    return edit
+
+
+_P = [[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]]
+
+_CALIBRATION_CASES = {
+    # RuntimeWarning "overflow encountered in multiply" (the rank message rounded 1e308 * 1e6)
+    "dlt_1e308_rank_deficient": ("cameras.0.camera.matrix",
+                                 [[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 1.0],
+                                  [0.0, 1e308, 1.0, 1.0]], "rank-deficient"),
+    "dlt_1e308_column": ("cameras.0.camera.matrix",
+                         [[1.0, 0.0, 1e308, 1.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]],
+                         "rank-deficient"),
+    "dlt_1e308_scaled": ("cameras.0.camera.matrix", (np.array(_P) * 1e308).tolist(), None),
+    "pinhole_K_1e308": ("cameras.1.camera.K", [[1e308, 0, 31.5], [0, 1e308, 39.5], [0, 0, 1]],
+                        "rank-deficient"),
+    "pinhole_t_1e308": ("cameras.1.camera.t", [1e308, -1e308, 1e308], None),
+    # returned a pinhole model with t = -inf; LinAlgError "Singular matrix" (t[2] = -inf)
+    "pinhole_t_inf": ("cameras.1.camera.t", [-math.inf, 3.175, 150.0], "t: contains NaN"),
+    "pinhole_t_inf_z": ("cameras.1.camera.t", [0.0, 3.175, -math.inf], "t: contains NaN"),
+    "pinhole_dist_nan": ("cameras.1.camera.dist", [math.nan, 0, 0, 0, 0], "dist"),
+    "pinhole_size_fraction": ("cameras.1.camera.size", [64.5, 80], "size"),
+    # numbers written as strings were parsed by np.asarray(..., dtype=float)
+    "dlt_strings": ("cameras.0.camera.matrix",
+                    [[1.0, "-1e+308", 0.0, 1.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, "1.0"]],
+                    "array of numbers"),
+    "center_strings": ("projector_distortion.center", ["640", 1000], "center"),
+    "rho_bool": ("projector_distortion.rho", True, "rho"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_CALIBRATION_CASES))
+def test_calibration_regressions(case, originals, tmp_path):
+    where, value, match = _CALIBRATION_CASES[case]
+    path = tmp_path / "calib.json"
+    path.write_text(json.dumps(_edit(where)(originals.calibration, value), allow_nan=True))
+    assert check_reader(lambda: load_calibration(path), tmp_path, valid_calibration) is None
+    if match is not None:
+        with pytest.raises(ValueError, match=match):
+            load_calibration(path)
+
+
+_PATTERN_CASES = {
+    # OverflowError "cannot convert float infinity to integer" from int() in PatternSet
+    "panel_size_inf": ("panel_size", [1280, -math.inf], "panel_size"),
+    "levels_inf": ("levels", [-math.inf, 255], "levels"),
+    "panel_size_fraction": ("panel_size", [1280.5, 1040], "panel_size"),
+    "panel_size_strings": ("panel_size", ["1280", "1040"], "panel_size"),
+    "gamma_inf": ("gamma", math.inf, "gamma"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_PATTERN_CASES))
+def test_capture_pattern_set_regressions(case, originals, tmp_path):
+    key, value, match = _PATTERN_CASES[case]
+    shutil.copytree(originals.base / "originals" / "capture" / "cam0", tmp_path / "cam0")
+    manifest = _edit(f"pattern_set.{key}")(originals.manifest, value)
+    (tmp_path / "capture.json").write_text(json.dumps(manifest, allow_nan=True))
+    assert check_reader(lambda: read_capture(tmp_path), tmp_path, valid_capture) is None
+    with pytest.raises(ValueError, match=f"capture.json: pattern_set: {match}"):
+        read_capture(tmp_path)
 
 
 def test_check_reader_catches_bad_behaviour(tmp_path):

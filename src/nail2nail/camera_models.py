@@ -91,14 +91,19 @@ class Pinhole:
     def __post_init__(self):
         self.K = as_matrix(self.K, "K", (3, 3))
         self.R = as_matrix(self.R, "R", (3, 3))
-        self.t = as_float_array(self.t, "t").reshape(3)
+        t = as_float_array(self.t, "t")
+        if t.size != 3:
+            raise ValueError(f"t: expected 3 values, got shape {t.shape}")
+        self.t = as_matrix(t.reshape(3, 1), "t", (3, 1)).reshape(3)
         dist = as_float_array(self.dist, "dist").ravel()
         if dist.size > 5:
             raise ValueError(
                 f"dist: expected at most 5 coefficients (k1, k2, p1, p2, k3), got {dist.size}"
             )
+        if not np.all(np.isfinite(dist)):
+            raise ValueError("dist: contains NaN or infinity")
         self.dist = np.pad(dist, (0, 5 - dist.size))
-        self.size = (int(self.size[0]), int(self.size[1]))
+        self.size = _as_size(self.size)
         if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-9):
             raise ValueError("R: not a rotation matrix")
 
@@ -197,6 +202,29 @@ class Pinhole:
         )
 
 
+def _as_size(size) -> tuple[int, int]:
+    """``(width, height)`` as two positive integers (integral floats accepted)."""
+    try:
+        width, height = size
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"size: expected (width, height) in pixels, got {size!r}") from exc
+    out = []
+    for v in (width, height):
+        if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) or (
+                not isinstance(v, int | np.integer) and not (np.isfinite(v) and v == int(v))
+        ) or v < 1:
+            raise ValueError(f"size: expected (width, height) as positive integers, got {size!r}")
+        out.append(int(v))
+    return out[0], out[1]
+
+
+def _normalized(matrix) -> np.ndarray:
+    """`matrix` divided by its largest absolute entry (all zero stays zero): the same projection
+    (a DLT matrix is defined up to a positive scale) without overflow in products of entries."""
+    scale = np.max(np.abs(matrix))
+    return matrix / scale if scale > 0 else matrix
+
+
 def dlt_from_pinhole(model: Pinhole) -> np.ndarray:
     """DLT matrix ``K [R | t]`` scaled to ``m34 = 1`` (thesis eq. 3.3); ignores distortion.
 
@@ -251,13 +279,21 @@ def check_rank(model, name: str) -> None:
         singular (relative condition below 1e-12): such a "camera" maps the whole world onto
         a line or a point, and every reconstruction with it is NaN or wrong.
     """
-    M = _as_dlt(model)[:, :3]
-    s = np.linalg.svd(M, compute_uv=False)
-    if not s[0] > 0:
+    if isinstance(model, Pinhole):  # K R, scaled first: rank(K R) = rank(K), no overflow
+        M = _normalized(model.K) @ model.R
+    else:
+        M = as_matrix(model, "model", (3, 4))[:, :3]
+    M = _normalized(M)
+    if not np.any(M):
         raise ValueError(f"{name}: the projection matrix is all zero")
+    try:
+        s = np.linalg.svd(M, compute_uv=False)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError(f"{name}: the projection matrix cannot be used ({exc})") from exc
     if s[2] < 1e-12 * s[0]:
+        relative = ", ".join(f"{v:.3g}" for v in s / s[0])
         raise ValueError(f"{name}: the projection matrix is rank-deficient (its left 3x3 block "
-                         f"is singular, singular values {np.round(s, 6).tolist()})")
+                         f"is singular, relative singular values {relative})")
 
 
 def handedness(model, *, scene_point=None) -> int:
@@ -289,13 +325,15 @@ def handedness(model, *, scene_point=None) -> int:
     >>> handedness(flip @ dlt_from_pinhole(cam))
     -1
     """
-    if isinstance(model, Pinhole):
-        sign = np.linalg.det(model.R) * model.K[0, 0] * model.K[1, 1]
+    if isinstance(model, Pinhole):  # signs only: no overflow with huge focal lengths
+        sign = np.sign(np.linalg.det(model.R)) * np.sign(model.K[0, 0]) * np.sign(model.K[1, 1])
         return 1 if sign > 0 else -1
-    M = _as_dlt(model)
+    M = _normalized(_as_dlt(model))  # a positive scale changes neither sign
     point = np.zeros(3) if scene_point is None else np.asarray(scene_point, dtype=float)
-    w = M[2, :3] @ point + M[2, 3]
-    if abs(w) <= 1e-12 * (np.linalg.norm(M[2, :3]) * np.linalg.norm(point) + abs(M[2, 3])):
-        return 0  # the point lies on the principal plane: undetermined
-    sign = np.linalg.det(M[:, :3]) * w
+    point = _normalized(np.append(point, 1.0))  # (X, 1) up to a positive scale
+    with np.errstate(all="ignore"):
+        w = M[2] @ point
+        if not abs(w) > 1e-12 * np.linalg.norm(M[2]) * np.linalg.norm(point):
+            return 0  # the point lies on the principal plane (or is not finite): undetermined
+        sign = np.sign(np.linalg.det(M[:, :3])) * np.sign(w)
     return 1 if sign > 0 else -1

@@ -162,22 +162,17 @@ class PatternSet:
             if not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
                 raise TypeError(f"{name}: expected a finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
-        try:
-            width, height = (int(v) for v in self.panel_size)
-        except (TypeError, ValueError) as exc:
-            raise TypeError(f"panel_size: expected (W, H), got {self.panel_size!r}") from exc
+        width, height = _int_pair(self.panel_size, "panel_size", "(W, H)")
         if width < 1 or height < 1:
             raise ValueError(f"panel_size: expected positive (W, H), got {self.panel_size!r}")
         object.__setattr__(self, "panel_size", (width, height))
-        try:
-            low, high = (int(v) for v in self.levels)
-        except (TypeError, ValueError) as exc:
-            raise TypeError(f"levels: expected (low, high), got {self.levels!r}") from exc
+        low, high = _int_pair(self.levels, "levels", "(low, high)")
         if not 0 <= low < high <= 255:
             raise ValueError(f"levels: expected 0 <= low < high <= 255, got {self.levels!r}")
         object.__setattr__(self, "levels", (low, high))
         if self.gamma is not None:
-            if not isinstance(self.gamma, (int, float, np.number)) or not self.gamma > 0:
+            if (not isinstance(self.gamma, (int, float, np.number)) or isinstance(self.gamma, bool)
+                    or not 0 < self.gamma < math.inf):
                 raise ValueError(f"gamma: expected a positive number or None, got {self.gamma!r}")
             object.__setattr__(self, "gamma", float(self.gamma))
         present = tuple(d for d in DIRECTIONS if getattr(self, d))
@@ -265,6 +260,25 @@ class PatternSet:
         except json.JSONDecodeError as exc:
             raise ValueError(f"pattern set: invalid JSON ({exc})") from exc
         return cls.from_dict(data)
+
+
+def _int_pair(value, name: str, what: str) -> tuple[int, int]:
+    """Two integers (integral floats such as ``1280.0`` accepted); ``TypeError`` naming `name`.
+
+    Refused: strings, booleans, fractions, NaN and infinities (``int(inf)`` would raise an
+    ``OverflowError``, ``int(1.5)`` would truncate silently).
+    """
+    try:
+        a, b = value
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected {what}, got {value!r}") from exc
+    out = []
+    for v in (a, b):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or (
+                not isinstance(v, (int, np.integer)) and not (math.isfinite(v) and v == int(v))):
+            raise TypeError(f"{name}: expected {what} as integers, got {value!r}")
+        out.append(int(v))
+    return out[0], out[1]
 
 
 def _check_direction(direction: str) -> None:

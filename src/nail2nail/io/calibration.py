@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import as_name, check_format, check_unique
+from .._validation import as_float_array, as_name, check_format, check_unique
 from ..camera_models import Pinhole, check_rank, handedness
 from ._json import read_json, write_json
 
@@ -57,12 +57,12 @@ def model_from_dict(data: dict, *, where: str = "model") -> Model:
         raise ValueError(f"{where}: expected an object with a 'model' key")
     kind = data["model"]
     if kind == "dlt":
-        try:
-            matrix = np.asarray(data.get("matrix"), dtype=float)
+        try:  # numbers only: strings such as "1e3" are refused, not parsed
+            matrix = as_float_array(data.get("matrix"), "matrix")
         except (TypeError, ValueError, OverflowError):
             matrix = np.empty(0)
         if matrix.shape != (3, 4) or not np.all(np.isfinite(matrix)):
-            raise ValueError(f"{where}: 'matrix' must be a finite 3x4 array")
+            raise ValueError(f"{where}: 'matrix' must be a finite 3x4 array of numbers")
         check_rank(matrix, where)
         return matrix
     if kind == "pinhole":
@@ -155,12 +155,13 @@ class RigCalibration:
             if not isinstance(dist, dict) or not ({"center", "rho"} <= set(dist)):
                 raise ValueError(f"{where}: projector_distortion needs 'center' and 'rho'")
             try:
-                center = np.asarray(dist["center"], dtype=float)
+                center = as_float_array(dist["center"], "center")
             except (TypeError, ValueError, OverflowError):
                 center = np.empty(0)
             if center.shape != (2,) or not np.all(np.isfinite(center)):
-                raise ValueError(f"{where}: projector_distortion.center must be [x, y]")
-            if not isinstance(dist["rho"], int | float) or not np.isfinite(dist["rho"]):
+                raise ValueError(f"{where}: projector_distortion.center must be [x, y] (numbers)")
+            rho = dist["rho"]
+            if isinstance(rho, bool) or not isinstance(rho, int | float) or not np.isfinite(rho):
                 raise ValueError(f"{where}: projector_distortion.rho must be a finite number")
         extra = {
             k: v
@@ -176,23 +177,31 @@ class RigCalibration:
 def _scene_point(camera: Model, projector: Model) -> np.ndarray:
     """A point in front of both models: where their principal axes pass closest (world mm).
 
-    The world origin when the axes are (nearly) parallel.
+    The world origin when the axes are (nearly) parallel; NaN when the numbers are out of
+    range (a centre beyond 1e308 mm). Raises ``numpy.linalg.LinAlgError`` for a singular
+    matrix (:func:`check_rank` refuses those first).
     """
-    from ..reconstruction import model_matrix
-
     centres, axes = [], []
-    for model in (camera, projector):
-        M = model_matrix(model)
-        centres.append(-np.linalg.solve(M[:, :3], M[:, 3]))
-        axes.append(M[2, :3] / np.linalg.norm(M[2, :3]))
-    (c1, c2), (d1, d2) = centres, axes
-    b = d1 @ d2
-    if 1 - b * b < 1e-6:
-        return np.zeros(3)
-    r = c1 - c2
-    s1 = (b * (d2 @ r) - d1 @ r) / (1 - b * b)
-    s2 = (d2 @ r - b * (d1 @ r)) / (1 - b * b)
-    return 0.5 * (c1 + s1 * d1 + c2 + s2 * d2)
+    with np.errstate(all="ignore"):
+        for model in (camera, projector):
+            if isinstance(model, Pinhole):  # centre and axis exactly, without K [R | t]
+                centres.append(model.center)
+                axes.append(model.R[2])
+                continue
+            M = np.asarray(model, dtype=float)
+            M = M / np.max(np.abs(M))  # the same projection; no overflow in the solve
+            centres.append(-np.linalg.solve(M[:, :3], M[:, 3]))
+            axes.append(M[2, :3] / np.linalg.norm(M[2, :3]))
+        (c1, c2), (d1, d2) = centres, axes
+        b = d1 @ d2
+        if not np.all(np.isfinite([*c1, *c2, *d1, *d2])):
+            return np.full(3, np.nan)
+        if 1 - b * b < 1e-6:
+            return np.zeros(3)
+        r = c1 - c2
+        s1 = (b * (d2 @ r) - d1 @ r) / (1 - b * b)
+        s2 = (d2 @ r - b * (d1 @ r)) / (1 - b * b)
+        return 0.5 * (c1 + s1 * d1 + c2 + s2 * d2)
 
 
 def check_handedness(calibration: RigCalibration, where: str, *, scene_point=None) -> None:
@@ -215,7 +224,15 @@ def check_handedness(calibration: RigCalibration, where: str, *, scene_point=Non
     for cam in calibration.cameras:
         point = scene_point
         if point is None:
-            point = _scene_point(cam.camera, cam.projector)
+            try:
+                point = _scene_point(cam.camera, cam.projector)
+            except np.linalg.LinAlgError as exc:
+                raise ValueError(f"{where}: camera {cam.name!r}: its camera or projector "
+                                 f"matrix is singular ({exc})") from exc
+            if not np.all(np.isfinite(point)):
+                raise ValueError(
+                    f"{where}: camera {cam.name!r}: its camera and projector models place the "
+                    "scene beyond 1e308 mm (numbers out of range); check the matrices")
         for role, model in (("camera", cam.camera), ("projector", cam.projector)):
             if role == "projector" and not isinstance(model, Pinhole):
                 continue  # a DLT projector's panel axes are the user's (the thesis's: mirrored)

@@ -274,7 +274,7 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
 
         try:
             pattern_set = PatternSet.from_dict(manifest["pattern_set"])
-        except (ValueError, TypeError, KeyError) as exc:
+        except (ValueError, TypeError, KeyError, OverflowError) as exc:
             raise ValueError(f"{manifest_path}: pattern_set: {describe_error(exc)}") from exc
     capture = Capture(path=path, manifest=manifest, pattern_set=pattern_set)
     if load:
