@@ -15,6 +15,11 @@ Usage::
 
 Prints a JSON summary (peak RSS in MiB, wall time, valid pixels per camera) and writes it to
 ``WORK/summary.json``.
+
+Measured (2 shared cores, ``--reuse``): before the banded scan, 1378 MiB / 24 s at 1024 x 1280
+and 5005 MiB / 76 s at 2048 x 2560 (every camera's float32 frames and whole-image float64
+triangulation temporaries); with one camera's 8-bit frames at a time and bands of rows
+(``scanning.BAND_PIXELS``), 409 MiB / 13 s and 871 MiB / 39 s, same valid pixels per camera.
 """
 
 from __future__ import annotations

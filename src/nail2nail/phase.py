@@ -199,8 +199,16 @@ def wrapped_phase(frames, shifts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             f"shifts: expected (N,) with N >= 3 matching frames' first axis, got {shifts.shape} "
             f"for frames {frames.shape}"
         )
-    s = np.tensordot(np.sin(shifts).astype(np.float32), frames, axes=1)
-    c = np.tensordot(np.cos(shifts).astype(np.float32), frames, axes=1)
+    # Summed frame by frame, each product and sum rounded to float32: every pixel's value
+    # depends on that pixel alone, whatever the array's size (a BLAS dot product fuses some
+    # multiply-adds depending on the size, so bands of rows would differ from the whole image).
+    sin_d = np.sin(shifts).astype(np.float32)
+    cos_d = np.cos(shifts).astype(np.float32)
+    s = frames[0] * sin_d[0]
+    c = frames[0] * cos_d[0]
+    for k in range(1, shifts.size):
+        s = s + frames[k] * sin_d[k]
+        c = c + frames[k] * cos_d[k]
     n = shifts.size
     phase = np.arctan2(s, c)
     phase = np.where(phase < 0, phase + np.float32(TWO_PI), phase).astype(np.float32)

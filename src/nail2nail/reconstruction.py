@@ -17,8 +17,10 @@ import numpy as np
 from ._validation import as_matrix
 
 __all__ = [
+    "BAND_PIXELS",
     "Scan",
     "TriangulationTable",
+    "band_rows",
     "model_matrix",
     "pixel_grid",
     "reconstruct_image",
@@ -30,6 +32,10 @@ __all__ = [
 ]
 
 _AXES = {"x": 0, "y": 1}
+
+#: Pixels per band of rows in :func:`reconstruct_image` (its float64 temporaries take about
+#: 0.6 kB per pixel: some 80 MB a band).
+BAND_PIXELS = 1 << 17
 
 
 def _axis_row(axis: str) -> int:
@@ -333,21 +339,59 @@ def reconstruct_image(
     Returns
     -------
     (H, W, 3) float64
-        World points, mm; NaN where the input is NaN.
+        World points, mm; NaN where the input is NaN. Computed in bands of rows of about
+        :data:`BAND_PIXELS` pixels (the temporaries of a band, not of the image, are in
+        memory); every pixel's point depends on that pixel alone.
     """
-    from .distortion import ideal_from_panel
-
-    xp = np.asarray(xp, dtype=float)
-    yp = np.asarray(yp, dtype=float)
+    xp = np.asarray(xp)  # made float64 band by band
+    yp = np.asarray(yp)
     if xp.shape != yp.shape or xp.ndim != 2:
         raise ValueError(f"xp, yp: expected two (H, W) arrays, got {xp.shape} and {yp.shape}")
     if use not in ("xpyp", "yp", "xp"):
         raise ValueError(f"use: expected 'xpyp', 'yp' or 'xp', got {use!r}")
+    return _reconstruct_into(camera, projector, xp, yp, np.empty((*xp.shape, 3)), row0=0,
+                             projector_distortion=projector_distortion, use=use)
+
+
+def band_rows(width: int, pixels: int | None = None) -> int:
+    """Rows of a band of about `pixels` pixels (:data:`BAND_PIXELS` by default) in an image
+    `width` pixels wide; at least 1.
+
+    Examples
+    --------
+    >>> band_rows(1024), band_rows(2048), band_rows(10**6), band_rows(100, 250)
+    (128, 64, 1, 2)
+    """
+    pixels = BAND_PIXELS if pixels is None else pixels
+    return max(1, int(pixels) // max(int(width), 1))
+
+
+def _reconstruct_into(camera, projector, xp, yp, out, *, row0: int, projector_distortion, use):
+    """Points of image rows ``row0 …`` (`xp`, `yp` ``(h, W)``, checked) into `out` ``(h, W, 3)``.
+
+    In bands of :func:`band_rows` rows: bounded temporaries, and every pixel's point depends on
+    that pixel alone, so the result does not depend on the banding. Returns `out`.
+    """
+    step = band_rows(xp.shape[1])
+    for a in range(0, xp.shape[0], step):
+        b = min(a + step, xp.shape[0])
+        out[a:b] = _reconstruct_rows(camera, projector, xp[a:b], yp[a:b], row0 + a,
+                                     projector_distortion=projector_distortion, use=use)
+    return out
+
+
+def _reconstruct_rows(camera, projector, xp, yp, row0: int, *, projector_distortion, use):
+    """:func:`reconstruct_image` of the image rows ``row0 … row0 + len(xp) - 1`` (checked input)."""
+    from .distortion import ideal_from_panel
+
+    xp = np.asarray(xp, dtype=float)
+    yp = np.asarray(yp, dtype=float)
     panel = np.stack([xp, yp], axis=-1)
     if projector_distortion is not None:
         panel = ideal_from_panel(panel, projector_distortion["center"], projector_distortion["rho"])
     panel = undistorted_pixels(projector, panel)
     xc, yc = pixel_grid(xp.shape)
+    yc += row0
     cam_xy = undistorted_pixels(camera, np.stack([xc, yc], axis=-1))
     M_c, M_p = model_matrix(camera), model_matrix(projector)
     if use == "xpyp":

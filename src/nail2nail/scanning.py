@@ -13,10 +13,15 @@ import numpy as np
 from ._interpolate import bilinear
 from .camera_models import Pinhole
 from .io.calibration import CameraCalibration, RigCalibration, check_handedness
-from .phase import decode
-from .reconstruction import Scan, model_matrix, reconstruct_image
+from .io.capture import frame_intensities
+from .phase import _check_frames, decode
+from .reconstruction import Scan, _reconstruct_into, band_rows, model_matrix
+
+#: Pixels per band of rows that :func:`scan_frames` decodes and triangulates at a time.
+BAND_PIXELS = 1 << 18
 
 __all__ = [
+    "BAND_PIXELS",
     "MIN_KEPT_FRACTION",
     "REFERENCE_PIXELS",
     "camera_center",
@@ -83,6 +88,11 @@ def scan_frames(
 ) -> Scan:
     """One camera's scan from its frames.
 
+    Decoded and triangulated in bands of rows of about :data:`BAND_PIXELS` pixels, each with
+    the rows around it that the neighbourhood checks of the decoder read (``erode`` rows, one
+    for ``max_gradient``): the result is the one of the whole image, with the temporaries of a
+    band in memory.
+
     Parameters
     ----------
     frames : (n_frames, H, W) uint8/uint16/float
@@ -103,41 +113,89 @@ def scan_frames(
     -------
     Scan
         ``xyz`` NaN (and ``mask`` False) where decoding failed.
+
+    Raises
+    ------
+    ValueError
+        Naming the camera: one projector direction where both are needed, or no valid pixel.
     """
-    decoded = decode(frames, pattern_set, **decode_options)
-    if decoded.xp is None or decoded.yp is None:
-        lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
-        if use == "xpyp" or projector_distortion is not None or lens:
-            raise ValueError(
-                f"camera {camera.name!r}: the pattern set has one projector direction, but "
-                "use='xpyp', a projector distortion model or a projector lens distortion needs "
-                "both (every point would be lost); use 'yp' or 'xp' with patterns pre-distorted "
-                "and a calibration without projector distortion"
-            )
-    nan = np.full(decoded.shape, np.nan, np.float32)
-    xp = decoded.xp if decoded.xp is not None else nan
-    yp = decoded.yp if decoded.yp is not None else nan
-    xyz = reconstruct_image(
-        camera.camera, camera.projector, xp, yp, projector_distortion=projector_distortion, use=use
-    )
-    mask = decoded.mask & np.all(np.isfinite(xyz), axis=-1)
+    frames = _check_frames(frames, pattern_set)
+    return _scan_bands(lambda a, b: frames[:, a:b], frames.shape[1:], pattern_set, camera,
+                       projector_distortion=projector_distortion, use=use,
+                       decode_options=decode_options)
+
+
+def _halo(decode_options: dict) -> int:
+    """Rows beyond a band that the decoder's neighbourhood checks read (bad options: 0, and
+    :func:`~nail2nail.phase.decode` raises)."""
+    erode = decode_options.get("erode", 1)
+    halo = (int(erode) if isinstance(erode, (int, np.integer)) and not isinstance(erode, bool)
+            and erode > 0 else 0)
+    if decode_options.get("max_gradient") is not None:
+        halo = max(halo, 1)
+    return halo
+
+
+def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
+                projector_distortion, use, decode_options) -> Scan:
+    """:func:`scan_frames` with ``band_frames(a, b)`` giving the frames of rows ``a … b - 1``."""
+    height, width = shape
+    halo = _halo(decode_options)
+    step = band_rows(width, BAND_PIXELS)
+    f32 = np.float32
+    xyz = np.empty((height, width, 3), f32)
+    xp_out, yp_out, albedo, intensity, modulation = (np.empty((height, width), f32)
+                                                     for _ in range(5))
+    mask = np.empty((height, width), bool)
+    min_modulation = decode_options.get("min_modulation", 0.03)
+    lit = decoded_valid = 0
+    for a in range(0, height, step):
+        b = min(a + step, height)
+        lo, hi = max(a - halo, 0), min(b + halo, height)
+        decoded = decode(band_frames(lo, hi), pattern_set, **decode_options)
+        if a == 0 and (decoded.xp is None or decoded.yp is None):
+            lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
+            if use == "xpyp" or projector_distortion is not None or lens:
+                raise ValueError(
+                    f"camera {camera.name!r}: the pattern set has one projector direction, but "
+                    "use='xpyp', a projector distortion model or a projector lens distortion "
+                    "needs both (every point would be lost); use 'yp' or 'xp' with patterns "
+                    "pre-distorted and a calibration without projector distortion"
+                )
+        rows = slice(a - lo, b - lo)
+        nan = np.full((b - a, width), np.nan, f32)
+        xp = decoded.xp[rows] if decoded.xp is not None else nan
+        yp = decoded.yp[rows] if decoded.yp is not None else nan
+        band_mask = decoded.mask[rows]
+        points = _reconstruct_into(camera.camera, camera.projector, xp, yp,
+                                   np.empty((b - a, width, 3)), row0=a,
+                                   projector_distortion=projector_distortion, use=use)
+        lit += int(np.count_nonzero(decoded.modulation[rows] >= min_modulation))
+        decoded_valid += int(np.count_nonzero(band_mask))
+        band_mask = band_mask & np.all(np.isfinite(points), axis=-1)
+        points[~band_mask] = np.nan
+        xyz[a:b] = points
+        xp_out[a:b] = np.where(band_mask, xp, np.nan)
+        yp_out[a:b] = np.where(band_mask, yp, np.nan)
+        albedo[a:b] = decoded.albedo[rows]
+        intensity[a:b] = np.where(band_mask, decoded.intensity[rows], 0)
+        modulation[a:b] = decoded.modulation[rows]
+        mask[a:b] = band_mask
+        del decoded, points
     if not mask.any():
-        min_modulation = decode_options.get("min_modulation", 0.03)
-        lit = int(np.count_nonzero(decoded.modulation >= min_modulation))
         why = (f"no pixel has a fringe amplitude ≥ min_modulation {min_modulation:g}"
                if lit == 0 else
-               f"none of its {lit} lit pixels decoded validly" if not decoded.mask.any() else
-               f"triangulation failed at all {int(decoded.mask.sum())} decoded pixels")
+               f"none of its {lit} lit pixels decoded validly" if decoded_valid == 0 else
+               f"triangulation failed at all {decoded_valid} decoded pixels")
         raise ValueError(f"camera {camera.name!r}: the scan keeps 0 valid pixels ({why})")
-    xyz[~mask] = np.nan
     return Scan(
         name=camera.name,
-        xyz=xyz.astype(np.float32),
-        xp=np.where(mask, xp, np.nan).astype(np.float32),
-        yp=np.where(mask, yp, np.nan).astype(np.float32),
-        albedo=decoded.albedo,
-        intensity=np.where(mask, decoded.intensity, 0).astype(np.float32),
-        modulation=decoded.modulation,
+        xyz=xyz,
+        xp=xp_out,
+        yp=yp_out,
+        albedo=albedo,
+        intensity=intensity,
+        modulation=modulation,
         mask=mask,
         camera_center=camera_center(camera.camera),
     )
@@ -168,10 +226,14 @@ def scan_capture(
     unless `allow_mirrored`). A camera keeping 0 valid pixels is an error; one keeping less
     than :data:`MIN_KEPT_FRACTION` of its lit pixels a warning (``UserWarning``) with the figure.
 
+    Memory: one camera's frames at a time, as their integer values (read with ``raw=True``
+    and not cached, unless the capture holds them already), decoded and triangulated in bands
+    of rows (:func:`scan_frames`); the scans themselves take 33 bytes per pixel.
+
     Parameters
     ----------
     capture : Capture
-        From :func:`nail2nail.io.capture.read_capture`.
+        From :func:`nail2nail.io.capture.read_capture` (``load=False`` saves memory).
     calibration : RigCalibration
         Camera names must match the capture's.
     allow_mirrored : bool
@@ -190,13 +252,9 @@ def scan_capture(
     names = capture.camera_names
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
-    sizes = {c.get("name"): c.get("size") for c in capture.manifest.get("cameras", [])
-             if isinstance(c, dict)}
     for name in names:
         cam = calibration.camera(name)
-        size = sizes.get(name)
-        if size is None:
-            size = capture.load_frames(name).shape[:0:-1]
+        size = capture.frame_shape(name)[::-1]  # the first frame, checked against the manifest
         if cam.size is not None and tuple(cam.size) != tuple(size):
             raise ValueError(
                 f"{calibration_name}: camera {name!r} was calibrated for {cam.size[0]} x "
@@ -204,24 +262,34 @@ def scan_capture(
                 "frames: use a calibration made with this capture's cameras")
     scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
-        frames = capture.load_frames(name)
-        scan = scan_frames(
-            frames,
-            capture.pattern_set,
-            calibration.camera(name),
-            projector_distortion=calibration.projector_distortion,
-            use=use,
-            max_gradient=gradient_limit(max_gradient, frames.shape),
-            **decode_options,
-        )
-        kept, lit = kept_fraction(scan, decode_options.get("min_modulation", 0.03))
+        scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
+                                  decode_options=decode_options))
+        kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
                 f"{capture.path}: camera {name!r} keeps {kept} of {lit} lit pixels "
                 f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
                 UserWarning, stacklevel=2)
-        scans.append(scan)
     return scans
+
+
+def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient,
+                 decode_options) -> Scan:
+    """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
+    made float band by band (:func:`~nail2nail.io.capture.frame_intensities`); frames the
+    capture has cached are used as they are."""
+    cached = name in capture.frames
+    frames = _check_frames(capture.frames[name] if cached else capture.load_frames(name, raw=True),
+                           capture.pattern_set)
+    if cached:
+        band = lambda a, b: frames[:, a:b]  # noqa: E731
+    else:
+        bit_depth = capture.bit_depth
+        band = lambda a, b: frame_intensities(frames[:, a:b], bit_depth)  # noqa: E731
+    options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
+    return _scan_bands(band, frames.shape[1:], capture.pattern_set, calibration.camera(name),
+                       projector_distortion=calibration.projector_distortion, use=use,
+                       decode_options=options)
 
 
 def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **decode_options):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..io._json import dumps_json
@@ -45,9 +46,13 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
-    capture = read_capture(args.capture)
-    # warnings (the kept fraction of a camera's lit pixels) become one line each in cli.main
-    scans = scan_capture(capture, calibration, use=args.use, progress=not args.json,
+    # frames are read (and checked) one camera at a time, while scanning: memory for one
+    # camera's frames; the progress bar only on a terminal, so that an error read from a file
+    # or pipe is its one line. Warnings (the kept fraction of a camera's lit pixels) become one
+    # line each in cli.main.
+    capture = read_capture(args.capture, load=False)
+    scans = scan_capture(capture, calibration, use=args.use,
+                         progress=not args.json and sys.stderr.isatty(),
                          min_modulation=args.min_modulation,
                          max_gradient=None if args.max_gradient == float("inf")
                          else args.max_gradient, allow_mirrored=args.allow_mirrored,

@@ -29,6 +29,7 @@ from ._npz import read_npz
 __all__ = [
     "CAPTURE_FORMAT",
     "Capture",
+    "frame_intensities",
     "read_capture",
     "read_frame",
     "read_truth",
@@ -79,8 +80,14 @@ class Capture:
                 return cam
         raise KeyError(f"capture has no camera {name!r} (has {self.camera_names})")
 
-    def load_frames(self, name: str) -> np.ndarray:
+    def load_frames(self, name: str, *, raw: bool = False) -> np.ndarray:
         """Read (and cache) the frames of camera `name`: ``(n_frames, H, W) float32``.
+
+        With ``raw=True`` the frames' integer values are returned instead, not cached and
+        without a float copy: ``uint8`` for ``bit_depth`` 8, ``uint16`` (right-aligned, ``0 …
+        2**bit_depth - 1``) otherwise, a quarter (8-bit) or half of the float stack's memory;
+        :func:`frame_intensities` turns any part of them into the float frames, bit for bit.
+        Frames already cached as floats are read again from disk.
 
         Raises
         ------
@@ -89,27 +96,39 @@ class Capture:
             ``bit_depth``, or its size not the camera's ``size`` (or, without one, not the size
             of the camera's first frame).
         """
+        if raw:
+            return self._read_stack(name, raw=True)
         if name not in self.frames:
-            cam = self.camera(name)
-            files = cam["frames"]
-            size = cam.get("size")
-            shape = (int(size[1]), int(size[0])) if size is not None else None
-            stack = None
-            for i, f in enumerate(files):
-                file = self.path / f
-                frame = read_frame(file, bit_depth=self.bit_depth)
-                if shape is None:
-                    shape = frame.shape
-                if frame.shape != shape:
-                    said = (f"camera {name}'s size in {self.path / MANIFEST} is" if size
-                            is not None else f"camera {name}'s first frame is")
-                    raise ValueError(f"{file}: frame is {frame.shape[1]} x {frame.shape[0]} px "
-                                     f"(W x H), but {said} {shape[1]} x {shape[0]}")
-                if stack is None:
-                    stack = np.empty((len(files), *shape), dtype=np.float32)
-                stack[i] = frame
-            self.frames[name] = stack
+            self.frames[name] = self._read_stack(name, raw=False)
         return self.frames[name]
+
+    def frame_shape(self, name: str) -> tuple[int, int]:
+        """``(H, W)`` of camera `name`'s frames: of its cached frames, or of its first frame on
+        disk (read and checked as by :meth:`load_frames`; the others are not read)."""
+        if name in self.frames:
+            return tuple(self.frames[name].shape[1:])
+        return self._read_stack(name, raw=True, first_only=True).shape[1:]
+
+    def _read_stack(self, name: str, *, raw: bool, first_only: bool = False) -> np.ndarray:
+        cam = self.camera(name)
+        files = cam["frames"][:1] if first_only else cam["frames"]
+        size = cam.get("size")
+        shape = (int(size[1]), int(size[0])) if size is not None else None
+        stack = None
+        for i, f in enumerate(files):
+            file = self.path / f
+            frame = read_frame(file, bit_depth=self.bit_depth, raw=raw)
+            if shape is None:
+                shape = frame.shape
+            if frame.shape != shape:
+                said = (f"camera {name}'s size in {self.path / MANIFEST} is" if size
+                        is not None else f"camera {name}'s first frame is")
+                raise ValueError(f"{file}: frame is {frame.shape[1]} x {frame.shape[0]} px "
+                                 f"(W x H), but {said} {shape[1]} x {shape[0]}")
+            if stack is None:
+                stack = np.empty((len(files), *shape), dtype=frame.dtype)
+            stack[i] = frame
+        return stack
 
     def rig(self):
         """The rig stored in the manifest (virtual scanner), as a ``simulation.rig.Rig``."""
@@ -120,11 +139,27 @@ class Capture:
         return Rig.from_dict(self.manifest["rig"], where=f"{self.path / MANIFEST}: rig")
 
 
-def read_frame(path: str | os.PathLike, *, bit_depth: int = 8) -> np.ndarray:
+def frame_intensities(values, bit_depth: int = 8) -> np.ndarray:
+    """Frame values of `bit_depth` bits (``raw=True`` of :func:`read_frame`) as ``float32``.
+
+    ``values / (2**bit_depth - 1)`` in ``[0, 1]``, exactly what :func:`read_frame` returns; any
+    shape (a frame, a stack, a band of rows of a stack).
+
+    Examples
+    --------
+    >>> frame_intensities(np.array([0, 51, 255], np.uint8)).tolist()
+    [0.0, 0.20000000298023224, 1.0]
+    """
+    return np.asarray(values).astype(np.float32) / np.float32(2**bit_depth - 1)
+
+
+def read_frame(path: str | os.PathLike, *, bit_depth: int = 8, raw: bool = False) -> np.ndarray:
     """One frame as ``(H, W) float32`` in ``[0, 1]``.
 
     `bit_depth` 8 wants an 8-bit grey PNG; 10, 12 and 16 want a 16-bit grey PNG holding the
-    values left-aligned (``v << (16 - bit_depth)``, ``docs/capture-format.md``).
+    values left-aligned (``v << (16 - bit_depth)``, ``docs/capture-format.md``). With
+    ``raw=True`` the values themselves: ``(H, W) uint8`` for 8 bits, ``uint16`` right-aligned
+    (``0 … 2**bit_depth - 1``) otherwise; :func:`frame_intensities` makes the floats of them.
 
     Raises
     ------
@@ -141,33 +176,33 @@ def read_frame(path: str | os.PathLike, *, bit_depth: int = 8) -> np.ndarray:
         with warnings.catch_warnings(), Image.open(path) as im:
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             mode = im.mode
-            raw = np.asarray(im)
+            image = np.asarray(im)
     except Exception as exc:
         raise ValueError(f"{path}: cannot read frame ({_short(exc)})") from exc
-    if mode not in ("L", "I;16", "I;16L", "I;16B", "I") or raw.ndim != 2:
+    if mode not in ("L", "I;16", "I;16L", "I;16B", "I") or image.ndim != 2:
         raise ValueError(f"{path}: expected a single-channel grey image (8- or 16-bit), got "
-                         f"PIL mode {mode} with shape {raw.shape}")
+                         f"PIL mode {mode} with shape {image.shape}")
     if mode == "I":  # a 16-bit PNG opened as 32-bit integers
-        if raw.size and (raw.min() < 0 or raw.max() > 65535):
+        if image.size and (image.min() < 0 or image.max() > 65535):
             raise ValueError(f"{path}: pixel values outside 0 … 65535")
-        raw = raw.astype(np.uint16)
+        image = image.astype(np.uint16)
     if bit_depth == 8:
-        if raw.dtype != np.uint8:
+        if image.dtype != np.uint8:
             raise ValueError(f"{path}: a 16-bit image, but the capture's bit_depth is 8 "
                              "(8-bit frames are 8-bit PNGs)")
-        return raw.astype(np.float32) / np.float32(255)
-    if raw.dtype != np.uint16:
+        return image if raw else frame_intensities(image, 8)
+    if image.dtype != np.uint16:
         raise ValueError(f"{path}: an 8-bit image, but the capture's bit_depth is {bit_depth} "
                          "(stored in 16-bit PNGs, left-aligned)")
     shift = 16 - bit_depth
-    if shift and np.any(raw & np.uint16((1 << shift) - 1)):
+    if shift and np.any(image & np.uint16((1 << shift) - 1)):
         raise ValueError(
             f"{path}: {bit_depth}-bit values must be stored left-aligned (value << {shift}) "
-            f"but the low {shift} bits are set (largest raw value {int(raw.max())}; "
+            f"but the low {shift} bits are set (largest raw value {int(image.max())}; "
             f"right-aligned values, or a deeper image than bit_depth {bit_depth}?)"
         )
-    values = raw >> np.uint16(shift)
-    return values.astype(np.float32) / np.float32(2**bit_depth - 1)
+    values = image >> np.uint16(shift)
+    return values if raw else frame_intensities(values, bit_depth)
 
 
 def _short(exc: BaseException) -> str:
