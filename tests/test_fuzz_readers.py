@@ -879,6 +879,40 @@ def test_capture_pattern_set_regressions(case, originals, tmp_path):
         read_capture(tmp_path)
 
 
+@pytest.mark.parametrize("value", [1e308, -1e200])
+def test_rig_huge_rotation_entry(value, originals, tmp_path):
+    """RuntimeWarning "overflow encountered in matmul" checking ``R @ R.T``."""
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps(_edit("cameras.0.R.1.1")(originals.rig, value)))
+    assert check_reader(lambda: load_rig(path), tmp_path, valid_rig) is None
+    with pytest.raises(ValueError, match="rig.json: .*not a rotation"):
+        load_rig(path)
+    calib = tmp_path / "calib.json"
+    calib.write_text(json.dumps(_edit("cameras.1.camera.R.0.2")(originals.calibration, value)))
+    assert check_reader(lambda: load_calibration(calib), tmp_path, valid_calibration) is None
+
+
+def test_corrupt_wsq_neither_crashes_nor_prints(originals, tmp_path, capfd):
+    """The WSQ decoder (C) crashed the bench with SIGSEGV (byte 581 of the original inverted)
+    and printed ``ERROR : huffman_decode_data_mem …`` on file descriptor 2, lines beyond the
+    CLI's one; it runs in a child process now and its lines go into the message."""
+    messages = []
+    for offset in range(203, 600, 42):
+        data = bytearray(originals.print_wsq)
+        data[offset] ^= 0xFF
+        path = _write(tmp_path / f"print{offset}.wsq", bytes(data))
+        with contextlib.suppress(ValueError), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            read_print_image(path)
+            messages += [str(w.message) for w in caught]
+            continue
+        with pytest.raises(ValueError) as info:
+            read_print_image(path)
+        messages.append(str(info.value))
+    assert capfd.readouterr().err == ""
+    assert any("ERROR" in m and ".wsq" in m for m in messages), messages
+
+
 def test_check_reader_catches_bad_behaviour(tmp_path):
     """The invariant itself: other exceptions, unnamed files and outside opens are caught."""
     outside = tmp_path / "outside.txt"

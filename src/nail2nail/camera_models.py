@@ -104,7 +104,9 @@ class Pinhole:
             raise ValueError("dist: contains NaN or infinity")
         self.dist = np.pad(dist, (0, 5 - dist.size))
         self.size = _as_size(self.size)
-        if not np.allclose(self.R @ self.R.T, np.eye(3), atol=1e-9):
+        # a rotation's entries lie in [-1, 1]: checked first, so R @ R.T cannot overflow
+        if np.max(np.abs(self.R)) > 1 + 1e-9 or not np.allclose(self.R @ self.R.T, np.eye(3),
+                                                                 atol=1e-9):
             raise ValueError("R: not a rotation matrix")
 
     # -- frames ---------------------------------------------------------------------------
