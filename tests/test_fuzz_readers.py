@@ -885,7 +885,7 @@ def test_rig_huge_rotation_entry(value, originals, tmp_path):
     path = tmp_path / "rig.json"
     path.write_text(json.dumps(_edit("cameras.0.R.1.1")(originals.rig, value)))
     assert check_reader(lambda: load_rig(path), tmp_path, valid_rig) is None
-    with pytest.raises(ValueError, match="rig.json: .*not a rotation"):
+    with pytest.raises(ValueError, match=r"rig\.json: .*not a rotation"):
         load_rig(path)
     calib = tmp_path / "calib.json"
     calib.write_text(json.dumps(_edit("cameras.1.camera.R.0.2")(originals.calibration, value)))
