@@ -85,6 +85,34 @@ def as_int(value, name: str, *, minimum: int) -> int:
     return int(value)
 
 
+def as_int_pair(value, name: str, what: str, *, minimum: int | None = None,
+                error: type[Exception] = ValueError) -> tuple[int, int]:
+    """Two integers (integral floats such as ``1280.0`` accepted), each ≥ `minimum` if given.
+
+    Refused with `error` naming `name` and `what` (e.g. ``"(width, height)"``): strings,
+    booleans, fractions, NaN and infinities (``int(inf)`` would raise an ``OverflowError``,
+    ``int(1.5)`` would truncate silently).
+
+    Examples
+    --------
+    >>> as_int_pair([1280.0, 1024], "size", "(width, height)")
+    (1280, 1024)
+    """
+    try:
+        a, b = value
+    except (TypeError, ValueError) as exc:
+        raise error(f"{name}: expected {what}, got {value!r}") from exc
+    out = []
+    for v in (a, b):
+        if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) or (
+                not isinstance(v, int | np.integer) and not (np.isfinite(v) and v == int(v))
+        ) or (minimum is not None and v < minimum):
+            kind = "integers" if minimum is None else f"integers >= {minimum}"
+            raise error(f"{name}: expected {what} as {kind}, got {value!r}")
+        out.append(int(v))
+    return out[0], out[1]
+
+
 def check_format(data, *, fmt: str, where: str, versions: tuple[int, ...] = (1,)) -> dict:
     """Check that the parsed file `data` is an object of format `fmt` and a known version.
 

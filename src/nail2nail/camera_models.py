@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from ._validation import as_float_array, as_matrix
+from ._validation import as_float_array, as_int_pair, as_matrix
 
 __all__ = [
     "Pinhole",
@@ -103,7 +103,7 @@ class Pinhole:
         if not np.all(np.isfinite(dist)):
             raise ValueError("dist: contains NaN or infinity")
         self.dist = np.pad(dist, (0, 5 - dist.size))
-        self.size = _as_size(self.size)
+        self.size = as_int_pair(self.size, "size", "(width, height) in pixels", minimum=1)
         # a rotation's entries lie in [-1, 1]: checked first, so R @ R.T cannot overflow
         if np.max(np.abs(self.R)) > 1 + 1e-9 or not np.allclose(self.R @ self.R.T, np.eye(3),
                                                                  atol=1e-9):
@@ -202,22 +202,6 @@ class Pinhole:
             dist=data.get("dist", np.zeros(5)),
             size=tuple(data.get("size", (1024, 1280))),
         )
-
-
-def _as_size(size) -> tuple[int, int]:
-    """``(width, height)`` as two positive integers (integral floats accepted)."""
-    try:
-        width, height = size
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"size: expected (width, height) in pixels, got {size!r}") from exc
-    out = []
-    for v in (width, height):
-        if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) or (
-                not isinstance(v, int | np.integer) and not (np.isfinite(v) and v == int(v))
-        ) or v < 1:
-            raise ValueError(f"size: expected (width, height) as positive integers, got {size!r}")
-        out.append(int(v))
-    return out[0], out[1]
 
 
 def _normalized(matrix) -> np.ndarray:

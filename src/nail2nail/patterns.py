@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._validation import as_int_pair
+
 __all__ = [
     "DIRECTIONS",
     "FrameInfo",
@@ -162,11 +164,11 @@ class PatternSet:
             if not isinstance(value, (int, float, np.number)) or not math.isfinite(value):
                 raise TypeError(f"{name}: expected a finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
-        width, height = _int_pair(self.panel_size, "panel_size", "(W, H)")
+        width, height = as_int_pair(self.panel_size, "panel_size", "(W, H)", error=TypeError)
         if width < 1 or height < 1:
             raise ValueError(f"panel_size: expected positive (W, H), got {self.panel_size!r}")
         object.__setattr__(self, "panel_size", (width, height))
-        low, high = _int_pair(self.levels, "levels", "(low, high)")
+        low, high = as_int_pair(self.levels, "levels", "(low, high)", error=TypeError)
         if not 0 <= low < high <= 255:
             raise ValueError(f"levels: expected 0 <= low < high <= 255, got {self.levels!r}")
         object.__setattr__(self, "levels", (low, high))
@@ -260,25 +262,6 @@ class PatternSet:
         except json.JSONDecodeError as exc:
             raise ValueError(f"pattern set: invalid JSON ({exc})") from exc
         return cls.from_dict(data)
-
-
-def _int_pair(value, name: str, what: str) -> tuple[int, int]:
-    """Two integers (integral floats such as ``1280.0`` accepted); ``TypeError`` naming `name`.
-
-    Refused: strings, booleans, fractions, NaN and infinities (``int(inf)`` would raise an
-    ``OverflowError``, ``int(1.5)`` would truncate silently).
-    """
-    try:
-        a, b = value
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name}: expected {what}, got {value!r}") from exc
-    out = []
-    for v in (a, b):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or (
-                not isinstance(v, (int, np.integer)) and not (math.isfinite(v) and v == int(v))):
-            raise TypeError(f"{name}: expected {what} as integers, got {value!r}")
-        out.append(int(v))
-    return out[0], out[1]
 
 
 def _check_direction(direction: str) -> None:
