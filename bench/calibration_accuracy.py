@@ -34,20 +34,20 @@ import numpy as np
 from _scenes import render_scenes
 
 from nail2nail.calibration import calibrate_from_observations
-from nail2nail.distortion import estimate_from_decoded, ideal_from_panel
+from nail2nail.distortion import ideal_from_panel
 from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.markers import TargetGeometry
 from nail2nail.merge import correspond
 from nail2nail.patterns import default_pattern_set
+from nail2nail.pipeline import plane_distortion
 from nail2nail.reconstruction import model_matrix, reconstruct_points_lsq
-from nail2nail.scanning import decode_cameras, scan_capture, target_observations
+from nail2nail.scanning import scan_capture, target_observations
 from nail2nail.simulation.rig import ideal_calibration
 
 
 def calibrations(work: Path) -> dict:
-    plane = read_capture(work / "plane", load=False)
-    fit = estimate_from_decoded({n: (d.xp, d.yp, d.mask) for n, d in decode_cameras(plane)}).fit
+    fit = plane_distortion(read_capture(work / "plane", load=False)).fit
     capture = read_capture(work / "target", load=False)
     observations = target_observations(capture)
     # refined mark centroids (find_target_marks(refine=True))

@@ -25,15 +25,13 @@ from pathlib import Path
 import numpy as np
 from _scenes import render_scenes
 
-from nail2nail.calibration import calibrate_from_observations
-from nail2nail.distortion import estimate_from_decoded
 from nail2nail.fusion import fuse_scans
 from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
-from nail2nail.markers import TargetGeometry
 from nail2nail.merge import correspond
 from nail2nail.patterns import default_pattern_set
-from nail2nail.scanning import decode_cameras, scan_capture, target_observations
+from nail2nail.pipeline import best_calibration, plane_distortion
+from nail2nail.scanning import scan_capture
 from nail2nail.simulation.rig import ideal_calibration
 
 OFF = {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None}
@@ -43,15 +41,9 @@ FUSE_OFF = {**OFF, "spike_mm": None, "surface_mm": None}
 def calibrations(work: Path, scale: float) -> dict:
     render_scenes(work, scale)
     pattern_set = default_pattern_set()
-    plane = read_capture(work / "plane", load=False)
-    fit = estimate_from_decoded({n: (d.xp, d.yp, d.mask) for n, d in decode_cameras(plane)}).fit
-    observations = target_observations(read_capture(work / "target", load=False),
-                                       refine_marks=True)
-    best = calibrate_from_observations(
-        observations, model="joint", surface=TargetGeometry().signed_distance,
-        projector_size=pattern_set.panel_size,
-        initial_distortion={"center": list(fit.center), "rho": fit.rho},
-        target=TargetGeometry())[0]
+    fit = plane_distortion(read_capture(work / "plane", load=False)).fit
+    best = best_calibration(read_capture(work / "target", load=False), center=fit.center,
+                            rho=fit.rho, panel_size=pattern_set.panel_size)
     finger = read_capture(work / "finger", load=False)
     return {"best (joint)": best, "true": RigCalibration.from_dict(ideal_calibration(finger.rig()))}
 

@@ -312,13 +312,9 @@ def save_png(path: str | os.PathLike, image: np.ndarray, *, dpi: float = 500) ->
     TypeError, ValueError
         As :func:`rerender` for a bad `image`, or a bad `dpi`.
     """
-    from PIL import Image
+    from nail2nail.io.prints import write_print_image
 
-    image = _check_image(image)
-    dpi = _check_dpi(dpi)
-    path = Path(path)
-    Image.fromarray(image).save(path, format="PNG", dpi=(dpi, dpi))
-    return path
+    return write_print_image(path, _check_image(image), ppi=_check_dpi(dpi))
 
 
 def _synthetic_print(seed: int) -> np.ndarray:

@@ -82,12 +82,9 @@ def best_calibration(out: Path, rig, scale: float):
     calibration (one shared projector, distortion in the model, refined on the target's
     surface) is fitted to the cylindrical target's capture, both under plain patterns.
     """
-    from nail2nail.calibration import calibrate_from_observations
-    from nail2nail.distortion import estimate_from_decoded
     from nail2nail.io.calibration import load_calibration, save_calibration
-    from nail2nail.markers import TargetGeometry
     from nail2nail.patterns import default_pattern_set, make_patterns
-    from nail2nail.scanning import decode_cameras, target_observations
+    from nail2nail.pipeline import best_calibration, plane_distortion
 
     path = out / "calib" / f"rig_best_v2_scale{scale:g}.json"  # v2: mark model
     if path.is_file():
@@ -102,18 +99,10 @@ def best_calibration(out: Path, rig, scale: float):
         simulate_capture(work / scene, scene, rig=rig, patterns=patterns,
                          pattern_set=pattern_set, seed=0, write_truth=False)
     log("calibration: projector distortion from the plane")
-    plane = read_capture(work / "plane", load=False)
-    report = estimate_from_decoded({name: (d.xp, d.yp, d.mask)
-                                    for name, d in decode_cameras(plane)})
-    center, rho = report.fit.center, report.fit.rho
+    fit = plane_distortion(read_capture(work / "plane", load=False)).fit
     log("calibration: joint calibration on the target")
-    observations = target_observations(read_capture(work / "target", load=False),
-                                       refine_marks=True)
-    calib = calibrate_from_observations(
-        observations, model="joint", surface=TargetGeometry().signed_distance,
-        projector_size=pattern_set.panel_size,
-        initial_distortion={"center": list(center), "rho": rho},
-        target=TargetGeometry())[0]
+    calib = best_calibration(read_capture(work / "target", load=False), center=fit.center,
+                             rho=fit.rho, panel_size=pattern_set.panel_size)
     save_calibration(path, calib)
     shutil.rmtree(work)  # the frames are only needed once
     log(f"calibration: {time.perf_counter() - t0:.0f} s, saved {path}")

@@ -27,8 +27,8 @@ def finger(tmp_path_factory):
     simulate_capture(out, "finger", rig=default_rig(SCALE, projector_distortion="none"), seed=3)
     capture = read_capture(out, load=False)
     calib = RigCalibration.from_dict(ideal_calibration(capture.rig()))
-    # max_gradient in camera px: 2 at full scale, 2 / SCALE here (phase.decode)
-    scans = scan_capture(capture, calib, max_gradient=2.0 / SCALE)
+    # scan_capture scales max_gradient (stated for a 1024 x 1280 camera) to the camera's size
+    scans = scan_capture(capture, calib, max_gradient=2.0)
     return out, scans
 
 

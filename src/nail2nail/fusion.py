@@ -426,8 +426,9 @@ def fuse_scans(
     border_px = as_int(border_px, "border_px", minimum=1)
     if ownership not in ("angle", "priority"):
         raise ValueError(f"ownership: expected 'angle' or 'priority', got {ownership!r}")
-    if spike_mm is not None and not (np.isfinite(spike_mm) and spike_mm > 0):
-        raise ValueError(f"spike_mm: expected a positive number or None, got {spike_mm}")
+    for name, value in (("spike_mm", spike_mm), ("surface_mm", surface_mm)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: expected a positive number or None, got {value}")
     rank = {cam: k for k, cam in enumerate(priority)}
 
     normals0 = [grid_normals(s.xyz, camera_center=s.camera_center) for s in scans]

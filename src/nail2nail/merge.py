@@ -37,6 +37,7 @@ import scipy.ndimage
 import scipy.spatial
 
 from ._interpolate import bilinear
+from ._numba_cache import cache_enabled
 from ._validation import as_int
 from .reconstruction import Scan
 
@@ -426,7 +427,8 @@ def refine_subpixel(
     return r, c, residual
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+# cache on disk unless no directory at all can hold numba's cache (nail2nail._numba_cache)
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, max_shift):
     """Compiled :func:`refine_subpixel` plus bilinear interpolation of ``xyz`` (same arithmetic)."""
     n = rows.size

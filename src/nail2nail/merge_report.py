@@ -145,7 +145,7 @@ def write_merge(
     max_residual_px = float(max_residual_px)
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
-    border_px = as_int(border_px, "border_px", minimum=0)
+    border_px = as_int(border_px, "border_px", minimum=1)  # as correspond: checked up front
     out = Path(out)
     with atomic_directory(out, marker="merge.json") as tmp:
         summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,

@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["CONFIGURATIONS", "run_demo"]
+__all__ = ["CONFIGURATIONS", "best_calibration", "plane_distortion", "run_demo"]
 
 #: Merge configurations compared by the demo (issue 5's table).
 CONFIGURATIONS = ("before", "thesis_lut", "model_dlt", "best")
@@ -60,6 +60,65 @@ def _merge_summary(stats: dict) -> dict:
         pair: {"pairs": s["pairs"], "distance_mm": {k: s["distance_mm"][k] for k in keep}}
         for pair, s in stats.items()
     }
+
+
+def plane_distortion(plane_capture):
+    """The projector's radial distortion estimated from a capture of a flat plane.
+
+    Every camera's decoded projector coordinates go into the joint non-linear fit of
+    :func:`nail2nail.distortion.estimate_from_decoded` (centre, ρ and a homography per camera;
+    the thesis's model, eq. 3.15–3.16).
+
+    Parameters
+    ----------
+    plane_capture : Capture
+        A capture of a flat plane under the default (or any full) pattern set.
+
+    Returns
+    -------
+    report
+        The estimate; ``report.fit.center`` (2,) panel px and ``report.fit.rho``.
+    """
+    from .distortion import estimate_from_decoded
+    from .scanning import decode_cameras
+
+    return estimate_from_decoded(
+        {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane_capture)})
+
+
+def best_calibration(target_capture, *, center, rho, panel_size):
+    """The demo's "best" calibration of a rig from a capture of the cylindrical target.
+
+    All cameras and one shared projector are fitted jointly, the projector's radial
+    distortion in the model (started at `center`, `rho`, e.g. from :func:`plane_distortion`),
+    each mark's projected disc on the cylinder modelled from marks re-measured against their
+    local background, and the whole refined on the target's known surface.
+
+    Parameters
+    ----------
+    target_capture : Capture
+        A capture of the target (:class:`nail2nail.markers.TargetGeometry`).
+    center : (2,) float
+        Initial distortion centre, panel px.
+    rho : float
+        Initial distortion parameter (thesis eq. 3.15).
+    panel_size : (int, int)
+        Projector panel ``(width, height)``, px.
+
+    Returns
+    -------
+    RigCalibration
+    """
+    from .calibration import calibrate_from_observations
+    from .markers import TargetGeometry
+    from .scanning import target_observations
+
+    target = TargetGeometry()
+    observations = target_observations(target_capture, refine_marks=True)
+    return calibrate_from_observations(
+        observations, model="joint", surface=target.signed_distance,
+        projector_size=panel_size, initial_distortion={"center": list(center), "rho": rho},
+        target=target)[0]
 
 
 def run_demo(
@@ -97,17 +156,16 @@ def run_demo(
         ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
     """
     from .calibration import calibrate_from_observations
-    from .distortion import apply_lut, distortion_lut, estimate_from_decoded
+    from .distortion import apply_lut, distortion_lut
     from .io._atomic import atomic_directory
     from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
     from .io.mat5 import mat5_paths
     from .io.scans import save_scans
-    from .markers import TargetGeometry
     from .merge_report import write_merge
     from .patterns import default_pattern_set, make_patterns
-    from .scanning import decode_cameras, scan_capture, target_observations
+    from .scanning import scan_capture, target_observations
     from .simulation.capture import simulate_capture
     from .simulation.rig import default_rig
 
@@ -135,10 +193,7 @@ def run_demo(
 
     simulate("plane", "plane", patterns)
     step("estimate the projector distortion from the plane")
-    plane = read_capture(captures["plane"], load=False)
-    report = estimate_from_decoded(
-        {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane)}
-    )
+    report = plane_distortion(read_capture(captures["plane"], load=False))
     distortion = report.to_dict(truth=None)
     with atomic_directory(out / "distortion", marker="projector_distortion.json") as tmp:
         write_json(tmp / "projector_distortion.json", distortion)
@@ -151,27 +206,16 @@ def run_demo(
     simulate("finger_lut", "finger", lut_patterns)
 
     step("calibrate: per-camera DLT (before, thesis_lut, model_dlt) and joint (best)")
-    surface = TargetGeometry().signed_distance
     obs_plain = target_observations(read_capture(captures["target"], load=False))
     obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
-    # the joint calibration models each mark's projected disc on the cylinder, so it gets
-    # the marks re-measured against the local background (unbiased centroids)
-    obs_refined = target_observations(read_capture(captures["target"], load=False),
-                                      refine_marks=True)
     calibs = {
         "before": calibrate_from_observations(obs_plain, model="dlt")[0],
         "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
         "model_dlt": calibrate_from_observations(
             obs_plain, model="dlt", projector_distortion={"center": list(center), "rho": rho}
         )[0],
-        "best": calibrate_from_observations(
-            obs_refined,
-            model="joint",
-            surface=surface,
-            projector_size=pattern_set.panel_size,
-            initial_distortion={"center": list(center), "rho": rho},
-            target=TargetGeometry(),
-        )[0],
+        "best": best_calibration(read_capture(captures["target"], load=False), center=center,
+                                 rho=rho, panel_size=pattern_set.panel_size),
     }
     calib_paths = {}
     names = [f"rig_{name}.json" for name in calibs]
@@ -182,6 +226,7 @@ def run_demo(
 
     comparison: dict = {}
     merges: dict = {}
+    finger_scans = None  # the best configuration's finger: what the unroll step takes
     outputs: list[str] = [str(out / "distortion" / "projector_distortion.json"),
                           *calib_paths.values()]
     for config in CONFIGURATIONS:

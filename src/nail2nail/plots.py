@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from .io._atomic import atomic_path
+from .io._atomic import save_figure
 from .merge import Correspondence, merge_statistics
 
 __all__ = [
@@ -23,13 +23,6 @@ __all__ = [
     "plot_merge_histogram",
     "render_points",
 ]
-
-
-def _save(fig: Figure, path: str | os.PathLike, *, dpi: int = 100) -> Path:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    return path
 
 
 def _check_corr(corr) -> Correspondence:
@@ -95,7 +88,7 @@ def plot_merge_heatmap(
                  f"median {1e3 * stats['median']:.1f} µm")
     ax.set_xlabel("column (px)")
     ax.set_ylabel("row (px)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_merge_histogram(
@@ -130,7 +123,7 @@ def plot_merge_histogram(
     ax.set_ylabel("pairs")
     ax.set_title(title or f"{d.size} pairs, {100 * stats['frac_below_0_05']:.1f} % below 0.05 mm")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _every(corr: Correspondence, every: int) -> np.ndarray:
@@ -183,7 +176,7 @@ def plot_correspondences_3d(
     d = np.linalg.norm(a - b, axis=-1)
     ax.set_title(title or f"{sel.size} corresponding points, median distance "
                  f"{1e3 * np.median(d) if d.size else float('nan'):.1f} µm")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_correspondence_images(
@@ -224,7 +217,7 @@ def plot_correspondence_images(
         ax.set_title(f"{name}: {sel.size} corresponding points")
         ax.set_axis_off()
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def render_points(
@@ -320,4 +313,4 @@ def render_points(
     ax.set_axis_off()
     if title:
         fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)

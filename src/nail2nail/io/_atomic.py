@@ -17,7 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_directory", "atomic_files", "atomic_path", "check_output_directory", "write_npz"]
+__all__ = [
+    "atomic_directory",
+    "atomic_files",
+    "atomic_path",
+    "check_output_directory",
+    "save_figure",
+    "write_npz",
+]
 
 
 @contextlib.contextmanager
@@ -159,6 +166,14 @@ def atomic_files(directory: str | os.PathLike, names: list[str]) -> Iterator[Pat
             os.replace(tmp / name, directory / name)
     finally:
         _remove(tmp)
+
+
+def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100) -> Path:
+    """Write a matplotlib figure as PNG at `path` (atomically); return `path` as a ``Path``."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
+    return path
 
 
 def write_npz(path: str | os.PathLike, arrays: dict) -> Path:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io._json import read_json
+from ..io._npz import read_npz
 
 __all__ = ["truth_print_sampler", "truth_skin_coordinates"]
 
@@ -34,6 +35,20 @@ def _truth_entries(capture_dir: Path) -> dict:
 def truth_skin_coordinates(capture_dir: str | os.PathLike, names) -> list[tuple]:
     """Per camera name, the true ``(u, v)`` (each ``(H, W) float32``, mm; NaN off the finger).
 
+    Parameters
+    ----------
+    capture_dir : path-like
+        A virtual capture written with its truth (``nail2nail simulate``).
+    names : sequence of str
+        Camera names, e.g. ``[s.name for s in scans]``.
+
+    Returns
+    -------
+    list of (u, v)
+        Rolled-print coordinates of the true surface point each pixel sees (``param_u``,
+        ``param_v`` of ``truth/camN.npz``; ``u`` around the finger towards ``+X``, ``v``
+        towards the tip), NaN where the pixel sees no finger.
+
     Raises
     ------
     ValueError
@@ -46,13 +61,10 @@ def truth_skin_coordinates(capture_dir: str | os.PathLike, names) -> list[tuple]
         if name not in cameras:
             raise ValueError(f"{capture_dir}: no truth for camera {name!r}")
         path = capture_dir / cameras[name]
-        with np.load(path) as data:
-            if "param_u" not in data:
-                raise ValueError(f"{path}: no skin coordinates (param_u, param_v)")
-            surface = data["surface"] if "surface" in data else np.ones(data["param_u"].shape,
-                                                                          bool)
-            u = np.where(surface, data["param_u"], np.nan).astype(np.float32)
-            v = np.where(surface, data["param_v"], np.nan).astype(np.float32)
+        data = read_npz(path, required=("param_u", "param_v"), what="truth file")
+        surface = data.get("surface", np.ones(data["param_u"].shape, bool))
+        u = np.where(surface, data["param_u"], np.nan).astype(np.float32)
+        v = np.where(surface, data["param_v"], np.nan).astype(np.float32)
         out.append((u, v))
     return out
 
@@ -63,6 +75,23 @@ def truth_print_sampler(capture_dir: str | os.PathLike):
     The sampler interpolates the print bilinearly at rolled-print coordinates (mm) and returns
     ``(127.5 − I) / 127.5`` (positive on ridges, which are dark); white paper (−1) outside the
     image, as inside it beyond the rolled extent.
+
+    Parameters
+    ----------
+    capture_dir : path-like
+        A virtual finger capture written with its truth.
+
+    Returns
+    -------
+    image : (H, W) uint8
+        ``truth/rolled_print.png`` (legacy convention).
+    sampler : callable
+        ``(u (N,), v (N,)) -> (N,) float``, mm in, ridge field out.
+
+    Raises
+    ------
+    ValueError
+        If the capture has no truth or its truth has no rolled print.
     """
     from PIL import Image
     from scipy.ndimage import map_coordinates

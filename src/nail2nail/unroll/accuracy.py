@@ -27,17 +27,29 @@ __all__ = ["geometric_accuracy", "similarity_fit"]
 
 
 def similarity_fit(src, dst) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``dst ≈ scale · R @ src + t`` (Umeyama 1991, no reflection).
+    """Least-squares similarity ``dst ≈ scale · R @ src + t``, without reflection.
+
+    Umeyama, *Least-squares estimation of transformation parameters between two point
+    patterns*, IEEE TPAMI 13(4), 376–380, 1991, doi:10.1109/34.88573.
 
     Parameters
     ----------
     src, dst : (N, 2) float
+        Corresponding points (e.g. print plane and true skin coordinates, mm), N ≥ 2.
 
     Returns
     -------
     scale : float
     R : (2, 2) float
+        Rotation, ``det R = +1``.
     t : (2,) float
+
+    Examples
+    --------
+    >>> src = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
+    >>> scale, R, t = similarity_fit(src, 3 * src + [1, 2])
+    >>> round(scale, 9), np.round(t, 9).tolist()
+    (3.0, [1.0, 2.0])
     """
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
@@ -67,6 +79,8 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
         ``(s, t)``) of the surface point each camera pixel sees; NaN where unknown.
     baseline_mm : float
         Finite-difference baseline of the local Jacobian, mm.
+    maps : bool
+        Also return the per-pixel maps of the scale error and the displacement.
     truth_sampler : callable, optional
         ``(u, v) -> ridge field`` of the true print (positive on crests). If given, the true
         print is rendered on the print's grid and the local ridge periods of both are compared

@@ -11,15 +11,9 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from ..io._atomic import atomic_path
+from ..io._atomic import save_figure
 
 __all__ = ["plot_distortion_maps", "plot_print_and_truth", "save_print_figures"]
-
-
-def _save(fig: Figure, path: Path, *, dpi: int = 100) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    return path
 
 
 def plot_print_and_truth(path: str | os.PathLike, rolled, truth_on_grid=None) -> Path:
@@ -38,7 +32,7 @@ def plot_print_and_truth(path: str | os.PathLike, rolled, truth_on_grid=None) ->
     fig.suptitle(f"{rolled.method} unroll, {rolled.ppi:g} ppi, legacy convention (tip up)",
                  fontsize=10)
     fig.tight_layout()
-    return _save(fig, Path(path), dpi=150)
+    return save_figure(fig, Path(path), dpi=150)
 
 
 def plot_distortion_maps(path: str | os.PathLike, maps: dict, *, scale_max: float = 0.05,
@@ -67,7 +61,7 @@ def plot_distortion_maps(path: str | os.PathLike, maps: dict, *, scale_max: floa
                              label="scale error %" if row == 0 else "displacement, mm")
     fig.suptitle("unrolling methods against the true skin coordinates (after one similarity)",
                  fontsize=10)
-    return _save(fig, Path(path), dpi=110)
+    return save_figure(fig, Path(path), dpi=110)
 
 
 def save_print_figures(out: str | os.PathLike, prints: dict, maps: dict, *,

@@ -379,10 +379,22 @@ def fit_sphere(xyz, *, axis, pad_direction=(0.0, 0.0, 1.0), n_max: int = 20000) 
         Finger axis towards the tip (e.g. of :func:`fit_cylinder`): the longitude runs around it.
     pad_direction : (3,) float
         Direction of longitude 0.
+    n_max : int
+        Points used for the fit (a random subset).
 
     Returns
     -------
     SphereMap
+
+    Raises
+    ------
+    ValueError
+        Fewer than 100 finite points, or the pad direction parallel to the axis.
+
+    References
+    ----------
+    Wang, Lau and Hassebrook, *Fit-sphere unwrapping and performance analysis of 3D
+    fingerprints*, Appl. Opt. 49(4), 592–600, 2010, doi:10.1364/AO.49.000592.
     """
     pts = _sample(_check_points(xyz), n_max)
     A = np.column_stack([2 * pts, np.ones(len(pts))])
@@ -438,6 +450,7 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     grid_mm : float
         Cell size, mm.
     min_samples : int
+        Fewest points in a cell for it to give a vertex.
 
     Returns
     -------
@@ -590,7 +603,8 @@ def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0
 
     Returns
     -------
-    flat : CylinderMap or SphereMap or IsometricMap
+    flat : CylinderMap or SphereMap or RolledMap or IsometricMap
+        The map, callable on world points ``(N, 3)`` → print plane ``(N, 2)``, mm.
     mesh : SurfaceMesh
 
     Raises

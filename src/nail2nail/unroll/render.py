@@ -57,7 +57,27 @@ class PrintGrid:
 
 
 def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
-    """The print grid covering print-plane points ``(N, 2)`` (mm) with a margin."""
+    """The print grid covering print-plane points with a margin (legacy convention).
+
+    Parameters
+    ----------
+    st_all : (N, 2) float
+        Print-plane ``(s, t)`` of every sample, mm.
+    ppi : float
+        Resolution, pixels per inch (``pitch = 25.4 / ppi`` mm).
+    margin_mm : float
+        Margin around the 0.01–99.99 percentile extent of the points, mm.
+
+    Returns
+    -------
+    PrintGrid
+        ``s0``, ``t0`` snapped to the pitch, so prints of one finger at one ppi share a lattice.
+
+    Raises
+    ------
+    ValueError
+        If `ppi` is not positive.
+    """
     if not ppi > 0:
         raise ValueError(f"ppi: expected a positive number, got {ppi}")
     pitch = MM_PER_INCH / ppi
@@ -178,6 +198,21 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
 
     ``I = 127.5 − 90 z`` with ``z`` the locally normalised ridge signal (a sinusoid of unit
     RMS spans ±1.41, i.e. about 0–255); white (255) off `mask`.
+
+    Parameters
+    ----------
+    value : (H, W) float
+        Blended ridge signal, positive on ridge crests.
+    mask : (H, W) bool
+        Pixels with data.
+    sigma_px : float
+        σ of the normalisation window, print px (1 mm by default in :func:`unroll_scans`).
+    reduce : int
+        Block size of the reduced grid for the averages.
+
+    Returns
+    -------
+    (H, W) uint8
     """
     mean = masked_gaussian(value, mask, sigma_px, reduce=reduce)
     d = np.where(mask, value - mean, 0)
@@ -189,10 +224,24 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
 
 
 def binarize(gray, mask, *, period_px: float) -> np.ndarray:
-    """Ridges black (0) on white (255), by a local-mean threshold (thesis Figure 37).
+    """Ridges black (0) on white (255), by a local-mean threshold.
 
-    The image is smoothed (σ = period / 8) against pixel noise and thresholded at its local mean
-    over a window of one ridge period (σ = period / 2).
+    The binarised print of the thesis's Figure 37, by this project's method (the thesis does
+    not give one): the image is smoothed (σ = period / 8) against pixel noise and thresholded
+    at its local mean over a window of one ridge period (σ = period / 2).
+
+    Parameters
+    ----------
+    gray : (H, W) uint8 or float
+        Print, ridges dark.
+    mask : (H, W) bool
+        Pixels with data (white elsewhere).
+    period_px : float
+        Ridge period, print px (0.48 mm at the print's pitch in :func:`unroll_scans`).
+
+    Returns
+    -------
+    (H, W) uint8
     """
     g = ndi.gaussian_filter(np.asarray(gray, np.float32), period_px / 8)
     local = masked_gaussian(g, mask, period_px / 2)

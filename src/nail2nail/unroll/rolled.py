@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..io.rolled import ROLLED_FORMAT
 from ..reconstruction import Scan
 from .flatten import METHODS, fit_flattening, map_distortion
 from .quality import block_quality
@@ -103,7 +104,7 @@ class RolledPrint:
         clarity = np.asarray(q["clarity"])
         period = np.asarray(q["period_px"])
         return {
-            "format": "nail2nail-rolled-print",
+            "format": ROLLED_FORMAT,
             "version": 1,
             "convention": "legacy rolled print: mirror of the pad seen from outside, fingertip "
                           "up; ridges dark on white",
