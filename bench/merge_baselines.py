@@ -19,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from nail2nail.alignment import icp_align, transform_scan
 from nail2nail.io.scans import load_scans
 from nail2nail.merge import correspond
+from nail2nail.merge.alignment import icp_align, transform_scan
 
 
 def merge_row(scans) -> list[str]:

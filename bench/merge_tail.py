@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 from _scenes import render_scenes
 
-from nail2nail.fusion import fuse_scans
 from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.merge import correspond
+from nail2nail.merge.fusion import fuse_scans
 from nail2nail.patterns import default_pattern_set
 from nail2nail.pipeline import best_calibration, plane_distortion
 from nail2nail.scanning import scan_capture

@@ -36,9 +36,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    from nail2nail.fusion import fuse_scans
     from nail2nail.io.calibration import load_calibration
     from nail2nail.io.capture import read_capture
+    from nail2nail.merge.fusion import fuse_scans
     from nail2nail.scanning import scan_capture
     from nail2nail.simulation.capture import simulate_capture
     from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans

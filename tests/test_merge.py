@@ -16,7 +16,6 @@ from _synthetic import synthetic_scans
 
 from nail2nail.merge import (
     DROP_REASONS,
-    _refine_kernel,
     correspond,
     merge_statistics,
     nearest_bruteforce,
@@ -25,6 +24,7 @@ from nail2nail.merge import (
     sample_pixels,
     valid_mask,
 )
+from nail2nail.merge.correspondence import _refine_kernel
 from nail2nail.reconstruction import Scan
 
 SIZE = (96, 120)  # (width, height): reduced resolution, 0.27 mm per pixel at the finger
@@ -329,7 +329,7 @@ def test_cli_merge_not_a_scan_dir(tmp_path, capsys):
 def test_write_merge_rejects_bad_pairs(tmp_path):
     from _synthetic import synthetic_scans
 
-    from nail2nail.merge_report import write_merge
+    from nail2nail.merge.report import write_merge
 
     scans = synthetic_scans(size=(32, 40))
     for pairs in ([(0, 5)], [(1, 1)]):

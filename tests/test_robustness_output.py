@@ -155,7 +155,7 @@ def test_scan_corrupt_frame_keeps_old_scans_rerun_replaces(capture, tmp_path, ca
 
 # -- merge -----------------------------------------------------------------------------------
 def test_merge_writer_failure_keeps_old_merge(scan_dir, tmp_path, monkeypatch, capsys):
-    import nail2nail.merge_report as mr
+    import nail2nail.merge.report as mr
 
     out = tmp_path / "merged"
     args = ["merge", str(scan_dir), "--out", str(out), "--no-figures", "--stride", "4", "--json"]

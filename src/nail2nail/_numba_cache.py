@@ -1,7 +1,7 @@
 """Where numba (and matplotlib) cache: beside the package, in the user's cache, or a fallback.
 
-``phase.py`` and ``merge.py`` compile their kernels with ``cache=True``. Numba stores the cache
-in ``__pycache__`` beside the source, else in the user's cache directory
+``phase.py`` and ``merge/correspondence.py`` compile their kernels with ``cache=True``. Numba
+stores the cache in ``__pycache__`` beside the source, else in the user's cache directory
 (``$XDG_CACHE_HOME/numba`` or ``~/.cache/numba``); if neither can be written (a service account
 with no home, a read-only container) it raises ``RuntimeError: cannot cache function …: no
 locator available`` when the kernel is *defined*, so every command would die at import. Caching

@@ -163,7 +163,7 @@ def run_demo(
     from .io.capture import read_capture
     from .io.mat5 import mat5_paths
     from .io.scans import save_scans
-    from .merge_report import write_merge
+    from .merge.report import write_merge
     from .patterns import default_pattern_set, make_patterns
     from .scanning import scan_capture, target_observations
     from .simulation.capture import simulate_capture

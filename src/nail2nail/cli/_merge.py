@@ -1,7 +1,7 @@
 """``nail2nail merge``: merge error between cameras in projector space, and the super scan.
 
 Thin command layer: :func:`run` reads a scan directory (:func:`nail2nail.io.scans.load_scans`),
-calls :func:`nail2nail.merge_report.write_merge` and prints the summary.
+calls :func:`nail2nail.merge.report.write_merge` and prints the summary.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 from .._validation import as_int
 from ..io._json import dumps_json
 from ..io.scans import load_scans
-from ..merge_report import parse_pairs, write_merge
+from ..merge.report import parse_pairs, write_merge
 
 __all__ = ["add_parser", "run"]
 

@@ -14,18 +14,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ._validation import as_int
+from .._validation import as_int
+from ..io._atomic import atomic_directory, write_npz
+from ..io._json import write_json
+from .correspondence import correspond
 from .fusion import fuse_scans, write_super_mat5, write_super_ply
-from .io._atomic import atomic_directory, write_npz
-from .io._json import write_json
-from .merge import correspond
-from .plots import (
-    plot_correspondence_images,
-    plot_correspondences_3d,
-    plot_merge_heatmap,
-    plot_merge_histogram,
-    render_points,
-)
 
 __all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
 
@@ -102,7 +95,7 @@ def write_merge(
     ``rejected_distance_mm``, ``rejected_reason``),
     and with `figures` ``merge_P-C_heatmap.png``, ``_histogram.png``, ``_points3d.png``,
     ``_marked.png``. With `super_scan`: ``super.ply``, the super mat5 ``superC.bmp`` …
-    (:func:`nail2nail.fusion.super_mat5_scan`), and with `figures` ``super_front.png``,
+    (:func:`nail2nail.merge.fusion.super_mat5_scan`), and with `figures` ``super_front.png``,
     ``super_side.png``. Also ``merge.json``, the returned summary.
 
     Parameters
@@ -117,7 +110,7 @@ def write_merge(
         ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``.
     stride, max_residual_px, border_px
         Passed to :func:`nail2nail.merge.correspond`; `max_residual_px` (panel px) also to
-        :func:`nail2nail.fusion.fuse_scans`.
+        :func:`nail2nail.merge.fusion.fuse_scans`.
     figures : bool
         Write the PNG figures.
     super_scan : bool
@@ -188,6 +181,14 @@ def _check_kept(corr) -> None:
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
                  super_scan, progress) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary."""
+    if figures:  # matplotlib only when figures are drawn
+        from .figures import (
+            plot_correspondence_images,
+            plot_correspondences_3d,
+            plot_merge_heatmap,
+            plot_merge_histogram,
+            render_points,
+        )
     outputs: list[str] = []
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": outputs}
     for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):

@@ -1,4 +1,4 @@
-"""Tests of nail2nail.plots: every figure is a PNG of the expected size, written atomically."""
+"""Tests of nail2nail.merge.figures: every figure a PNG of the expected size, written atomically."""
 
 from __future__ import annotations
 
@@ -12,15 +12,15 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).parent))
 from _synthetic import synthetic_scans
 
-from nail2nail.fusion import fuse_scans
 from nail2nail.merge import correspond
-from nail2nail.plots import (
+from nail2nail.merge.figures import (
     plot_correspondence_images,
     plot_correspondences_3d,
     plot_merge_heatmap,
     plot_merge_histogram,
     render_points,
 )
+from nail2nail.merge.fusion import fuse_scans
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

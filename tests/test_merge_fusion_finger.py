@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nail2nail.fusion import fuse_scans
 from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.merge import REJECT_REASONS, correspond
+from nail2nail.merge.fusion import fuse_scans
 from nail2nail.scanning import scan_capture
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig, ideal_calibration

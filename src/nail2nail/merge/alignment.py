@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .reconstruction import Scan
+from ..reconstruction import Scan
 
 __all__ = ["icp_align", "transform_scan"]
 

@@ -1,4 +1,4 @@
-"""Tests of nail2nail.fusion: the super scan (fused point cloud, normals, mesh, super mat5)."""
+"""Tests of nail2nail.merge.fusion: the super scan (fused cloud, normals, mesh, super mat5)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import scipy.spatial
 sys.path.insert(0, str(Path(__file__).parent))
 from _synthetic import synthetic_scans
 
-from nail2nail.fusion import (
+from nail2nail.merge import valid_mask
+from nail2nail.merge.fusion import (
     fuse_scans,
     grid_mesh,
     grid_normals,
@@ -22,7 +23,6 @@ from nail2nail.fusion import (
     write_super_mat5,
     write_super_ply,
 )
-from nail2nail.merge import valid_mask
 
 SIZE = (96, 120)
 RADIUS = 8.0  # the synthetic cylinder
@@ -235,7 +235,7 @@ def test_issue9_corrupted_points_do_not_reach_the_fused_surface(scans):
 
 
 def test_issue9_spikes():
-    from nail2nail.fusion import spikes
+    from nail2nail.merge.fusion import spikes
 
     rr, cc = np.mgrid[0:12, 0:12].astype(float)
     xyz = np.stack([cc * 0.05, -rr * 0.05, 0.02 * np.sin(cc)], -1)  # ridges along columns

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from _synthetic import synthetic_scans
 
-from nail2nail.alignment import icp_align, transform_scan
 from nail2nail.merge import correspond
+from nail2nail.merge.alignment import icp_align, transform_scan
 
 
 def test_transform_scan_moves_points_and_centre():

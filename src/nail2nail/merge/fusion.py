@@ -29,9 +29,10 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
-from ._interpolate import bilinear
-from ._validation import as_int
-from .merge import (
+from .._interpolate import bilinear
+from .._validation import as_int
+from ..reconstruction import Scan
+from .correspondence import (
     REJECT_REASONS,
     Correspondence,
     _check_scan,
@@ -40,7 +41,6 @@ from .merge import (
     valid_mask,
     view_cosine,
 )
-from .reconstruction import Scan
 
 __all__ = [
     "SuperScan",
@@ -641,7 +641,7 @@ def write_super_mat5(
     list of Path
         The seven files of the set.
     """
-    from .io.mat5 import write_mat5
+    from ..io.mat5 import write_mat5
 
     return write_mat5(prefix, super_mat5_scan(superscan, gap_px=gap_px))
 
@@ -654,7 +654,7 @@ def write_super_ply(path: str | os.PathLike, superscan: SuperScan) -> Path:
     Path
         `path`.
     """
-    from .io.ply import write_ply
+    from ..io.ply import write_ply
 
     names = ", ".join(s.name for s in superscan.scans)
     return write_ply(path, superscan.vertices, colors=superscan.colors,

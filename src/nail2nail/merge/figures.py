@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from .io._atomic import save_figure
-from .merge import Correspondence, merge_statistics
+from ..io._atomic import save_figure
+from .correspondence import Correspondence
+from .statistics import merge_statistics
 
 __all__ = [
     "plot_correspondence_images",

@@ -1,0 +1,55 @@
+"""Merge: the cameras' scans joined in projector space (thesis chapter four) and fused.
+
+Modules, in the order the data flows through them:
+
+- :mod:`~nail2nail.merge.correspondence`: pairs of pixels of two cameras with the same
+  projector coordinates, their world distance (the merge error), and the pairs dropped or
+  rejected, with the reason;
+- :mod:`~nail2nail.merge.statistics`: the summary figures of the merge error, and local outliers;
+- :mod:`~nail2nail.merge.fusion`: the super scan, one nail-to-nail point cloud and mesh, and the
+  super mat5;
+- :mod:`~nail2nail.merge.report`: the whole merge step written to a directory
+  (:func:`~nail2nail.merge.report.write_merge`, behind ``nail2nail merge``);
+- :mod:`~nail2nail.merge.figures`: its figures (matplotlib, imported only when drawn);
+- :mod:`~nail2nail.merge.alignment`: point-to-plane ICP (Open3D), the baseline the
+  projector-space merge is compared with.
+"""
+
+from .correspondence import (
+    DROP_REASONS,
+    REJECT_REASONS,
+    Correspondence,
+    correspond,
+    grid_normals,
+    nearest_bruteforce,
+    nearest_kdtree,
+    refine_subpixel,
+    sample_pixels,
+    valid_mask,
+    view_cosine,
+)
+from .fusion import SuperScan, fuse_scans, write_super_mat5, write_super_ply
+from .report import parse_pairs, write_merge
+from .statistics import local_outliers, merge_statistics
+
+__all__ = [
+    "DROP_REASONS",
+    "REJECT_REASONS",
+    "Correspondence",
+    "SuperScan",
+    "correspond",
+    "fuse_scans",
+    "grid_normals",
+    "local_outliers",
+    "merge_statistics",
+    "nearest_bruteforce",
+    "nearest_kdtree",
+    "parse_pairs",
+    "refine_subpixel",
+    "sample_pixels",
+    "valid_mask",
+    "view_cosine",
+    "write_merge",
+    "write_super_mat5",
+    "write_super_ply",
+]
