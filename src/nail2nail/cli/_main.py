@@ -36,6 +36,7 @@ COMMANDS = [
     "distortion",
     "merge",
     "unroll",
+    "process",
     "demo",
 ]
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..io._json import dumps_json
 from ..unroll import DEFAULT_METHOD, METHODS
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "add_unroll_options", "check_unroll_options", "run"]
 
 
 def _vector(text: str) -> tuple[float, float, float]:
@@ -25,6 +25,30 @@ def _vector(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not any(values):
         raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z (not all 0), got {text!r}")
     return values
+
+
+def add_unroll_options(p) -> None:
+    """The unrolling options of ``unroll`` and ``process`` (one definition for both)."""
+    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                   help=f"flattening (default: {DEFAULT_METHOD}, the least distortion; "
+                   "docs/unroll.md)")
+    p.add_argument("--ppi", type=float, default=500.0,
+                   help="resolution, pixels per inch (default 500; 1000 writes JPEG 2000 "
+                   "instead of WSQ)")
+    p.add_argument("--tip-direction", type=_vector, default=(0.0, 1.0, 0.0),
+                   help="rough direction of the fingertip in the world frame, X,Y,Z "
+                   "(default 0,1,0: +Y, docs/conventions.md)")
+    p.add_argument("--length", type=float, default=None, metavar="MM",
+                   help="keep only the skin within MM below the fingertip, as a rolled-print "
+                   "card does (about 25 reaches the distal crease; default: all that was seen)")
+
+
+def check_unroll_options(args: argparse.Namespace) -> None:
+    """Refuse a bad ``--ppi`` or ``--length`` before anything is read."""
+    if not 100 <= args.ppi <= 4000:
+        raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
+    if args.length is not None and not args.length > 0:
+        raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
 
 
 def add_parser(sub) -> None:
@@ -40,18 +64,7 @@ def add_parser(sub) -> None:
     )
     p.add_argument("scan_dir", type=Path, help="scan directory written by `nail2nail scan`")
     p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                   help=f"flattening (default: {DEFAULT_METHOD}, the least distortion; "
-                   "docs/unroll.md)")
-    p.add_argument("--ppi", type=float, default=500.0,
-                   help="resolution, pixels per inch (default 500; 1000 writes JPEG 2000 "
-                   "instead of WSQ)")
-    p.add_argument("--tip-direction", type=_vector, default=(0.0, 1.0, 0.0),
-                   help="rough direction of the fingertip in the world frame, X,Y,Z "
-                   "(default 0,1,0: +Y, docs/conventions.md)")
-    p.add_argument("--length", type=float, default=None, metavar="MM",
-                   help="keep only the skin within MM below the fingertip, as a rolled-print "
-                   "card does (about 25 reaches the distal crease; default: all that was seen)")
+    add_unroll_options(p)
     p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
     p.add_argument("--json", action="store_true", help="print the metadata as JSON")
     p.set_defaults(func=run)
@@ -62,10 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.scans import load_scans
     from ..unroll import unroll_scans
 
-    if not 100 <= args.ppi <= 4000:
-        raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
-    if args.length is not None and not args.length > 0:
-        raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
+    check_unroll_options(args)
     scans = load_scans(args.scan_dir)
     start = time.perf_counter()
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,

@@ -1,0 +1,81 @@
+"""``nail2nail process``: one capture from frames to the rolled-equivalent print, in one go.
+
+Thin command layer over :func:`nail2nail.process.process_capture` (scan → merge → super scan →
+unroll, with per-stage timings); the options are those of ``scan``, ``merge`` and ``unroll``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..io._json import dumps_json
+from ._scan import add_scan_options, max_gradient
+from ._unroll import add_unroll_options, check_unroll_options
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "process",
+        help="the whole job for one capture: scans, merge, super scan, rolled print",
+        description="Scan every camera of CAPTURE_DIR, merge the scans in projector space, fuse "
+        "the super scan and unroll the finger into a rolled-equivalent print, in one process; "
+        "write OUT/scans, OUT/merge, OUT/print and OUT/process.json (the summary, with the "
+        "seconds of every stage and the peak memory).",
+    )
+    p.add_argument("capture", type=Path, help="capture directory (capture.json)")
+    p.add_argument("--calib", type=Path, required=True, help="calibration JSON")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    add_scan_options(p)
+    p.add_argument("--pairs", default=None,
+                   help="merge report camera pairs PARENT-CHILD, comma separated "
+                   "(default: 0-1,1-2,…)")
+    p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
+                   help="write the merge figures (default: off, the data only)")
+    p.add_argument("--mat5", action="store_true",
+                   help="also write each camera's legacy mat5 set into OUT/scans")
+    p.add_argument("--ply", action="store_true",
+                   help="also write each camera's PLY point cloud into OUT/scans")
+    p.add_argument("--unroll", action=argparse.BooleanOptionalAction, default=True,
+                   help="unroll the finger into the rolled-equivalent print (default: on)")
+    add_unroll_options(p)
+    p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..merge.report import parse_pairs
+    from ..process import process_capture
+
+    check_unroll_options(args)
+    if args.pairs is not None:
+        parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
+    summary = process_capture(
+        args.capture, args.calib, args.out, use=args.use, max_gradient=max_gradient(args),
+        min_modulation=args.min_modulation, allow_mirrored=args.allow_mirrored,
+        pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
+        unroll=args.unroll, method=args.method, ppi=args.ppi, tip_direction=args.tip_direction,
+        length_mm=args.length, wsq=not args.no_wsq,
+        progress=not args.json and sys.stderr.isatty())
+    if args.json:
+        print(dumps_json(summary))
+        return 0
+    for name, valid in summary["cameras"].items():
+        print(f"{name}: {valid} valid pixels")
+    for key, m in summary["merge"].items():
+        d = m["distance_mm"]
+        print(f"merge {key}: {m['pairs']} pairs, median {1e3 * d['median']:.2f} µm, "
+              f"p95 {1e3 * d['p95']:.2f} µm")
+    s = summary["super_scan"]
+    print(f"super scan: {s['vertices']} points, {s['faces']} triangles")
+    if "print" in summary:
+        p = summary["print"]
+        print(f"print: {p['shape'][1]} x {p['shape'][0]} px at {p['ppi']:g} ppi")
+    stages = ", ".join(f"{k} {v:.2f} s" for k, v in summary["seconds"].items())
+    print(f"seconds: {stages}; peak memory {summary['peak_rss_mb']} MB")
+    print(f"wrote {Path(args.out) / 'process.json'}")
+    return 0

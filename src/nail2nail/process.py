@@ -1,0 +1,226 @@
+"""The whole job for one capture: frames → scans → merge → super scan → rolled-equivalent print.
+
+:func:`process_capture` is what ``nail2nail process CAPTURE --calib rig.json --out OUT`` runs:
+the stages of ``scan``, ``merge`` and ``unroll`` in one process, without writing and reading
+the scans in between, with the wall time of every stage and the peak memory in the summary
+(``OUT/process.json``). Each stage is the library function the stand-alone command calls
+(:func:`nail2nail.scanning.scan_capture`, :func:`nail2nail.merge.write_merge`,
+:func:`nail2nail.unroll.unroll_scans`), so both paths give the same files.
+
+Output directory (written as a whole, :func:`nail2nail.io._atomic.atomic_directory`)::
+
+    OUT/process.json    summary: options, per-stage seconds, peak RSS, merge figures, print
+    OUT/scans/          the scan directory (``nail2nail scan``; .npz, mat5 and PLY on request)
+    OUT/merge/          merge.json, the mapping files, super.ply and the super mat5 (figures
+                        with ``figures=True``)
+    OUT/print/          the rolled-equivalent print (``nail2nail unroll``), unless ``unroll=False``
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["StageTimes", "peak_rss_mb", "process_capture"]
+
+
+def peak_rss_mb() -> float | None:
+    """Peak resident memory of this process so far, MB (``None`` where not measurable).
+
+    ``ru_maxrss`` is in kilobytes on Linux, bytes on macOS; Windows has no ``resource``.
+    """
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (2**20 if sys.platform == "darwin" else 2**10)
+
+
+class StageTimes:
+    """Wall time of named stages, in the order they ran (seconds, ``time.perf_counter``).
+
+    Examples
+    --------
+    >>> times = StageTimes()
+    >>> with times("scan"):
+    ...     pass
+    >>> list(times.seconds)
+    ['scan']
+    """
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
+
+    def rounded(self, digits: int = 3) -> dict[str, float]:
+        """The seconds per stage and their ``total``, rounded."""
+        out = {k: round(v, digits) for k, v in self.seconds.items()}
+        out["total"] = round(sum(self.seconds.values()), digits)
+        return out
+
+
+def process_capture(
+    capture,
+    calibration,
+    out: str | os.PathLike,
+    *,
+    use: str = "xpyp",
+    max_gradient: float | None = 2.0,
+    min_modulation: float = 0.03,
+    allow_mirrored: bool = False,
+    pairs=None,
+    figures: bool = False,
+    mat5: bool = False,
+    ply: bool = False,
+    unroll: bool = True,
+    method: str | None = None,
+    ppi: float = 500.0,
+    tip_direction=(0.0, 1.0, 0.0),
+    length_mm: float | None = None,
+    wsq: bool = True,
+    progress: bool = False,
+    calibration_name: str = "calibration",
+) -> dict:
+    """Scan, merge, fuse and unroll one capture; write everything under `out`.
+
+    Parameters
+    ----------
+    capture : Capture or path-like
+        A capture (:func:`nail2nail.io.capture.read_capture`, ``load=False`` saves memory) or
+        its directory.
+    calibration : RigCalibration or path-like
+        The rig's calibration, or its JSON file.
+    out : path-like
+        Output directory, replaced as a whole once the job is complete; a non-empty directory
+        without ``process.json`` is refused before any work.
+    use, max_gradient, min_modulation, allow_mirrored
+        Scanning options (:func:`nail2nail.scanning.scan_capture`).
+    pairs : list of (int, int) or str, optional
+        Camera pairs of the merge report, as scan indices or as ``"0-1,1-2"``
+        (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …``.
+    figures : bool
+        Write the merge figures (off by default: the job's own output is the data).
+    mat5, ply : bool
+        Also write each camera's legacy mat5 set / PLY point cloud into ``OUT/scans``.
+    unroll : bool
+        Unroll the finger into the rolled-equivalent print (``OUT/print``).
+    method, ppi, tip_direction, length_mm, wsq
+        Unroll options (:func:`nail2nail.unroll.unroll_scans`,
+        :func:`nail2nail.io.rolled.write_rolled_print`); `method` defaults to
+        :data:`nail2nail.unroll.DEFAULT_METHOD`.
+    progress : bool
+        One line per stage on stderr.
+    calibration_name : str
+        How errors name the calibration (its file, when given as an object).
+
+    Returns
+    -------
+    dict
+        The content of ``OUT/process.json``: ``{"capture", "calibration", "out", "options",
+        "seconds": {stage: s, …, "total"}, "peak_rss_mb", "cameras": {name: valid pixels},
+        "merge": {pair: statistics}, "super_scan", "print"}``. Stages: ``scan`` (reading the
+        frames, decoding, triangulating), ``write_scans``, ``merge`` (correspondence, super
+        scan and their files), ``unroll``, ``write_print``.
+
+    Raises
+    ------
+    ValueError
+        Bad input, naming the file (the capture, the calibration) and the problem; `out`
+        holds its earlier content then.
+    """
+    from .io._atomic import atomic_directory, check_output_directory
+    from .io._json import write_json
+    from .io.calibration import load_calibration
+    from .io.capture import read_capture
+    from .io.scans import save_scans
+    from .merge.report import _relocate, parse_pairs, write_merge
+    from .scanning import scan_capture
+    from .unroll import DEFAULT_METHOD, METHODS
+
+    method = DEFAULT_METHOD if method is None else method
+    if unroll and method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if not 100 <= float(ppi) <= 4000:
+        raise ValueError(f"ppi: expected 100..4000 pixels per inch, got {ppi}")
+    if length_mm is not None and not float(length_mm) > 0:
+        raise ValueError(f"length_mm: expected a positive length in mm, got {length_mm}")
+    out = check_output_directory(out, marker="process.json")
+    times = StageTimes()
+
+    def say(text: str) -> None:
+        if progress:
+            print(f"process: {text}", file=sys.stderr, flush=True)
+
+    if isinstance(calibration, (str, os.PathLike)):
+        calibration_name = str(calibration)
+        calibration = load_calibration(calibration, allow_mirrored=allow_mirrored)
+    if isinstance(capture, (str, os.PathLike)):
+        capture = read_capture(capture, load=False)
+
+    say("scan")
+    with times("scan"):
+        scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
+                             min_modulation=min_modulation, allow_mirrored=allow_mirrored,
+                             calibration_name=calibration_name)
+    if len(scans) < 2:
+        raise ValueError(f"{capture.path}: need at least two cameras to merge, got "
+                         f"{len(scans)}")
+    if pairs is None or isinstance(pairs, str):
+        pairs = parse_pairs(pairs, len(scans))
+    summary: dict = {
+        "capture": str(capture.path),
+        "calibration": calibration_name,
+        "out": str(out),
+        "options": {"use": use, "max_gradient": max_gradient, "min_modulation": min_modulation,
+                    "figures": figures, "unroll": unroll,
+                    **({"method": method, "ppi": ppi, "length_mm": length_mm} if unroll
+                       else {})},
+        "cameras": {s.name: int(s.mask.sum()) for s in scans},
+    }
+    with atomic_directory(out, marker="process.json") as tmp:
+        say("write the scans")
+        with times("write_scans"):
+            save_scans(tmp / "scans", scans, mat5=mat5, ply=ply,
+                       extra={"capture": str(capture.path), "calibration": calibration_name})
+        say("merge and fuse the super scan")
+        with times("merge"):
+            merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
+                                 super_scan=True)
+        summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
+                            for key, v in merged["merge"].items()}
+        summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
+                                 if k != "files"}
+        if unroll:
+            from .io.rolled import write_rolled_print
+            from .unroll import unroll_scans
+
+            say(f"unroll ({method})")
+            with times("unroll"):
+                rolled = unroll_scans(scans, method=method, ppi=ppi,
+                                      tip_direction=tip_direction, length_mm=length_mm)
+            del scans  # the print alone from here on
+            with times("write_print"):
+                meta = write_rolled_print(tmp / "print", rolled, wsq=wsq)
+            summary["print"] = {k: meta[k] for k in ("method", "shape", "ppi", "print_size_mm",
+                                                       "print_area_mm2", "files") if k in meta}
+        summary["seconds"] = times.rounded()
+        summary["peak_rss_mb"] = _round(peak_rss_mb())
+        summary = _relocate(summary, str(tmp), str(out))
+        write_json(tmp / "process.json", summary)
+    say(f"done in {summary['seconds']['total']:.2f} s -> {out}")
+    return summary
+
+
+def _round(value: float | None) -> float | None:
+    return None if value is None else round(value, 1)
