@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -111,23 +112,42 @@ class Capture:
 
     def _read_stack(self, name: str, *, raw: bool, first_only: bool = False) -> np.ndarray:
         cam = self.camera(name)
-        files = cam["frames"][:1] if first_only else cam["frames"]
+        files = [self.path / f for f in (cam["frames"][:1] if first_only else cam["frames"])]
         size = cam.get("size")
-        shape = (int(size[1]), int(size[0])) if size is not None else None
-        stack = None
-        for i, f in enumerate(files):
-            file = self.path / f
-            frame = read_frame(file, bit_depth=self.bit_depth, raw=raw)
-            if shape is None:
-                shape = frame.shape
-            if frame.shape != shape:
-                said = (f"camera {name}'s size in {self.path / MANIFEST} is" if size
-                        is not None else f"camera {name}'s first frame is")
-                raise ValueError(f"{file}: frame is {frame.shape[1]} x {frame.shape[0]} px "
-                                 f"(W x H), but {said} {shape[1]} x {shape[0]}")
-            if stack is None:
-                stack = np.empty((len(files), *shape), dtype=frame.dtype)
-            stack[i] = frame
+        bit_depth = self.bit_depth
+        # set here, for every decoding thread (catch_warnings is not thread-safe)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            first = None
+            if size is not None:
+                shape = (int(size[1]), int(size[0]))
+                said = f"camera {name}'s size in {self.path / MANIFEST} is"
+            else:
+                first = _read_values(files[0], bit_depth)
+                shape = first.shape
+                said = f"camera {name}'s first frame is"
+            dtype = (np.uint8 if bit_depth == 8 else np.dtype("<u2")) if raw else np.float32
+            stack = np.empty((len(files), *shape), dtype=dtype)
+            scale = np.float32(2**bit_depth - 1)
+
+            def load(i: int) -> None:
+                target = stack[i]
+                if i == 0 and first is not None:
+                    values = first
+                else:
+                    values = _read_values(files[i], bit_depth, out=target if raw else None)
+                if values is target:
+                    return
+                if values.shape != shape:
+                    raise ValueError(f"{files[i]}: frame is {values.shape[1]} x "
+                                     f"{values.shape[0]} px (W x H), but {said} {shape[1]} x "
+                                     f"{shape[0]}")
+                if raw:
+                    target[...] = values
+                else:  # frame_intensities, bit for bit, without a temporary float frame
+                    np.divide(values, scale, out=target, dtype=np.float32)
+
+            _run_in_order(load, len(files))
         return stack
 
     def rig(self):
@@ -172,11 +192,24 @@ def read_frame(path: str | os.PathLike, *, bit_depth: int = 8, raw: bool = False
     path = Path(path)
     if isinstance(bit_depth, bool) or bit_depth not in BIT_DEPTHS:
         raise ValueError(f"bit_depth: expected one of {BIT_DEPTHS}, got {bit_depth!r}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        values = _read_values(path, bit_depth)
+    return values if raw else frame_intensities(values, bit_depth)
+
+
+def _read_values(path: Path, bit_depth: int, *, out: np.ndarray | None = None) -> np.ndarray:
+    """The checked values of one frame (:func:`read_frame` with ``raw=True``).
+
+    With `out` (``(H, W) uint8`` for `bit_depth` 8, little-endian ``uint16`` otherwise) a PNG
+    of that size and type is decoded straight into `out`, which is returned; any other file is
+    decoded into a new array (`out` untouched, the caller compares sizes). No warning filters
+    are set here (the caller's apply; they are process-wide, not per thread).
+    """
     try:
-        with warnings.catch_warnings(), Image.open(path) as im:
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
+        with Image.open(path) as im:
             mode = im.mode
-            image = np.asarray(im)
+            image = out if out is not None and _decode_into(im, out) else np.asarray(im)
     except Exception as exc:
         raise ValueError(f"{path}: cannot read frame ({_short(exc)})") from exc
     if mode not in ("L", "I;16", "I;16L", "I;16B", "I") or image.ndim != 2:
@@ -190,7 +223,7 @@ def read_frame(path: str | os.PathLike, *, bit_depth: int = 8, raw: bool = False
         if image.dtype != np.uint8:
             raise ValueError(f"{path}: a 16-bit image, but the capture's bit_depth is 8 "
                              "(8-bit frames are 8-bit PNGs)")
-        return image if raw else frame_intensities(image, 8)
+        return image
     if image.dtype != np.uint16:
         raise ValueError(f"{path}: an 8-bit image, but the capture's bit_depth is {bit_depth} "
                          "(stored in 16-bit PNGs, left-aligned)")
@@ -201,8 +234,47 @@ def read_frame(path: str | os.PathLike, *, bit_depth: int = 8, raw: bool = False
             f"but the low {shift} bits are set (largest raw value {int(image.max())}; "
             f"right-aligned values, or a deeper image than bit_depth {bit_depth}?)"
         )
-    values = image >> np.uint16(shift)
-    return values if raw else frame_intensities(values, bit_depth)
+    if image is out:
+        return np.right_shift(out, np.uint16(shift), out=out)
+    return image >> np.uint16(shift)
+
+
+_DIRECT_MODES = {np.dtype(np.uint8): "L", np.dtype("<u2"): "I;16"}
+
+
+def _decode_into(im: Image.Image, out: np.ndarray) -> bool:
+    """Decode the opened PNG `im` into `out`'s memory if its mode and size fit; say if done.
+
+    Pillow decodes into the image memory it finds on the image (``ImageFile.load``), here one
+    mapped onto `out` (``Image.frombuffer``): no image memory of Pillow's own and no copies
+    (``np.asarray`` copies twice). Anything unusual falls back to ``np.asarray`` (``False``).
+    """
+    mode = _DIRECT_MODES.get(out.dtype)
+    if (mode is None or im.mode != mode or im.format != "PNG" or len(im.tile) != 1
+            or out.shape != (im.size[1], im.size[0]) or not out.flags.c_contiguous
+            or not out.flags.writeable):
+        return False
+    memory = Image.frombuffer(mode, im.size, out, "raw", mode, 0, 1).im
+    im.im = memory
+    im.load()
+    return im.im is memory and im.mode == mode
+
+
+def _run_in_order(task, n: int) -> None:
+    """``task(i)`` for ``i < n`` in threads; re-raise the error of the first failing ``i``."""
+    workers = min(os.cpu_count() or 1, n)
+    if workers <= 1:
+        for i in range(n):
+            task(i)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(task, i) for i in range(n)]
+        try:
+            for future in futures:
+                future.result()
+        finally:
+            for future in futures:
+                future.cancel()
 
 
 def _short(exc: BaseException) -> str:
