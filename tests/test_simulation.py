@@ -251,3 +251,26 @@ def test_render_bad_input(rig_quarter):
         camera_geometry(rig_quarter, make_scene("sphere"), 5)
     with pytest.raises(ValueError, match="scene"):
         make_scene("teapot")
+
+
+def test_geometry_reused_under_other_patterns(rig_quarter, tmp_path):
+    """simulate(geometry=...) renders the same frames as casting the rays again, and
+    write_capture writes what simulate_capture writes."""
+    from nail2nail.io.capture import read_capture
+    from nail2nail.patterns import PatternSet, make_patterns
+    from nail2nail.simulation.capture import simulate, write_capture
+
+    ps = PatternSet(x=[(1, 3), (8, 3)], y=[(1, 3), (8, 3)], panel_size=rig_quarter.panel_size)
+    first = simulate("sphere", rig=rig_quarter, pattern_set=ps, seed=4)
+    inverted = 255 - make_patterns(ps)
+    again = simulate(first.scene, rig=rig_quarter, patterns=inverted, pattern_set=ps, seed=4)
+    reused = simulate(first.scene, rig=rig_quarter, patterns=inverted, pattern_set=ps, seed=4,
+                      geometry=first.geometry)
+    for name in first.frames:
+        np.testing.assert_array_equal(reused.frames[name], again.frames[name])
+        assert not np.array_equal(reused.frames[name], first.frames[name])
+    with pytest.raises(ValueError, match="no camera 'cam1'"):
+        simulate(first.scene, rig=rig_quarter, pattern_set=ps, geometry={"cam0": None})
+    write_capture(tmp_path / "cap", reused, seed=4, write_truth=False)
+    capture = read_capture(tmp_path / "cap")
+    np.testing.assert_array_equal(capture.load_frames("cam0", raw=True), reused.frames["cam0"])

@@ -166,7 +166,8 @@ def run_demo(
     from .merge.report import write_merge
     from .patterns import default_pattern_set, make_patterns
     from .scanning import scan_capture, target_observations
-    from .simulation.capture import simulate_capture
+    from .simulation.capture import simulate as simulate_frames
+    from .simulation.capture import write_capture
     from .simulation.rig import default_rig
 
     rig = default_rig(scale, projector_distortion="thesis")  # checks `scale` before any write
@@ -182,14 +183,17 @@ def run_demo(
     patterns = make_patterns(pattern_set)
     captures = {}
 
-    def simulate(name, scene, pats):
+    def simulate(name, scene, pats, *, like=None, truth=False):
+        """Render and write a capture; `like`: an earlier simulation of the same object,
+        whose geometry (the costly ray casting) is reused under other patterns."""
         step(f"simulate {name} ({len(rig.cameras)} cameras x {len(pats)} frames)")
         path = out / "captures" / name
-        # ground truth only for the finger (its rolled print is what unrolling is tested on)
-        simulate_capture(path, scene, rig=rig, patterns=pats, pattern_set=pattern_set,
-                         seed=seed, write_truth=scene == "finger")
+        sim = simulate_frames(scene if like is None else like.scene, rig=rig, patterns=pats,
+                              pattern_set=pattern_set, seed=seed,
+                              geometry=None if like is None else like.geometry)
+        write_capture(path, sim, seed=seed, write_truth=truth)
         captures[name] = str(path)
-        return path
+        return sim
 
     simulate("plane", "plane", patterns)
     step("estimate the projector distortion from the plane")
@@ -200,10 +204,10 @@ def run_demo(
     center, rho = report.fit.center, report.fit.rho
     lut_patterns = apply_lut(patterns, distortion_lut(pattern_set.panel_size, center, rho))
 
-    simulate("target", "target", patterns)
-    simulate("finger", "finger", patterns)
-    simulate("target_lut", "target", lut_patterns)
-    simulate("finger_lut", "finger", lut_patterns)
+    # ground truth only for the finger (its rolled print is what unrolling is tested on)
+    simulate("target_lut", "target", lut_patterns, like=simulate("target", "target", patterns))
+    simulate("finger_lut", "finger", lut_patterns,
+             like=simulate("finger", "finger", patterns, truth=True))
 
     step("calibrate: per-camera DLT (before, thesis_lut, model_dlt) and joint (best)")
     obs_plain = target_observations(read_capture(captures["target"], load=False))

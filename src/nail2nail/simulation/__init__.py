@@ -5,7 +5,13 @@ sphere, coin), :mod:`.fingerprint` (synthetic prints), :mod:`.render` (per-camer
 frames), :mod:`.capture` (in-memory simulation and capture directories).
 """
 
-from .capture import SimulatedCapture, load_pattern_dir, simulate, simulate_capture
+from .capture import (
+    SimulatedCapture,
+    load_pattern_dir,
+    simulate,
+    simulate_capture,
+    write_capture,
+)
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
 from .rig import Photometry, Rig, default_rig, ideal_calibration, load_rig, save_rig
 from .scenes import SCENES, Scene, make_scene
@@ -28,4 +34,5 @@ __all__ = [
     "save_rig",
     "simulate",
     "simulate_capture",
+    "write_capture",
 ]

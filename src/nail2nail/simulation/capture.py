@@ -27,6 +27,7 @@ __all__ = [
     "load_pattern_dir",
     "simulate",
     "simulate_capture",
+    "write_capture",
 ]
 
 
@@ -93,6 +94,7 @@ def simulate(
     seed: int = 0,
     cameras: list[int] | None = None,
     progress: bool = False,
+    geometry: dict | None = None,
 ) -> SimulatedCapture:
     """Render a scene with every camera of a rig, in memory.
 
@@ -113,6 +115,12 @@ def simulate(
         Camera indices to render (all by default).
     progress : bool
         Show a progress bar.
+    geometry : dict of str to CameraGeometry, optional
+        The cameras' geometry from an earlier :func:`simulate` of the same `scene` object and
+        `rig` (``SimulatedCapture.geometry``): the rays are not intersected again, only the
+        frames of the new `patterns` rendered (the same finger under other patterns, e.g. the
+        pre-distorted ones of the look-up-table correction). Geometry does not depend on
+        the patterns, nor on the noise `seed`.
 
     Returns
     -------
@@ -138,15 +146,20 @@ def simulate(
                          f"the rig's projector is {pw}x{ph}")
     indices = list(range(len(rig.cameras))) if cameras is None else list(cameras)
     radiance = [projector_radiance(p, rig.photometry) for p in patterns]
-    frames, geometry = {}, {}
+    known, geometry = geometry, {}
+    frames = {}
+    missing = [] if known is None else [rig.camera_names[i] for i in indices
+                                         if rig.camera_names[i] not in known]
+    if missing:
+        raise ValueError(f"geometry: no camera {missing[0]!r} (has {sorted(known)})")
     iterator = indices
     if progress:
         from tqdm import tqdm
 
         iterator = tqdm(indices, desc="cameras", unit="cam")
     for i in iterator:
-        geom = camera_geometry(rig, scene, i)
         name = rig.camera_names[i]
+        geom = camera_geometry(rig, scene, i) if known is None else known[name]
         geometry[name] = geom
         frames[name] = render_frames(geom, patterns, rig.photometry, seed=seed, camera_index=i,
                                      scale=rig.scale, radiance=radiance)
@@ -216,8 +229,21 @@ def simulate_capture(
                            print_ppi=print_ppi)
     sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
                    progress=progress)
+    return write_capture(out_dir, sim, seed=seed, pattern_names=pattern_names,
+                         write_truth=write_truth)
+
+
+def write_capture(out_dir: str | os.PathLike, sim: SimulatedCapture, *, seed: int = 0,
+                  pattern_names: list[str] | None = None, write_truth: bool = True) -> dict:
+    """Write a simulated capture as a capture directory (``docs/capture-format.md``).
+
+    The second half of :func:`simulate_capture`, for a :class:`SimulatedCapture` already in
+    memory; `seed` is recorded in the manifest. The directory is written as a whole
+    (:func:`nail2nail.io._atomic.atomic_directory`). Returns the manifest.
+    """
+    check_output_directory(out_dir, marker="capture.json")
     with atomic_directory(out_dir, marker="capture.json") as out:
-        return _write_capture(out, sim, rig, seed=seed, pattern_names=pattern_names,
+        return _write_capture(out, sim, sim.rig, seed=seed, pattern_names=pattern_names,
                               write_truth=write_truth)
 
 
