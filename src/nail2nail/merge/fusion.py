@@ -22,14 +22,15 @@ vertex of the super scan and legacy tools that mesh a mat5 grid mesh each camera
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numba
 import numpy as np
 import scipy.ndimage
-import scipy.spatial
 
-from .._interpolate import bilinear
+from .._numba_cache import cache_enabled
 from .._validation import as_int
 from ..reconstruction import Scan
 from .correspondence import (
@@ -54,7 +55,637 @@ __all__ = [
     "write_super_ply",
 ]
 
+# -- compiled kernels ------------------------------------------------------------------------
+# They repeat NumPy's float64 arithmetic operation by operation (no fastmath), so the fused
+# surface does not depend on which path computed it: a norm sums its squares left to right,
+# einsum sums three products as (p0 + p2) + p1 and np.sum eight values as a pairwise tree.
+_CACHE = cache_enabled()
+_JIT = {"cache": _CACHE, "nogil": True, "error_model": "numpy"}
+_DBL_MAX = float(np.finfo(np.float64).max)
+_STEP_R = np.array([1, 0, 1, 1])  # the four lines through a pixel (spikes): row, column, diagonals
+_STEP_C = np.array([0, 1, 1, -1])
+_EMPTY = -1  # an empty slot of the cell table
+_CELL_BITS = 20  # per axis in a cell key
+_HASH = -7046029254386353131  # 0x9E3779B97F4A7C15 (Fibonacci hashing), as int64
 
+
+@numba.njit(**_JIT)
+def _nan_to_num(v):
+    """``np.nan_to_num`` of one float64."""
+    if v != v:
+        return 0.0
+    if v == np.inf:
+        return _DBL_MAX
+    if v == -np.inf:
+        return -_DBL_MAX
+    return v
+
+
+@numba.njit(**_JIT)
+def _dot3(a0, a1, a2, b0, b1, b2):
+    """``np.einsum("...k,...k->...")`` of two float64 3-vectors, in its order of summation."""
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@numba.njit(**_JIT)
+def _norm3(a0, a1, a2):
+    """``np.linalg.norm`` of a float64 3-vector."""
+    return np.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+
+
+@numba.njit(**_JIT)
+def _bilinear(image, r, c):
+    """:func:`nail2nail._interpolate.bilinear`'s value at one position (same arithmetic)."""
+    h, w = image.shape
+    r0 = min(max(int(np.floor(r)), 0), h - 2)
+    c0 = min(max(int(np.floor(c)), 0), w - 2)
+    fr, fc = r - r0, c - c0
+    f00, f01 = image[r0, c0], image[r0, c0 + 1]
+    f10, f11 = image[r0 + 1, c0], image[r0 + 1, c0 + 1]
+    top = f00 + (f01 - f00) * fc
+    bottom = f10 + (f11 - f10) * fc
+    return top + (bottom - top) * fr
+
+
+@numba.njit(**_JIT)
+def _spike_kernel(xyz, valid, spike_mm):  # pragma: no cover - compiled
+    """:func:`spikes` pixel by pixel."""
+    h, w = valid.shape
+    ok = np.zeros((h, w), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            ok[r, c] = (valid[r, c] and np.isfinite(xyz[r, c, 0]) and np.isfinite(xyz[r, c, 1])
+                        and np.isfinite(xyz[r, c, 2]))
+    out = np.zeros((h, w), np.bool_)
+    chord = np.empty((4, 3))
+    mid = np.empty((4, 3))
+    line = np.zeros(4, np.bool_)
+    for r in range(h):
+        for c in range(w):
+            if not ok[r, c]:
+                continue
+            for k in range(4):
+                rb, cb = r - _STEP_R[k], c - _STEP_C[k]
+                ra, ca = r + _STEP_R[k], c + _STEP_C[k]
+                line[k] = (0 <= rb < h and 0 <= cb < w and 0 <= ra < h and 0 <= ca < w
+                           and ok[rb, cb] and ok[ra, ca])
+                if line[k]:
+                    for d in range(3):
+                        before, after = np.float64(xyz[rb, cb, d]), np.float64(xyz[ra, ca, d])
+                        chord[k, d] = after - before
+                        mid[k, d] = 0.5 * (before + after)
+            n0 = n1 = n2 = 0.0
+            for k in range(4):
+                for m in range(k + 1, 4):
+                    if not (line[k] and line[m]):
+                        continue  # a NaN cross product: nan_to_num adds 0
+                    # orient every pair's cross product alike: by the sign of the steps' own
+                    sign = 1.0 if _STEP_R[k] * _STEP_C[m] - _STEP_C[k] * _STEP_R[m] > 0 else -1.0
+                    a0, a1, a2 = chord[k, 0], chord[k, 1], chord[k, 2]
+                    b0, b1, b2 = chord[m, 0], chord[m, 1], chord[m, 2]
+                    n0 += _nan_to_num(sign * (a1 * b2 - a2 * b1))
+                    n1 += _nan_to_num(sign * (a2 * b0 - a0 * b2))
+                    n2 += _nan_to_num(sign * (a0 * b1 - a1 * b0))
+            length = _norm3(n0, n1, n2)
+            n0, n1, n2 = n0 / length, n1 / length, n2 / length
+            x0, x1, x2 = np.float64(xyz[r, c, 0]), np.float64(xyz[r, c, 1]), \
+                np.float64(xyz[r, c, 2])
+            smallest = np.inf
+            lines = 0
+            for k in range(4):
+                if line[k]:
+                    lines += 1
+                    offset = abs(_dot3(x0 - mid[k, 0], x1 - mid[k, 1], x2 - mid[k, 2],
+                                       n0, n1, n2))
+                    if offset < smallest:  # np.fmin: a NaN offset leaves it
+                        smallest = offset
+            out[r, c] = lines >= 2 and np.isfinite(smallest) and smallest > spike_mm
+    return out
+
+
+@numba.njit(**_JIT)
+def _feather_kernel(valid, feather_px):  # pragma: no cover - compiled
+    """:func:`_feather`: the exact Euclidean distance to the nearest invalid pixel (or beyond the
+    image edge) where it is below ``reach = ceil(feather_px + 0.5)``, the ramp's end.
+
+    A column sweep gives each pixel's distance along its column, capped at ``reach + 1``; the
+    row pass takes the least ``dc² + column²`` over ``|dc| ≤ reach``. Below `reach` the
+    nearest invalid pixel lies in that window with an uncapped column distance, so the result is
+    the exact distance (as ``scipy.ndimage.distance_transform_edt``); from `reach` on it is at
+    least `reach` and the ramp is 1 either way.
+    """
+    h, w = valid.shape
+    reach = int(np.ceil(feather_px + 0.5))
+    cap = reach + 1
+    column = np.empty((h, w), np.int32)
+    for c in range(w):  # down: distance to the invalid pixel above (row -1 is invalid)
+        column[0, c] = 1 if valid[0, c] else 0
+    for r in range(1, h):
+        for c in range(w):
+            column[r, c] = min(column[r - 1, c] + 1, cap) if valid[r, c] else 0
+    below = np.empty(w, np.int32)  # up: row h is invalid
+    for c in range(w):
+        below[c] = 0
+    for r in range(h - 1, -1, -1):
+        for c in range(w):
+            below[c] = min(below[c] + 1, cap) if valid[r, c] else 0
+            column[r, c] = min(column[r, c], below[c])
+    out = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if not valid[r, c]:
+                continue
+            best = cap * cap
+            for dc in range(-reach, reach + 1):
+                cc = c + dc
+                g = column[r, cc] if 0 <= cc < w else 0
+                best = min(best, dc * dc + g * g)
+            value = (np.sqrt(np.float64(best)) - 0.5) / feather_px
+            out[r, c] = min(max(value, 0.0), 1.0)
+    return out
+
+
+@numba.njit(**_JIT)
+def _weight_kernel(valid, modulation, normals, xyz, center, feather, use_modulation,
+                   use_cosine):  # pragma: no cover - compiled
+    """:func:`view_weights` without smoothing: modulation × view cosine × feather, 0 invalid."""
+    h, w = valid.shape
+    out = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if not valid[r, c]:
+                continue
+            weight = 1.0
+            if use_modulation:
+                weight *= max(_nan_to_num(np.float64(modulation[r, c])), 0.0)
+            if use_cosine:
+                v0 = center[0] - np.float64(xyz[r, c, 0])
+                v1 = center[1] - np.float64(xyz[r, c, 1])
+                v2 = center[2] - np.float64(xyz[r, c, 2])
+                length = _norm3(v0, v1, v2)
+                cos = _nan_to_num(_dot3(np.float64(normals[r, c, 0]), np.float64(normals[r, c, 1]),
+                                        np.float64(normals[r, c, 2]), v0 / length, v1 / length,
+                                        v2 / length))
+                weight *= min(max(cos, 0.0), 1.0)
+            out[r, c] = weight * feather[r, c]
+    return out
+
+
+@numba.njit(**_JIT)
+def _score_kernel(valid, cosine, feather):  # pragma: no cover - compiled
+    """The ownership score: smoothed view cosine × feather on the valid pixels, else 0."""
+    h, w = valid.shape
+    out = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                out[r, c] = cosine[r, c] * feather[r, c]
+    return out
+
+
+@numba.njit(**_JIT)
+def _row_steps(xyz):  # pragma: no cover - compiled
+    """Finite distances between horizontally adjacent pixels, in `xyz`'s dtype (as
+    ``np.linalg.norm(np.diff(xyz, axis=1), axis=-1)``)."""
+    h, w = xyz.shape[:2]
+    out = np.empty(h * max(w - 1, 0), xyz.dtype)
+    n = 0
+    for r in range(h):
+        for c in range(w - 1):
+            d0 = xyz[r, c + 1, 0] - xyz[r, c, 0]
+            d1 = xyz[r, c + 1, 1] - xyz[r, c, 1]
+            d2 = xyz[r, c + 1, 2] - xyz[r, c, 2]
+            d = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            if np.isfinite(d):
+                out[n] = d
+                n += 1
+    return out[:n]
+
+
+@numba.njit(**_JIT)
+def _ownership_kernel(keep, index, score, other_score, parent_rc, child_rc, by_priority,
+                      other_first):  # pragma: no cover - compiled
+    """Drop from `keep` (indexed through `index`) each parent pixel whose child views it better
+    (a larger `other_score` at the sub-pixel child position; ties to `other_first`), or with
+    `by_priority` each one whose child comes first."""
+    for k in range(parent_rc.shape[0]):
+        r, c = parent_rc[k, 0], parent_rc[k, 1]
+        if by_priority:
+            lose = other_first
+        else:
+            other = _bilinear(other_score, child_rc[k, 0], child_rc[k, 1])
+            mine = score[r, c]
+            lose = other > mine or (other == mine and other_first)
+        if lose and index[r, c] >= 0:
+            keep[index[r, c]] = False
+
+
+@numba.njit(**_JIT)
+def _fusion_init(keep, rows, cols, xyz, weight):  # pragma: no cover - compiled
+    """Weight sum, weighted point sum and count of each kept pixel, its own point only."""
+    n = rows.size
+    w_sum = np.zeros(n)
+    acc = np.zeros((n, 3))
+    count = np.zeros(n, np.uint8)
+    for k in range(n):
+        if keep[k]:
+            r, c = rows[k], cols[k]
+            w_sum[k] = weight[r, c]
+            for d in range(3):
+                acc[k, d] = np.float64(xyz[r, c, d]) * w_sum[k]
+            count[k] = 1
+    return w_sum, acc, count
+
+
+@numba.njit(**_JIT)
+def _fusion_add(keep, index, w_sum, acc, count, parent_rc, child_rc, xyz_child,
+                other_weight):  # pragma: no cover - compiled
+    """Add one child camera's corresponding points, weighted at their sub-pixel positions."""
+    for k in range(parent_rc.shape[0]):
+        i = index[parent_rc[k, 0], parent_rc[k, 1]]
+        if i < 0 or not keep[i]:
+            continue
+        w = _bilinear(other_weight, child_rc[k, 0], child_rc[k, 1])
+        w_sum[i] += w
+        for d in range(3):
+            acc[i, d] += w * xyz_child[k, d]
+        count[i] += 1
+
+
+@numba.njit(**_JIT)
+def _fusion_mean(keep, rows, cols, xyz, w_sum, acc):  # pragma: no cover - compiled
+    """The weighted mean of each kept pixel (its own point where the weights sum to 0)."""
+    out = np.empty((rows.size, 3))
+    for k in range(rows.size):
+        for d in range(3):
+            own = np.float64(xyz[rows[k], cols[k], d])
+            out[k, d] = acc[k, d] / w_sum[k] if keep[k] and w_sum[k] > 0 else own
+    return out
+
+
+@numba.njit(**_JIT)
+def _confirm_kernel(trust, index, parent_rc, xyz_parent, xyz_child, surface_mm):
+    """Trust ∞ for the parent pixels of kept pairs closer than `surface_mm` (confirmed)."""
+    for k in range(parent_rc.shape[0]):
+        d = _norm3(xyz_parent[k, 0] - xyz_child[k, 0], xyz_parent[k, 1] - xyz_child[k, 1],
+                   xyz_parent[k, 2] - xyz_child[k, 2])
+        i = index[parent_rc[k, 0], parent_rc[k, 1]]
+        if d <= surface_mm and i >= 0:
+            trust[i] = np.inf
+
+
+# -- a uniform grid of cells over points: fixed-radius and nearest-neighbour queries ----------
+@numba.njit(**_JIT)
+def _cell(x, origin, size):
+    """Cell index along one axis, clamped to the key's range (monotone in `x`)."""
+    v = min(max((x - origin) / size, 0.0), np.float64((1 << _CELL_BITS) - 1))
+    return np.int64(v)
+
+
+@numba.njit(**_JIT)
+def _cell_key(ix, iy, iz):
+    return (ix << (2 * _CELL_BITS)) | (iy << _CELL_BITS) | iz
+
+
+@numba.njit(**_JIT)
+def _find_slot(table, key):
+    """The slot of `key` in the open-addressing `table` (linear probing), or the empty slot
+    where it would go."""
+    mask = table.size - 1
+    slot = ((key * _HASH) >> 24) & mask
+    while table[slot] != key and table[slot] != _EMPTY:
+        slot = (slot + 1) & mask
+    return slot
+
+
+@numba.njit(**_JIT)
+def _grid_build(points, origin, size):  # pragma: no cover - compiled
+    """Points sorted by cell: ``(table, start, count, sorted_points, sorted_index)``; a cell's
+    points are ``sorted_points[start[s]:start[s] + count[s]]`` with ``s`` its slot in `table`
+    (cell keys, :data:`_EMPTY` where none)."""
+    n = points.shape[0]
+    keys = np.empty(n, np.int64)
+    runs = 0
+    last = _EMPTY
+    for i in range(n):
+        key = _cell_key(_cell(points[i, 0], origin[0], size), _cell(points[i, 1], origin[1], size),
+                        _cell(points[i, 2], origin[2], size))
+        keys[i] = key
+        if key != last:  # neighbouring pixels mostly share a cell: one lookup per run
+            runs += 1
+            last = key
+    capacity = 16
+    while capacity < 2 * runs:
+        capacity *= 2
+    table = np.full(capacity, _EMPTY, np.int64)
+    count = np.zeros(capacity, np.int32)
+    last, slot = _EMPTY, 0
+    for i in range(n):
+        if keys[i] != last:
+            last = keys[i]
+            slot = _find_slot(table, last)
+            table[slot] = last
+        count[slot] += 1
+    start = np.empty(capacity, np.int32)
+    total = 0
+    for s in range(capacity):
+        start[s] = total
+        total += count[s]
+    cursor = start.copy()
+    sorted_points = np.empty((n, 3), points.dtype)
+    sorted_index = np.empty(n, np.int32)
+    last = _EMPTY
+    for i in range(n):
+        if keys[i] != last:
+            last = keys[i]
+            slot = _find_slot(table, last)
+        p = cursor[slot]
+        cursor[slot] += 1
+        sorted_points[p] = points[i]
+        sorted_index[p] = i
+    return table, start, count, sorted_points, sorted_index
+
+
+@numba.njit(**_JIT)
+def _cell_range(x, radius, origin, size):
+    # the margin keeps every point whose rounded distance is below `radius`
+    reach = radius * (1.0 + 1e-9) + 1e-12
+    return _cell(x - reach, origin, size), _cell(x + reach, origin, size)
+
+
+@numba.njit(**_JIT)
+def _dedupe_kernel(table, start, count, sorted_points, sorted_index, origin, size, group,
+                   group_rank, keep, rank, query, query_index, radius):  # pragma: no cover
+    """Drop from `keep` each of `query_index`'s points (its row in `query`) that lies closer
+    than `radius` to a kept point of a group ranked before `rank`; return how many."""
+    r2 = radius * radius  # cKDTree's bound: squared, strict
+    removed = 0
+    for k in range(query_index.size):
+        i = query_index[k]
+        if not keep[i]:
+            continue
+        q0, q1, q2 = np.float64(query[k, 0]), np.float64(query[k, 1]), np.float64(query[k, 2])
+        x_lo, x_hi = _cell_range(q0, radius, origin[0], size)
+        y_lo, y_hi = _cell_range(q1, radius, origin[1], size)
+        z_lo, z_hi = _cell_range(q2, radius, origin[2], size)
+        near = False
+        for ix in range(x_lo, x_hi + 1):
+            for iy in range(y_lo, y_hi + 1):
+                for iz in range(z_lo, z_hi + 1):
+                    slot = _find_slot(table, _cell_key(ix, iy, iz))
+                    if table[slot] == _EMPTY:
+                        continue
+                    for p in range(start[slot], start[slot] + count[slot]):
+                        j = sorted_index[p]
+                        if group_rank[group[j]] >= rank or not keep[j]:
+                            continue
+                        d0 = q0 - np.float64(sorted_points[p, 0])
+                        d1 = q1 - np.float64(sorted_points[p, 1])
+                        d2 = q2 - np.float64(sorted_points[p, 2])
+                        if (d0 * d0 + d1 * d1) + d2 * d2 < r2:
+                            near = True
+                            break
+                    if near:
+                        break
+                if near:
+                    break
+            if near:
+                break
+        if near:
+            keep[i] = False
+            removed += 1
+    return removed
+
+
+@numba.njit(**_JIT)
+def _smallest_eigen(a00, a01, a02, a11, a12, a22):
+    """Eigenvalues (ascending) of a symmetric 3 × 3 matrix and the unit eigenvector of the
+    smallest (trigonometric solution of the characteristic cubic; Smith 1961)."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    if p2 == 0.0:
+        return q, q, q, 1.0, 0.0, 0.0
+    p = np.sqrt(p2 / 6.0)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+           + a02 * (a01 * a12 - b11 * a02))
+    half = min(max(det / (2.0 * p * p * p), -1.0), 1.0)
+    phi = np.arccos(half) / 3.0
+    l2 = q + 2.0 * p * np.cos(phi)
+    l0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    l1 = 3.0 * q - l2 - l0
+    # the eigenvector of l0: the longest cross product of two rows of A - l0 I
+    m00, m11, m22 = a00 - l0, a11 - l0, a22 - l0
+    best, v0, v1, v2 = -1.0, 1.0, 0.0, 0.0
+    for rows in range(3):
+        if rows == 0:  # row 0 × row 1
+            u0, u1, u2, w0, w1, w2 = m00, a01, a02, a01, m11, a12
+        elif rows == 1:  # row 0 × row 2
+            u0, u1, u2, w0, w1, w2 = m00, a01, a02, a02, a12, m22
+        else:  # row 1 × row 2
+            u0, u1, u2, w0, w1, w2 = a01, m11, a12, a02, a12, m22
+        c0, c1, c2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+        length = c0 * c0 + c1 * c1 + c2 * c2
+        if length > best:
+            best, v0, v1, v2 = length, c0, c1, c2
+    length = np.sqrt(best)
+    if length > 0:
+        v0, v1, v2 = v0 / length, v1 / length, v2 / length
+    else:
+        v0, v1, v2 = 1.0, 0.0, 0.0
+    return l0, l1, l2, v0, v1, v2
+
+
+@numba.njit(**_JIT)
+def _off_surface_kernel(table, start, count, sorted_points, sorted_index, origin, size, group,
+                        trust, own_group, query, score, radius, surface_mm):  # pragma: no cover
+    """For each query point: off the plane of its 8 nearest points of other groups within
+    `radius` (at least 3, sorted by distance) by more than `surface_mm`, where those are planar
+    and their mean `trust` exceeds the point's `score`. See :func:`fuse_scans`, step 4."""
+    k_max = 8
+    r2 = radius * radius
+    out = np.zeros(query.shape[0], np.bool_)
+    best_d = np.empty(k_max)
+    best_i = np.empty(k_max, np.int64)
+    best_p = np.empty(k_max, np.int64)
+    for q in range(query.shape[0]):
+        q0, q1, q2 = query[q, 0], query[q, 1], query[q, 2]
+        x_lo, x_hi = _cell_range(q0, radius, origin[0], size)
+        y_lo, y_hi = _cell_range(q1, radius, origin[1], size)
+        z_lo, z_hi = _cell_range(q2, radius, origin[2], size)
+        found = 0
+        for ix in range(x_lo, x_hi + 1):
+            for iy in range(y_lo, y_hi + 1):
+                for iz in range(z_lo, z_hi + 1):
+                    slot = _find_slot(table, _cell_key(ix, iy, iz))
+                    if table[slot] == _EMPTY:
+                        continue
+                    for p in range(start[slot], start[slot] + count[slot]):
+                        j = sorted_index[p]
+                        if group[j] == own_group:
+                            continue
+                        d0 = q0 - np.float64(sorted_points[p, 0])
+                        d1 = q1 - np.float64(sorted_points[p, 1])
+                        d2 = q2 - np.float64(sorted_points[p, 2])
+                        d = (d0 * d0 + d1 * d1) + d2 * d2
+                        if d >= r2:
+                            continue
+                        if found == k_max and (d > best_d[k_max - 1] or (
+                                d == best_d[k_max - 1] and j > best_i[k_max - 1])):
+                            continue
+                        m = found if found < k_max else k_max - 1  # insertion, (d, j) order
+                        while m > 0 and (best_d[m - 1] > d or (best_d[m - 1] == d
+                                                               and best_i[m - 1] > j)):
+                            best_d[m], best_i[m], best_p[m] = best_d[m - 1], best_i[m - 1], \
+                                best_p[m - 1]
+                            m -= 1
+                        best_d[m], best_i[m], best_p[m] = d, j, p
+                        found = min(found + 1, k_max)
+        if found < 3:
+            continue
+        c0 = c1 = c2 = 0.0
+        for m in range(found):
+            p = best_p[m]
+            c0 += np.float64(sorted_points[p, 0])
+            c1 += np.float64(sorted_points[p, 1])
+            c2 += np.float64(sorted_points[p, 2])
+        c0, c1, c2 = c0 / found, c1 / found, c2 / found
+        a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+        for m in range(found):
+            p = best_p[m]
+            d0 = np.float64(sorted_points[p, 0]) - c0
+            d1 = np.float64(sorted_points[p, 1]) - c1
+            d2 = np.float64(sorted_points[p, 2]) - c2
+            a00 += d0 * d0
+            a01 += d0 * d1
+            a02 += d0 * d2
+            a11 += d1 * d1
+            a12 += d1 * d2
+            a22 += d2 * d2
+        _, l1, l2, n0, n1, n2 = _smallest_eigen(a00, a01, a02, a11, a12, a22)
+        # points along a line (a grazing view's single row) define no plane
+        planar = l1 > 0.05 * l2
+        offset = abs(_dot3(q0 - c0, q1 - c1, q2 - c2, n0, n1, n2))
+        t = np.zeros(k_max)
+        for m in range(found):
+            t[m] = trust[best_i[m]]
+        mean = (((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]))) / found
+        out[q] = planar and offset > surface_mm and mean > score[q]
+    return out
+
+
+# -- the fused grid: normals and mesh ---------------------------------------------------------
+@numba.njit(**_JIT)
+def _composite(xyz, index, keep, fused, r, c, d):
+    """The fused point where the pixel is kept, else the scan's own (grid_normals' input)."""
+    i = index[r, c]
+    if i >= 0 and keep[i]:
+        return fused[i, d]
+    return np.float64(xyz[r, c, d])
+
+
+@numba.njit(**_JIT)
+def _derivative(xyz, index, keep, fused, r, c, d, dr, dc, n):
+    """:func:`grid_normals`' difference along one axis at one pixel and coordinate: central,
+    else forward, else backward (NaN propagates per coordinate)."""
+    pos = r if dr else c
+    value = np.nan
+    if 1 <= pos <= n - 2:
+        value = 0.5 * (_composite(xyz, index, keep, fused, r + dr, c + dc, d)
+                       - _composite(xyz, index, keep, fused, r - dr, c - dc, d))
+    if value != value and pos <= n - 2:
+        value = (_composite(xyz, index, keep, fused, r + dr, c + dc, d)
+                 - _composite(xyz, index, keep, fused, r, c, d))
+    if value != value and pos >= 1:
+        value = (_composite(xyz, index, keep, fused, r, c, d)
+                 - _composite(xyz, index, keep, fused, r - dr, c - dc, d))
+    return value
+
+
+@numba.njit(**_JIT)
+def _fused_normals(xyz, index, keep, fused, rows, cols, center, use_center):  # pragma: no cover
+    """:func:`grid_normals` of the grid holding the fused points on the kept pixels (and the
+    scan's own elsewhere), at the kept pixels `rows`, `cols` only."""
+    h, w = index.shape
+    out = np.empty((rows.size, 3), np.float32)
+    for k in range(rows.size):
+        r, c = rows[k], cols[k]
+        a0 = _derivative(xyz, index, keep, fused, r, c, 0, 1, 0, h)
+        a1 = _derivative(xyz, index, keep, fused, r, c, 1, 1, 0, h)
+        a2 = _derivative(xyz, index, keep, fused, r, c, 2, 1, 0, h)
+        b0 = _derivative(xyz, index, keep, fused, r, c, 0, 0, 1, w)
+        b1 = _derivative(xyz, index, keep, fused, r, c, 1, 0, 1, w)
+        b2 = _derivative(xyz, index, keep, fused, r, c, 2, 0, 1, w)
+        n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        length = _norm3(n0, n1, n2)
+        n0, n1, n2 = n0 / length, n1 / length, n2 / length
+        if use_center:
+            p0 = _composite(xyz, index, keep, fused, r, c, 0)
+            p1 = _composite(xyz, index, keep, fused, r, c, 1)
+            p2 = _composite(xyz, index, keep, fused, r, c, 2)
+            if _dot3(n0, n1, n2, center[0] - p0, center[1] - p1, center[2] - p2) < 0:
+                n0, n1, n2 = -n0, -n1, -n2
+        out[k, 0], out[k, 1], out[k, 2] = n0, n1, n2
+    return out
+
+
+@numba.njit(**_JIT)
+def _mesh_kernel(index, vertex, points, normals, max_edge_mm, offset):  # pragma: no cover
+    """:func:`grid_mesh`'s triangles: every block's first triangle (top-left, bottom-left,
+    top-right) in row-major order, then every block's second (top-right, bottom-left,
+    bottom-right); a pixel's vertex is ``vertex[index[r, c]]`` (−1: none)."""
+    h, w = index.shape
+    n = points.shape[0]
+    first = np.empty((n, 3), np.int32)
+    second = np.empty((n, 3), np.int32)
+    counts = np.zeros(2, np.int64)
+    corner = np.empty(4, np.int64)  # tl, tr, bl, br
+    s = np.empty(3)
+    for r in range(h - 1):
+        for c in range(w - 1):
+            for k in range(4):
+                i = index[r + k // 2, c + k % 2]
+                corner[k] = vertex[i] if i >= 0 else -1
+            for t in range(2):
+                if t == 0:
+                    a, b, e = corner[0], corner[2], corner[1]
+                else:
+                    a, b, e = corner[1], corner[2], corner[3]
+                if a < 0 or b < 0 or e < 0:
+                    continue
+                ab = _norm3(np.float64(points[b, 0]) - np.float64(points[a, 0]),
+                            np.float64(points[b, 1]) - np.float64(points[a, 1]),
+                            np.float64(points[b, 2]) - np.float64(points[a, 2]))
+                be = _norm3(np.float64(points[e, 0]) - np.float64(points[b, 0]),
+                            np.float64(points[e, 1]) - np.float64(points[b, 1]),
+                            np.float64(points[e, 2]) - np.float64(points[b, 2]))
+                ea = _norm3(np.float64(points[a, 0]) - np.float64(points[e, 0]),
+                            np.float64(points[a, 1]) - np.float64(points[e, 1]),
+                            np.float64(points[a, 2]) - np.float64(points[e, 2]))
+                if not max(max(ab, be), ea) <= max_edge_mm:
+                    continue
+                u0 = np.float64(points[b, 0]) - np.float64(points[a, 0])
+                u1 = np.float64(points[b, 1]) - np.float64(points[a, 1])
+                u2 = np.float64(points[b, 2]) - np.float64(points[a, 2])
+                v0 = np.float64(points[e, 0]) - np.float64(points[a, 0])
+                v1 = np.float64(points[e, 1]) - np.float64(points[a, 1])
+                v2 = np.float64(points[e, 2]) - np.float64(points[a, 2])
+                for d in range(3):
+                    s[d] = _nan_to_num((np.float64(normals[a, d]) + np.float64(normals[b, d]))
+                                       + np.float64(normals[e, d]))
+                flip = _dot3(u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0,
+                             s[0], s[1], s[2]) < 0
+                out = first if t == 0 else second
+                m = counts[t]
+                out[m, 0] = a + offset
+                out[m, 1] = (e if flip else b) + offset
+                out[m, 2] = (b if flip else e) + offset
+                counts[t] = m + 1
+    return first[:counts[0]], second[:counts[1]]
+
+
+# -- public functions --------------------------------------------------------------------------
 def view_weights(
     scan: Scan,
     *,
@@ -83,25 +714,54 @@ def view_weights(
     (H, W) float64
         Non-negative weights; 0 on invalid pixels. Without ``scan.camera_center`` the cosine
         factor is 1.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:20, 0:20].astype(np.float32)
+    >>> one = np.ones((20, 20), np.float32)
+    >>> scan = Scan("a", np.stack([cc, rr, 0 * rr], -1), cc, rr, one, one, one, one > 0)
+    >>> w = view_weights(scan, feather_px=4)
+    >>> float(w[0, 0]), float(w[10, 10])
+    (0.125, 1.0)
     """
     _check_scan(scan, "scan")
     valid = valid_mask(scan)
-    weight = valid.astype(np.float64)
-    if use_modulation:
-        weight *= np.clip(np.nan_to_num(np.asarray(scan.modulation, np.float64)), 0, None)
-    if scan.camera_center is not None:
+    return _view_weights(scan, valid, normals, _feather(valid, feather_px),
+                         use_modulation=use_modulation, smooth_px=smooth_px)
+
+
+def _view_weights(scan, valid, normals, feather, *, use_modulation, smooth_px) -> np.ndarray:
+    """:func:`view_weights` with the valid mask and the feather given."""
+    center = scan.camera_center
+    if center is not None and normals is None:
+        normals = grid_normals(scan.xyz, camera_center=center)
+    if center is not None and smooth_px > 0:
+        weight = valid.astype(np.float64)
+        if use_modulation:
+            weight *= np.clip(np.nan_to_num(np.asarray(scan.modulation, np.float64)), 0, None)
         weight *= view_cosine(scan, normals=normals, smooth_px=smooth_px)
-    weight *= _feather(valid, feather_px)
-    weight[~valid] = 0.0
-    return weight
+        weight *= feather
+        weight[~valid] = 0.0
+        return weight
+    xyz = np.ascontiguousarray(scan.xyz)
+    return _weight_kernel(
+        valid, np.ascontiguousarray(scan.modulation),
+        np.ascontiguousarray(normals) if center is not None else np.zeros((1, 1, 3), np.float32),
+        xyz, np.asarray(center if center is not None else (0, 0, 0), np.float64).reshape(3),
+        feather, use_modulation, center is not None)
 
 
-def _feather(valid: np.ndarray, feather_px: float) -> np.ndarray | float:
-    """Ramp from 0 at the edge of `valid` (or of the image) to 1 at `feather_px` inside."""
-    if feather_px <= 0:
-        return 1.0
-    distance = scipy.ndimage.distance_transform_edt(np.pad(valid, 1))[1:-1, 1:-1]
-    return np.clip((distance - 0.5) / feather_px, 0, 1)
+def _feather(valid: np.ndarray, feather_px: float) -> np.ndarray:
+    """(H, W) float64 ramp from 0 at the edge of `valid` (or of the image) to 1 at `feather_px`
+    inside: ``clip((d − 0.5) / feather_px, 0, 1)``, d the Euclidean distance to the nearest
+    invalid pixel."""
+    valid = np.ascontiguousarray(valid, dtype=bool)
+    if not feather_px > 0:
+        return np.ones(valid.shape)
+    if feather_px > 64:  # the compiled window grows with the ramp: the full transform instead
+        distance = scipy.ndimage.distance_transform_edt(np.pad(valid, 1))[1:-1, 1:-1]
+        return np.clip((distance - 0.5) / feather_px, 0, 1)
+    return _feather_kernel(valid, float(feather_px))
 
 
 def spikes(xyz, valid, *, spike_mm: float = 0.05) -> np.ndarray:
@@ -129,6 +789,11 @@ def spikes(xyz, valid, *, spike_mm: float = 0.05) -> np.ndarray:
     -------
     (H, W) bool
 
+    Raises
+    ------
+    ValueError
+        If `xyz` is not ``(H, W, 3)`` for `valid`'s ``(H, W)``.
+
     Examples
     --------
     >>> rr, cc = np.mgrid[0:5, 0:5].astype(float)
@@ -137,37 +802,14 @@ def spikes(xyz, valid, *, spike_mm: float = 0.05) -> np.ndarray:
     >>> np.argwhere(spikes(xyz, np.ones((5, 5), bool))).tolist()
     [[2, 2]]
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=-1)
-    h, w = valid.shape
-    pad = np.pad(np.where(valid[..., None], xyz, np.nan), ((1, 1), (1, 1), (0, 0)),
-                 constant_values=np.nan).reshape(-1, 3)
-    rr, cc = np.nonzero(valid)
-    centre = (rr + 1) * (w + 2) + cc + 1  # flat indices into the padded grid
-    x = xyz[rr, cc]
-    steps = ((1, 0), (0, 1), (1, 1), (1, -1))
-    chords, mids = [], []
-    for dr, dc in steps:
-        before, after = pad[centre - dr * (w + 2) - dc], pad[centre + dr * (w + 2) + dc]
-        chords.append(after - before)
-        mids.append(0.5 * (before + after))
-    normal = np.zeros_like(x)
-    for k in range(len(steps)):
-        for m in range(k + 1, len(steps)):
-            # orient every pair's cross product alike: by the sign of the pixel steps' own
-            sign = np.sign(steps[k][0] * steps[m][1] - steps[k][1] * steps[m][0])
-            normal += np.nan_to_num(sign * np.cross(chords[k], chords[m]))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    smallest = np.full(rr.size, np.inf)
-    lines = np.zeros(rr.size, dtype=np.int8)
-    for mid in mids:
-        offset = np.abs(np.einsum("nk,nk->n", x - mid, normal))
-        lines += np.isfinite(mid[:, 0])
-        smallest = np.fmin(smallest, offset)  # NaN (a missing neighbour) leaves it
-    out = np.zeros((h, w), dtype=bool)
-    out[rr, cc] = (lines >= 2) & np.isfinite(smallest) & (smallest > spike_mm)
-    return out
+    xyz = np.asarray(xyz)
+    if not np.issubdtype(xyz.dtype, np.floating) or xyz.dtype.itemsize < 4:
+        xyz = xyz.astype(np.float64)
+    valid = np.ascontiguousarray(valid, dtype=bool)
+    if valid.ndim != 2 or xyz.shape != (*valid.shape, 3):
+        raise ValueError(f"xyz: expected shape {(*valid.shape, 3)} for valid {valid.shape}, "
+                         f"got {xyz.shape}")
+    return _spike_kernel(np.ascontiguousarray(xyz), valid, float(spike_mm))
 
 
 def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarray, np.ndarray]:
@@ -176,6 +818,7 @@ def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarra
     Each 2 × 2 block gives the triangles (top-left, bottom-left, top-right) and (top-right,
     bottom-left, bottom-right) when their three pixels are kept and no edge is longer than
     `max_edge_mm`; each triangle is wound counter-clockwise seen from the side `normals` point to.
+    The first triangles of all blocks (row-major) come before the second ones.
 
     Parameters
     ----------
@@ -205,26 +848,14 @@ def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarra
     xyz = np.asarray(xyz, dtype=np.float64)
     keep = np.asarray(keep, dtype=bool) & np.isfinite(xyz).all(axis=-1)
     index = np.full(keep.shape, -1, dtype=np.int64)
-    index[keep] = np.arange(np.count_nonzero(keep))
+    n = int(np.count_nonzero(keep))
+    index[keep] = np.arange(n)
     if normals is None:
         normals = grid_normals(xyz)
-    tl, tr, bl, br = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
-    tris = np.concatenate([
-        np.stack([tl, bl, tr], axis=-1).reshape(-1, 3),
-        np.stack([tr, bl, br], axis=-1).reshape(-1, 3),
-    ])
-    tris = tris[(tris >= 0).all(axis=1)]
-    pts = xyz[keep]
-    a, b, c = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
-    longest = np.maximum.reduce([
-        np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1)
-    ])
-    tris = tris[longest <= max_edge_mm]
-    a, b, c = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
-    vn = np.asarray(normals, dtype=np.float64)[keep][tris].sum(axis=1)
-    flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), np.nan_to_num(vn)) < 0
-    tris[flip] = tris[flip][:, [0, 2, 1]]
-    return index, tris
+    first, second = _mesh_kernel(index, np.arange(n), np.ascontiguousarray(xyz[keep]),
+                                 np.ascontiguousarray(np.asarray(normals)[keep]),
+                                 float(max_edge_mm), 0)
+    return index, np.concatenate([first, second]).astype(np.int64)
 
 
 @dataclass
@@ -260,6 +891,9 @@ class SuperScan:
     points_rejected : dict[str, dict[str, int]]
         Per camera, points dropped as ``"spike"`` (before fusion, :func:`spikes`) and as
         ``"off_surface"`` (unfused points off the other cameras' fused surface).
+    timings : dict[str, float]
+        Wall time of each step of :func:`fuse_scans`, s, in order (``"correspond"``: the
+        correspondences of all ordered pairs).
     """
 
     scans: list[Scan]
@@ -275,6 +909,7 @@ class SuperScan:
     priority: list[int] = field(default_factory=list)
     duplicates_removed: dict = field(default_factory=dict)
     points_rejected: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
 
     @property
     def n_vertices(self) -> int:
@@ -300,32 +935,17 @@ class SuperScan:
         }
 
 
-def _off_surface(points, score, ref, ref_trust, *, radius, surface_mm, k=8) -> np.ndarray:
-    """Points farther than `surface_mm` from the plane of their `k` nearest reference points
-    (within `radius`, at least 3), where those are more trusted than the point (mean trust)."""
-    tree = scipy.spatial.cKDTree(ref)
-    out = np.zeros(points.shape[0], dtype=bool)
-    near = np.flatnonzero(np.isfinite(tree.query(points, distance_upper_bound=radius)[0]))
-    dist, idx = tree.query(points[near], k=k, distance_upper_bound=radius)
-    found = np.isfinite(dist)
-    enough = found.sum(axis=1) >= 3
-    test = near[enough]
-    if not test.size:
-        return out
-    idx, found, p = idx[enough], found[enough], points[test]
-    nb = ref[np.where(found, idx, 0)]
-    w = found[..., None].astype(np.float64)
-    centroid = (nb * w).sum(axis=1) / w.sum(axis=1)
-    d = (nb - centroid[:, None]) * w
-    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))
-    normal = vectors[:, :, 0]  # the smallest eigenvalue's vector: the plane's normal
-    # points along a line (a grazing view's single row) define no plane
-    planar = values[:, 1] > 0.05 * values[:, 2]
-    offset = np.abs(np.einsum("ni,ni->n", p - centroid, normal))
-    trust = np.where(found, ref_trust[np.where(found, idx, 0)], 0.0)
-    mean_trust = trust.sum(axis=1) / found.sum(axis=1)
-    out[test] = planar & (offset > surface_mm) & (mean_trust > score[test])
-    return out
+class _Clock:
+    """Adds the time since the last call to a step's total."""
+
+    def __init__(self):
+        self.times: dict[str, float] = {}
+        self.last = time.perf_counter()
+
+    def __call__(self, step: str) -> None:
+        now = time.perf_counter()
+        self.times[step] = self.times.get(step, 0.0) + now - self.last
+        self.last = now
 
 
 def fuse_scans(
@@ -373,6 +993,11 @@ def fuse_scans(
     5. Normals of the fused grids (:func:`grid_normals`) and a mesh per camera grid
        (:func:`grid_mesh`).
 
+    Every per-pixel step runs compiled (numba), each per-scan image (valid mask, normals, view
+    cosine, feather, weights) is computed once, and the 3D searches of steps 2 and 4 share one
+    uniform grid of cells over all cameras' valid points; :attr:`SuperScan.timings` holds each
+    step's time.
+
     Parameters
     ----------
     scans : sequence of Scan
@@ -408,6 +1033,7 @@ def fuse_scans(
     ValueError
         For no scans, a bad priority, or a scan without valid pixels.
     """
+    clock = _Clock()
     scans = list(scans)
     if not scans:
         raise ValueError("scans: expected at least one Scan")
@@ -432,21 +1058,33 @@ def fuse_scans(
     rank = {cam: k for k, cam in enumerate(priority)}
 
     normals0 = [grid_normals(s.xyz, camera_center=s.camera_center) for s in scans]
+    clock("scan_normals")
     spikes_removed = dict.fromkeys((s.name for s in scans), 0)
     if spike_mm is not None:
         for i, s in enumerate(scans):
-            bad = spikes(s.xyz, valid[i], spike_mm=spike_mm)
-            spikes_removed[s.name] = int(bad.sum())
-            if bad.any():
+            bad = _spike_kernel(np.ascontiguousarray(s.xyz), valid[i], float(spike_mm))
+            spikes_removed[s.name] = int(np.count_nonzero(bad))
+            if spikes_removed[s.name]:
                 valid[i] = valid[i] & ~bad
                 scans[i] = replace(s, mask=valid[i], xyz=np.where(valid[i][..., None], s.xyz,
                                                                    np.float32(np.nan)))
                 normals0[i] = grid_normals(scans[i].xyz, camera_center=s.camera_center)
-    weights = [view_weights(s, normals=nm, feather_px=feather_px)
-               for s, nm in zip(scans, normals0, strict=True)]
-    # the smoothed view cosine serves the rejection test and the ownership score
+    clock("spikes")
+
+    # per scan, once: feather, fusion weights, and the smoothed view cosine that serves the
+    # rejection test (through `quality`) and the ownership score
+    feathers = [_feather(v, feather_px) for v in valid]
+    weights = [_view_weights(s, v, nm, f, use_modulation=True, smooth_px=0.0)
+               for s, v, nm, f in zip(scans, valid, normals0, feathers, strict=True)]
     quality = {id(s): [view_cosine(s, normals=nm, smooth_px=2.0), None]
                for s, nm in zip(scans, normals0, strict=True) if s.camera_center is not None}
+    scores = []  # view_weights(use_modulation=False, smooth_px=2) from the cached cosine
+    for s, v, f in zip(scans, valid, feathers, strict=True):
+        cos = quality[id(s)][0] if id(s) in quality else v.astype(np.float64)
+        scores.append(_score_kernel(v, np.ascontiguousarray(cos, dtype=np.float64), f))
+    del feathers
+    clock("weights")
+
     corr: dict[tuple[int, int], Correspondence] = {}
     for i in range(n):
         for j in range(n):
@@ -457,141 +1095,171 @@ def fuse_scans(
                     workers=-1, max_view_angle_deg=max_view_angle_deg,
                     min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                     outlier_mad=outlier_mad, outlier_block_px=32, quality=quality)
+    clock("correspond")
 
-    scores = []  # view_weights(use_modulation=False, smooth_px=2) from the cached cosine
-    for s, v in zip(scans, valid, strict=True):
-        cos = quality[id(s)][0] if id(s) in quality else v.astype(np.float64)
-        scores.append(np.where(v, cos * _feather(v, feather_px), 0.0))
-    keeps = []
+    # the valid pixels of all cameras, numbered camera by camera in row-major order: `keep`
+    # (and `trust`) hold one entry per valid pixel, `index[i]` maps camera i's pixels to theirs
+    pixels = [np.flatnonzero(v) for v in valid]
+    sizes = np.array([p.size for p in pixels])
+    start = np.concatenate([[0], np.cumsum(sizes)])
+    index = []
+    for v, p in zip(valid, pixels, strict=True):
+        m = np.full(v.shape, -1, dtype=np.int32)
+        m.ravel()[p] = np.arange(p.size, dtype=np.int32)
+        index.append(m)
+    keep_all = np.ones(int(start[-1]), dtype=bool)
+    keeps = [keep_all[start[i]:start[i + 1]] for i in range(n)]  # views
     for i in range(n):
-        keep = valid[i].copy()
         for j in range(n):
             if j == i:
                 continue
-            kept = corr[i, j]
-            n_kept = kept.n_pairs
-            pairs = kept.all_pairs()
-            rc = pairs.parent_rc
-            other, _, _ = bilinear(scores[j], *pairs.child_rc.T)
-            mine = scores[i][rc[:, 0], rc[:, 1]]
-            lose = (other > mine) | ((other == mine) & (rank[j] < rank[i]))
-            if ownership == "priority":  # kept pairs by priority, rejected by the better view
-                lose[:n_kept] = rank[j] < rank[i]
-            keep[rc[lose, 0], rc[lose, 1]] = False
-        keeps.append(keep)
+            m, j_first = corr[i, j], rank[j] < rank[i]
+            _ownership_kernel(keeps[i], index[i], scores[i], scores[j], m.parent_rc, m.child_rc,
+                              ownership == "priority", j_first)
+            if m.rejected is not None and m.rejected.n_pairs:  # by the better view, always
+                _ownership_kernel(keeps[i], index[i], scores[i], scores[j],
+                                  m.rejected.parent_rc, m.rejected.child_rc, False, j_first)
+    clock("ownership")
 
-    spacing = np.concatenate([
-        np.linalg.norm(np.diff(s.xyz, axis=1), axis=-1).ravel() for s in scans
-    ])
-    spacing = float(np.median(spacing[np.isfinite(spacing)])) if np.isfinite(spacing).any() \
-        else np.inf
+    steps = np.concatenate([_row_steps(np.ascontiguousarray(s.xyz)) for s in scans])
+    spacing = float(np.median(steps)) if steps.size else np.inf
+    del steps
     if max_edge_mm is None:
         max_edge_mm = 4.0 * spacing
     if dedupe_mm is None:
         dedupe_mm = 0.5 * spacing
+    dedupe = bool(dedupe_mm > 0 and np.isfinite(dedupe_mm))
+    radius = 3 * spacing  # of the off-surface test
+    surface = surface_mm is not None and n > 1 and bool(np.isfinite(spacing) and radius > 0)
+    clock("spacing")
+
+    grid = None
+    if dedupe or surface:
+        points = np.concatenate([np.asarray(s.xyz)[v] for s, v in zip(scans, valid, strict=True)])
+        group = np.repeat(np.arange(n, dtype=np.int8), sizes)
+        cell_mm = float(radius if surface else dedupe_mm)
+        origin = points.min(axis=0).astype(np.float64)
+        grid = (*_grid_build(points, origin, cell_mm), origin, cell_mm, group)
+    clock("grid")
     # duplicates the correspondence cannot see (edges of valid regions): points closer than
     # dedupe_mm to a point of a camera ranked higher are dropped
     removed = dict.fromkeys((s.name for s in scans), 0)
-    if dedupe_mm > 0 and np.isfinite(dedupe_mm):
+    if dedupe:
+        group_rank = np.array([rank[c] for c in range(n)])
         for k in range(1, n):
             i = priority[k]
-            above = np.concatenate([scans[j].xyz[keeps[j]] for j in priority[:k]])
-            if not above.size:
-                continue
-            tree = scipy.spatial.cKDTree(above)
-            rr, cc = np.nonzero(keeps[i])
-            dist, _ = tree.query(scans[i].xyz[rr, cc], distance_upper_bound=dedupe_mm)
-            near = np.isfinite(dist)
-            keeps[i][rr[near], cc[near]] = False
-            removed[scans[i].name] = int(near.sum())
+            removed[scans[i].name] = int(_dedupe_kernel(
+                *grid, group_rank, keep_all, rank[i], points[start[i]:start[i + 1]],
+                np.arange(start[i], start[i + 1]), float(dedupe_mm)))
+    if grid is not None:
+        del points
+    clock("dedupe")
 
-    fused_xyz, counts = [], []
+    fused, counts, rows, cols = [], [], [], []
     for i, s in enumerate(scans):
-        keep = keeps[i]
-        xyz = np.asarray(s.xyz, dtype=np.float64)
-        w_sum = np.where(keep, weights[i], 0.0)
-        acc = xyz * w_sum[..., None]
-        count = keep.astype(np.uint8)
+        r, c = np.divmod(pixels[i], valid[i].shape[1])
+        xyz = np.ascontiguousarray(s.xyz)
+        w_sum, acc, count = _fusion_init(keeps[i], r, c, xyz, weights[i])
         for j in range(n):
-            if j == i:
-                continue
-            m = corr[i, j]
-            own = keep[m.parent_rc[:, 0], m.parent_rc[:, 1]]
-            rc, sub = m.parent_rc[own], m.child_rc[own]
-            w_j, _, _ = bilinear(weights[j], sub[:, 0], sub[:, 1])
-            np.add.at(w_sum, (rc[:, 0], rc[:, 1]), w_j)
-            np.add.at(acc, (rc[:, 0], rc[:, 1]), w_j[:, None] * m.xyz_child[own])
-            np.add.at(count, (rc[:, 0], rc[:, 1]), 1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            fused_xyz.append(np.where((w_sum > 0)[..., None], acc / w_sum[..., None], xyz))
+            if j != i:
+                m = corr[i, j]
+                _fusion_add(keeps[i], index[i], w_sum, acc, count, m.parent_rc, m.child_rc,
+                            m.xyz_child, weights[j])
+        fused.append(_fusion_mean(keeps[i], r, c, xyz, w_sum, acc))
         counts.append(count)
+        rows.append(r)
+        cols.append(c)
+    del weights
+    clock("fusion")
 
     # a lone point (no kept pair) off the surface of the other cameras nearby is dropped when
     # they are confirmed there (a kept pair within surface_mm) or view it better
     off_surface = dict.fromkeys((s.name for s in scans), 0)
-    if surface_mm is not None and n > 1 and np.isfinite(spacing):
-        points, trust = [], []  # per camera: valid points; confirmed (inf) or view score
+    if surface:
+        trust = np.concatenate([sc.ravel()[p] for sc, p in zip(scores, pixels, strict=True)])
         for j in range(n):
-            t = np.array(scores[j], dtype=np.float64)
             for k in range(n):
                 if k != j:
                     m = corr[j, k]
-                    t[tuple(m.parent_rc[m.distance_mm <= surface_mm].T)] = np.inf
-            points.append(np.asarray(scans[j].xyz, np.float64)[valid[j]])
-            trust.append(t[valid[j]])
+                    _confirm_kernel(trust[start[j]:start[j + 1]], index[j], m.parent_rc,
+                                    m.xyz_parent, m.xyz_child, float(surface_mm))
         for i in range(n):
-            lone = keeps[i] & (counts[i] == 1)
-            others = [j for j in range(n) if j != i]
-            ref = np.concatenate([points[j] for j in others])
-            if not lone.any() or not ref.size:
+            lone = np.flatnonzero(keeps[i] & (counts[i] == 1))
+            if not lone.size or sizes.sum() == sizes[i]:
                 continue
-            ref_trust = np.concatenate([trust[j] for j in others])
-            rr, cc = np.nonzero(lone)
-            off = _off_surface(fused_xyz[i][rr, cc], scores[i][rr, cc], ref, ref_trust,
-                               radius=3 * spacing, surface_mm=surface_mm)
-            keeps[i][rr[off], cc[off]] = False
-            off_surface[scans[i].name] = int(off.sum())
+            off = _off_surface_kernel(*grid, trust, i, fused[i][lone],
+                                      scores[i].ravel()[pixels[i][lone]], float(radius),
+                                      float(surface_mm))
+            keeps[i][lone[off]] = False
+            off_surface[scans[i].name] = int(np.count_nonzero(off))
+    del grid
+    clock("off_surface")
 
-    fused_scans, fused_normals, n_views = [], [], []
+    # normals from every valid pixel (fused where owned), so ownership edges keep them
+    owned, normals = [], []
     for i, s in enumerate(scans):
-        keep, count, fused, xyz = keeps[i], counts[i], fused_xyz[i], np.asarray(s.xyz, np.float64)
-        # normals from every valid pixel (fused where owned), so ownership edges keep them
-        normals = grid_normals(np.where(keep[..., None], fused, xyz), camera_center=s.camera_center)
-        normals[~keep] = np.nan
-        fused[~keep] = np.nan
-        fused_scan = Scan(
-            name=s.name, xyz=fused.astype(np.float32), xp=np.where(keep, s.xp, np.nan),
-            yp=np.where(keep, s.yp, np.nan), albedo=s.albedo,
-            intensity=np.where(keep, s.intensity, 0).astype(np.float32),
-            modulation=s.modulation, mask=keep, camera_center=s.camera_center,
-        )
-        fused_scans.append(fused_scan)
-        fused_normals.append(normals)
-        n_views.append(np.where(keep, count, 0).astype(np.uint8))
+        kept = np.flatnonzero(keeps[i])
+        center = s.camera_center
+        normals.append(_fused_normals(
+            np.ascontiguousarray(s.xyz), index[i], keeps[i], fused[i], rows[i][kept],
+            cols[i][kept], np.asarray(center if center is not None else (0, 0, 0),
+                                      np.float64).reshape(3), center is not None))
+        owned.append(kept)
+    clock("normals")
 
-    verts, vnorm, cols, cams, pix, faces = [], [], [], [], [], []
+    verts, vnorm, vertex_pixels, faces = [], [], [], []
     offset = 0
-    for i, (f, nm) in enumerate(zip(fused_scans, fused_normals, strict=True)):
-        index, tri = grid_mesh(f.xyz, f.mask, max_edge_mm=max_edge_mm, normals=nm)
-        sel = index >= 0
-        rr, cc = np.nonzero(sel)
-        verts.append(f.xyz[sel])
-        vnorm.append(nm[sel])
-        grey = np.clip(np.nan_to_num(np.asarray(f.albedo, np.float64)[sel]) * 255 + 0.5, 0, 255)
-        cols.append(np.repeat(grey.astype(np.uint8)[:, None], 3, axis=1))
-        cams.append(np.full(rr.size, i, dtype=np.int16))
-        pix.append(np.stack([rr, cc], axis=-1).astype(np.int32))
-        faces.append((tri + offset).astype(np.int32))
-        offset += rr.size
+    for i in range(n):
+        kept = owned[i]
+        points = fused[i][kept].astype(np.float32)
+        finite = np.isfinite(points).all(axis=1)  # the float32 grid's vertices
+        vertex = np.full(sizes[i], -1, dtype=np.int64)
+        vertex[kept[finite]] = np.arange(np.count_nonzero(finite))
+        verts.append(points[finite])
+        vnorm.append(normals[i][finite])
+        vertex_pixels.append(kept[finite])
+        faces.extend(_mesh_kernel(index[i], vertex, verts[-1], vnorm[-1], float(max_edge_mm),
+                                  offset))
+        offset += verts[-1].shape[0]
+    clock("mesh")
+
+    fused_scans, fused_normals, n_views, colors, cams, pix = [], [], [], [], [], []
+    for i, s in enumerate(scans):
+        h, w = valid[i].shape
+        flat = pixels[i][owned[i]]
+        mask = np.zeros(h * w, dtype=bool)
+        mask[flat] = True
+        mask = mask.reshape(h, w)
+        xyz = np.full((h * w, 3), np.nan, dtype=np.float32)
+        xyz[flat] = fused[i][owned[i]]
+        nm = np.full((h * w, 3), np.nan, dtype=np.float32)
+        nm[flat] = normals[i]
+        views = np.zeros(h * w, dtype=np.uint8)
+        views[flat] = counts[i][owned[i]]
+        fused_scans.append(Scan(
+            name=s.name, xyz=xyz.reshape(h, w, 3), xp=np.where(mask, s.xp, np.nan),
+            yp=np.where(mask, s.yp, np.nan), albedo=s.albedo,
+            intensity=np.where(mask, s.intensity, 0).astype(np.float32),
+            modulation=s.modulation, mask=mask, camera_center=s.camera_center,
+        ))
+        fused_normals.append(nm.reshape(h, w, 3))
+        n_views.append(views.reshape(h, w))
+        at = pixels[i][vertex_pixels[i]]
+        albedo = np.asarray(s.albedo).ravel()[at].astype(np.float64)
+        grey = np.clip(np.nan_to_num(albedo) * 255 + 0.5, 0, 255).astype(np.uint8)
+        colors.append(np.repeat(grey[:, None], 3, axis=1))
+        cams.append(np.full(at.size, i, dtype=np.int16))
+        pix.append(np.stack(np.divmod(at, w), axis=-1).astype(np.int32))
+    clock("output")
     return SuperScan(
         scans=fused_scans, normals=fused_normals, n_views=n_views,
-        vertices=np.concatenate(verts).astype(np.float32),
-        vertex_normals=np.concatenate(vnorm).astype(np.float32),
-        colors=np.concatenate(cols), faces=np.concatenate(faces),
+        vertices=np.concatenate(verts), vertex_normals=np.concatenate(vnorm),
+        colors=np.concatenate(colors), faces=np.concatenate(faces),
         camera=np.concatenate(cams), pixel=np.concatenate(pix),
         correspondences=corr, priority=priority, duplicates_removed=removed,
         points_rejected={s.name: {"spike": spikes_removed[s.name],
                                   "off_surface": off_surface[s.name]} for s in scans},
+        timings=clock.times,
     )
 
 
