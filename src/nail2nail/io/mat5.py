@@ -30,6 +30,7 @@ reproduces the files byte for byte.
 from __future__ import annotations
 
 import os
+import struct
 import warnings
 from pathlib import Path
 
@@ -57,9 +58,49 @@ def mat5_paths(prefix: str | os.PathLike) -> dict[str, Path]:
     return {suffix: Path(prefix + suffix) for suffix in MAT5_SUFFIXES}
 
 
-def _to_8bit(value: np.ndarray) -> np.ndarray:
-    value = np.nan_to_num(np.asarray(value, dtype=np.float64), nan=0.0)
-    return np.rint(np.clip(value, 0.0, 1.0) * 255.0).astype(np.uint8)
+def _to_8bit(value) -> np.ndarray:
+    """``round(255 value)`` as ``uint8``, ``value`` clipped to ``[0, 1]``, NaN as 0 (float64
+    arithmetic: ``255 v`` of a float32 is exact, so the ties fall as they always have)."""
+    scaled = np.multiply(value, 255.0, dtype=np.float64)
+    np.fmax(scaled, 0.0, out=scaled)  # fmax/fmin drop NaN: 0
+    np.fmin(scaled, 255.0, out=scaled)
+    return np.rint(scaled, out=scaled).astype(np.uint8)
+
+
+def _finite_pixels(xyz: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: all three coordinates finite (channel by channel: a reduction over a
+    last axis of 3 is slow in numpy)."""
+    finite = np.isfinite(xyz[..., 0])
+    finite &= np.isfinite(xyz[..., 1])
+    finite &= np.isfinite(xyz[..., 2])
+    return finite
+
+
+_PPM = int(96 * 39.3701 + 0.5)  # Pillow's default 96 dpi, in pixels per metre
+_GREY_PALETTE = b"".join(bytes((i, i, i, 0)) for i in range(256))  # B, G, R, 0
+
+
+def _write_bmp(path: Path, image: np.ndarray) -> None:
+    """`image` ``(H, W)`` (8-bit grey, palette) or ``(H, W, 3)`` (24-bit RGB) ``uint8`` as an
+    uncompressed BMP, byte for byte what Pillow writes (rows bottom-up, padded to 4 bytes,
+    BGR), atomically; a single copy of the pixels, no Pillow image."""
+    height, width = image.shape[:2]
+    channels = 1 if image.ndim == 2 else 3
+    stride = (width * channels + 3) & ~3
+    palette = _GREY_PALETTE if channels == 1 else b""
+    colors = len(palette) // 4
+    offset = 14 + 40 + len(palette)
+    header = struct.pack("<2sIII", b"BM", offset + stride * height, 0, offset)
+    info = struct.pack("<IiiHHIIiiII", 40, width, height, 1, 8 * channels, 0, stride * height,
+                       _PPM, _PPM, colors, colors)
+    rows = np.zeros((height, stride), dtype=np.uint8)
+    if channels == 1:
+        rows[:, :width] = image[::-1]
+    else:
+        rows[:, : 3 * width].reshape(height, width, 3)[...] = image[::-1, :, ::-1]
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header + info + palette)
+        rows.tofile(fh)
 
 
 def _check_scan(scan) -> tuple[int, int]:
@@ -100,23 +141,24 @@ def write_mat5(prefix: str | os.PathLike, scan: Scan) -> list[Path]:
     """
     _check_scan(scan)
     xyz = np.asarray(scan.xyz, dtype=np.float32)
-    valid = np.asarray(scan.mask) & np.all(np.isfinite(xyz), axis=-1)
+    valid = np.asarray(scan.mask) & _finite_pixels(xyz)
     albedo = _to_8bit(scan.albedo)
-    intensity = np.where(valid, np.maximum(_to_8bit(scan.intensity), 1), 0).astype(np.uint8)
+    intensity = _to_8bit(scan.intensity)
+    np.maximum(intensity, 1, out=intensity)
+    intensity[~valid] = 0
     planes = {
         "X.by": xyz[..., 0], "Y.by": xyz[..., 1], "Z.by": xyz[..., 2],
         "XP.by": np.asarray(scan.xp, dtype=np.float32),
         "YP.by": np.asarray(scan.yp, dtype=np.float32),
     }
     paths = mat5_paths(prefix)
-    with atomic_path(paths["C.bmp"]) as tmp:
-        Image.fromarray(np.repeat(albedo[..., None], 3, axis=-1)).save(tmp, "BMP")
-    with atomic_path(paths["I.bmp"]) as tmp:
-        Image.fromarray(intensity).save(tmp, "BMP")
+    paths["C.bmp"].parent.mkdir(parents=True, exist_ok=True)
+    _write_bmp(paths["C.bmp"], np.broadcast_to(albedo[..., None], (*albedo.shape, 3)))
+    _write_bmp(paths["I.bmp"], intensity)
     for suffix, plane in planes.items():
-        data = np.where(valid, plane, np.float32(0.0)).astype(_FLOAT)
-        with atomic_path(paths[suffix]) as tmp:
-            tmp.write_bytes(np.ascontiguousarray(data).tobytes())
+        data = np.where(valid, plane, np.float32(0.0)).astype(_FLOAT, copy=False)
+        with atomic_path(paths[suffix]) as tmp, open(tmp, "wb") as fh:
+            data.tofile(fh)
     return list(paths.values())
 
 

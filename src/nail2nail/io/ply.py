@@ -149,16 +149,22 @@ def write_ply(
     header += [f"property {names[t]} {name}" for name, t in fields]
     if faces is not None:
         header += [f"element face {faces.shape[0]}", "property list uchar int vertex_indices"]
-    header += ["end_header"]
+    tri = None
+    if faces is not None:
+        tri = np.empty(faces.shape[0], dtype=[("n", "u1"), ("v", "<i4", (3,))])
+        tri["n"] = 3
+        tri["v"] = faces
+    return _write_binary(path, header, vertex, tri)
+
+
+def _write_binary(path, header: list[str], vertex: np.ndarray, faces: np.ndarray | None) -> Path:
+    """Write the header lines (``end_header`` added) and the element tables, atomically."""
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(vertex.tobytes())
+        fh.write(("\n".join([*header, "end_header"]) + "\n").encode("ascii"))
+        vertex.tofile(fh)
         if faces is not None:
-            tri = np.empty(faces.shape[0], dtype=[("n", "u1"), ("v", "<i4", (3,))])
-            tri["n"] = 3
-            tri["v"] = faces
-            fh.write(tri.tobytes())
+            faces.tofile(fh)
     return path
 
 
@@ -166,17 +172,32 @@ def write_scan_ply(path: str | os.PathLike, scan) -> Path:
     """Write the valid points of a :class:`~nail2nail.reconstruction.Scan` with albedo as grey.
 
     Points are the pixels with ``scan.mask`` and finite ``xyz``, in row-major pixel order; the
-    colour is ``round(255 albedo)`` in R, G and B.
+    colour is ``round(255 albedo)`` in R, G and B (NaN as 0).
     """
     xyz = np.asarray(scan.xyz, dtype=np.float32)
     mask = np.asarray(scan.mask, dtype=bool)
     if xyz.shape != (*mask.shape, 3):
         raise ValueError(f"scan.xyz: expected shape {(*mask.shape, 3)}, got {xyz.shape}")
-    valid = mask & np.all(np.isfinite(xyz), axis=-1)
-    albedo = np.nan_to_num(np.asarray(scan.albedo, dtype=np.float64)[valid], nan=0.0)
-    grey = np.rint(np.clip(albedo, 0.0, 1.0) * 255).astype(np.uint8)
-    return write_ply(path, xyz[valid], colors=np.repeat(grey[:, None], 3, axis=1),
-                     comments=[f"nail2nail scan {scan.name}"])
+    name = str(scan.name)
+    if "\n" in name or "\r" in name:
+        raise ValueError("comments: a comment must be a single line")
+    xyz = np.ascontiguousarray(xyz)
+    valid = mask & np.isfinite(xyz[..., 0])
+    valid &= np.isfinite(xyz[..., 1])
+    valid &= np.isfinite(xyz[..., 2])
+    grey = np.multiply(np.asarray(scan.albedo)[valid], 255.0, dtype=np.float64)
+    np.fmax(grey, 0.0, out=grey)  # fmax/fmin drop NaN: 0
+    np.fmin(grey, 255.0, out=grey)
+    # x y z red green blue, 15 bytes a vertex, as write_ply lays them out
+    vertex = np.empty(grey.size, dtype=[("xyz", "<f4", (3,)), ("rgb", "u1", (3,))])
+    pixels = xyz.view(np.dtype((np.void, 12))).reshape(mask.shape)  # whole pixels: fast
+    vertex["xyz"] = pixels[valid].view(np.float32).reshape(-1, 3)
+    vertex["rgb"] = np.rint(grey, out=grey).astype(np.uint8)[:, None]
+    header = ["ply", "format binary_little_endian 1.0", f"comment nail2nail scan {name}",
+              f"element vertex {grey.size}", "property float x", "property float y",
+              "property float z", "property uchar red", "property uchar green",
+              "property uchar blue"]
+    return _write_binary(path, header, vertex, None)
 
 
 def _parse_header(fh, path: Path, size: int):

@@ -11,6 +11,7 @@ Layout (``docs/capture-format.md``)::
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -25,27 +26,97 @@ __all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "save_scan_npz", "save_
 
 SCAN_FORMAT = "nail2nail-scan"
 _ARRAYS = ("xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")
+SCAN_NPZ_LAYOUT = 2  # 1: every array whole (before issue 11); 2: packed (docs/capture-format.md)
+_PACK_FILL = 0.25  # an array is packed when at least this share of its pixels hold its fill
 
 
-def save_scan_npz(path: str | os.PathLike, scan: Scan) -> None:
-    """Write every array of `scan` to one ``.npz`` (atomically)."""
-    arrays = {name: getattr(scan, name) for name in _ARRAYS}
+def save_scan_npz(path: str | os.PathLike, scan: Scan, *, compress: bool | int = False) -> None:
+    """Write every array of `scan` to one ``.npz`` (atomically), in the packed layout.
+
+    An array is stored as the values of the pixels that do not hold its *fill* (the value of
+    its first pixel outside ``scan.mask``: NaN for ``xyz``, ``xp``, ``yp``), the fill, and
+    which pixels those are (``scan.mask``'s pixels unless stored), when at least a quarter of
+    its pixels hold the fill; whole otherwise. :func:`load_scan_npz` restores every array bit
+    for bit (NaN payloads included). ``docs/capture-format.md``, "Scan directory".
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.npz`` file.
+    scan : Scan
+    compress : bool or int
+        zlib level for every array (:func:`nail2nail.io._atomic.write_npz`); by default
+        (``False``) only the pixel bits are compressed (level 1), the float values are stored:
+        zlib shrinks them by some 20 % at some 0.5 s a camera (``bench/io.py``).
+    """
+    mask = np.asarray(scan.mask)
+    arrays = {"layout": np.array(SCAN_NPZ_LAYOUT), "name": np.array(scan.name)}
+    if mask.ndim == 2 and mask.dtype == bool:
+        arrays["shape"] = np.array(mask.shape, dtype=np.int64)
+        arrays["mask.bits"] = np.packbits(mask, axis=None)
+        for key in _ARRAYS[:-1]:
+            arrays.update(_pack(key, np.asarray(getattr(scan, key)), mask))
+    else:  # left to the reader to refuse, as before
+        arrays.update({key: getattr(scan, key) for key in _ARRAYS})
     if scan.camera_center is not None:
         arrays["camera_center"] = np.asarray(scan.camera_center, dtype=float)
-    write_npz(path, {"name": np.array(scan.name), **arrays})
+    if not compress:  # the float values stored; the pixel bits shrink 20 times in no time
+        compress = {key: 1 for key in arrays if key.endswith((".bits", ".where"))}
+    write_npz(path, arrays, compress=compress)
+
+
+def _pack(key: str, value: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
+    """`value` as ``{key: value}`` or ``{key.values, key.fill[, key.where]}`` (packed)."""
+    tail = (3,) if key == "xyz" else ()
+    if (value.shape != (*mask.shape, *tail) or value.dtype.kind != "f"
+            or value.itemsize not in (2, 4, 8) or value.size == 0 or mask.all()):
+        return {key: value}
+    value = np.ascontiguousarray(value)
+    first = np.unravel_index(int(np.argmin(mask)), mask.shape)  # first pixel outside the mask
+    fill = np.array(value[first])
+    bits = value.view(f"u{value.itemsize}")
+    fill_bits = fill.view(bits.dtype)
+    if tail:
+        held = bits[..., 0] != fill_bits[0]
+        for channel in range(1, tail[0]):
+            held |= bits[..., channel] != fill_bits[channel]
+    else:
+        held = bits != fill_bits
+    n_held = int(np.count_nonzero(held))
+    if mask.size - n_held < _PACK_FILL * mask.size:
+        return {key: value}
+    packed = {f"{key}.values": _pixels(value, tail)[held].view(value.dtype).reshape(-1, *tail),
+              f"{key}.fill": fill}
+    if not np.array_equal(held, mask):
+        packed[f"{key}.where"] = np.packbits(held, axis=None)
+    return packed
 
 
 def load_scan_npz(path: str | os.PathLike) -> Scan:
-    """Read a scan written by :func:`save_scan_npz`; ``ValueError`` naming the file if bad."""
+    """Read a scan written by :func:`save_scan_npz` (either layout); ``ValueError`` naming the
+    file if bad."""
     path = Path(path)
-    data = read_npz(path, required=_ARRAYS, what="scan file")
-    arrays = {k: data[k] for k in _ARRAYS}
-    center = data.get("camera_center")
-    name = str(data["name"]) if "name" in data else path.stem
-    mask = arrays["mask"]
+    data = read_npz(path, what="scan file")
+    layout = data.get("layout")
+    if layout is not None and (layout.shape != () or layout.dtype.kind not in "iu"
+                               or int(layout) not in (1, SCAN_NPZ_LAYOUT)):
+        raise ValueError(f"{path}: scan file layout {_describe(layout)} is not 1 or "
+                         f"{SCAN_NPZ_LAYOUT} (written by a newer nail2nail?)")
+    missing = [k for k in _ARRAYS if k not in data and f"{k}.values" not in data
+               and f"{k}.bits" not in data]
+    if missing:
+        raise ValueError(f"{path}: scan file lacks array(s) {', '.join(missing)}")
+    if "mask" in data:
+        mask = data["mask"]
+    else:
+        mask = _bits(data, "mask", _shape(data, path), path)
     if mask.ndim != 2 or mask.dtype != bool:
         raise ValueError(f"{path}: mask must be an (H, W) bool array, got {mask.dtype} "
                          f"{mask.shape}")
+    arrays = {key: _unpack(data, key, mask, path) for key in _ARRAYS[:-1]}
+    arrays["mask"] = mask
+    center = data.get("camera_center")
+    name = str(data["name"]) if "name" in data else path.stem
     shape = mask.shape
     for key in _ARRAYS[:-1]:
         want = (*shape, 3) if key == "xyz" else shape
@@ -62,30 +133,93 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     return Scan(name=name, camera_center=center, **arrays)
 
 
+def _describe(array: np.ndarray) -> str:
+    return f"{array.dtype} {array.shape}" if array.size != 1 else repr(array.item())
+
+
+def _shape(data: dict, path: Path) -> tuple[int, int]:
+    shape = data.get("shape")
+    if (shape is None or shape.shape != (2,) or shape.dtype.kind not in "iu"
+            or not all(0 < int(v) < 2**31 for v in shape)):
+        raise ValueError(f"{path}: shape must be 2 positive integers (H, W), got "
+                         f"{'nothing' if shape is None else _describe(shape)}")
+    return int(shape[0]), int(shape[1])
+
+
+def _bits(data: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    """The (H, W) bool array packed as ``key.bits`` (or ``key.where``) by ``np.packbits``."""
+    name = f"{key}.bits" if key == "mask" else f"{key}.where"
+    bits = data[name]
+    n = shape[0] * shape[1]
+    if bits.dtype != np.uint8 or bits.shape != (-(-n // 8),):
+        raise ValueError(f"{path}: {name} must be {-(-n // 8)} bytes (uint8) for "
+                         f"{shape[0]} x {shape[1]} pixels, got {bits.dtype} {bits.shape}")
+    return np.unpackbits(bits, count=n).view(bool).reshape(shape)
+
+
+def _unpack(data: dict, key: str, mask: np.ndarray, path: Path) -> np.ndarray:
+    if key in data:
+        return data[key]
+    values, fill = data.get(f"{key}.values"), data.get(f"{key}.fill")
+    tail = (3,) if key == "xyz" else ()
+    if (values is None or fill is None or values.dtype.kind != "f"
+            or values.itemsize not in (2, 4, 8) or fill.dtype != values.dtype
+            or values.shape[1:] != tail or fill.shape != tail):
+        got = "nothing" if values is None else f"{values.dtype} {values.shape}"
+        has = "no fill" if fill is None else f"fill {fill.dtype} {fill.shape}"
+        want = "(n, 3)" if tail else "(n,)"
+        raise ValueError(f"{path}: {key}.values must be a float16/32/64 array {want} with a "
+                         f"fill of its dtype and shape {tail}, got {got}, {has}")
+    held = _bits(data, key, mask.shape, path) if f"{key}.where" in data else mask
+    n_held = int(np.count_nonzero(held))
+    if values.shape[0] != n_held:
+        raise ValueError(f"{path}: {key}.values holds {values.shape[0]} pixels, but "
+                         f"{'its where' if held is not mask else 'the mask'} marks {n_held}")
+    array = np.empty((*mask.shape, *tail), dtype=values.dtype)
+    ints = array.view(f"u{array.itemsize}")
+    fill_bits = np.ascontiguousarray(fill).view(ints.dtype).reshape(-1)
+    if np.all(fill_bits == fill_bits[0]):  # as integers: the fill's bits, NaN payloads too
+        ints.fill(fill_bits[0])
+    else:
+        _pixels(array, tail)[...] = _pixels(np.ascontiguousarray(fill), tail)
+    _pixels(array, tail)[held] = _pixels(np.ascontiguousarray(values), tail)
+    return array
+
+
+def _pixels(array: np.ndarray, tail: tuple[int, ...]) -> np.ndarray:
+    """A C-contiguous array of `tail`-shaped pixels as one item per pixel (``V{size}``): numpy
+    gathers and scatters ``(H, W, 3)`` arrays through a boolean mask ten times faster so."""
+    if not tail:
+        return array
+    size = int(np.prod(tail)) * array.itemsize
+    return array.view(np.dtype((np.void, size))).reshape(array.shape[: -len(tail)])
+
+
 def save_scans(
     out_dir: str | os.PathLike, scans: list[Scan], *, mat5: bool = True, ply: bool = True,
-    extra: dict | None = None,
+    extra: dict | None = None, compress: bool | int = False,
 ) -> dict:
     """Write a scan directory and return its manifest (also written as ``scan.json``).
 
     The directory is written as a whole (:func:`nail2nail.io._atomic.atomic_directory`): an
     earlier scan directory there is replaced only once the new one is complete; a non-empty
-    directory without ``scan.json`` is refused.
+    directory without ``scan.json`` is refused. The scans are written in threads, one scan
+    each (numpy and file writes release the GIL); `compress` as for :func:`save_scan_npz`.
     """
     out = Path(out_dir)
     for i, scan in enumerate(scans):
         as_name(scan.name, f"scans[{i}].name")
     check_unique([scan.name for scan in scans], "scans")
     with atomic_directory(out, marker="scan.json") as tmp:
-        return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra)
+        return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra, compress=compress)
 
 
-def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra) -> dict:
-    cameras = []
-    for scan in scans:
+def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
+                 compress: bool | int) -> dict:
+    def write(scan: Scan) -> dict:
         entry = {"name": scan.name, "npz": f"{scan.name}.npz",
-                 "valid_pixels": int(scan.mask.sum()), "shape": list(scan.shape)}
-        save_scan_npz(out / entry["npz"], scan)
+                 "valid_pixels": int(np.count_nonzero(scan.mask)), "shape": list(scan.shape)}
+        save_scan_npz(out / entry["npz"], scan, compress=compress)
         if mat5:
             from .mat5 import write_mat5
 
@@ -98,10 +232,22 @@ def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra) 
             entry["ply"] = f"{scan.name}.ply"
         if scan.camera_center is not None:
             entry["camera_center"] = np.asarray(scan.camera_center).tolist()
-        cameras.append(entry)
+        return entry
+
+    cameras = _map_in_threads(write, scans)
     manifest = {"format": SCAN_FORMAT, "version": 1, "cameras": cameras, **(extra or {})}
     write_json(out / "scan.json", manifest)
     return manifest
+
+
+def _map_in_threads(task, items: list) -> list:
+    """``[task(item) for item in items]`` in up to ``os.cpu_count()`` threads; the error of the
+    first failing item (in order) is raised, the items not started are dropped."""
+    workers = min(os.cpu_count() or 1, len(items))
+    if workers <= 1:
+        return [task(item) for item in items]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(task, items))  # map yields in order, cancels the rest on error
 
 
 def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
@@ -129,4 +275,4 @@ def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
         as_name(cam["name"], f"{where}.name")
         files.append(confined_path(scan_dir, cam["npz"], f"{where}.npz"))
     check_unique([cam["name"] for cam in cams], str(manifest_path))
-    return [load_scan_npz(file) for file in files]
+    return _map_in_threads(load_scan_npz, files)
