@@ -2,9 +2,9 @@
 
 All cameras of the scanner look at one projector, so a surface point seen by two cameras has the
 same projector coordinates ``(xp, yp)`` in both scans. For every (sampled) pixel of a *parent*
-scan, :func:`correspond` finds the *child* pixel with the nearest ``(xp, yp)`` (a k-d tree over the
-child's valid pixels, instead of the appendix's ``closest_proj_point`` loop over the whole child
-frame), refines it to the sub-pixel position where the child's interpolated projector coordinates
+scan, :func:`correspond` finds the *child* pixel with the nearest ``(xp, yp)`` (a bucket grid over
+the child's valid pixels in projector space, :func:`nearest_grid`, instead of the appendix's
+``closest_proj_point`` loop over the whole child frame), refines it to the sub-pixel position where the child's interpolated projector coordinates
 equal the parent's, and interpolates the child's world point there. The world distance between
 the two points of a pair is the merge error (thesis "Merging in Projector Space", Fig. 32–35).
 
@@ -24,7 +24,9 @@ more than ``max(outlier_mm, outlier_mad × MAD)``). The statistics report the me
 kept pairs and of all pairs before rejection.
 
 :func:`nearest_bruteforce` is the appendix's search (vectorised over the child for each parent
-pixel), kept as the reference the k-d tree path is tested against.
+pixel), kept as the reference the grid and k-d tree searches are tested against. What
+:func:`correspond` derives from a scan (masks, view cosine, modulation, search grid) can be kept
+across calls in a :class:`CorrespondenceCache`: matching one scan several times, pass one.
 """
 
 from __future__ import annotations
@@ -46,9 +48,11 @@ __all__ = [
     "DROP_REASONS",
     "REJECT_REASONS",
     "Correspondence",
+    "CorrespondenceCache",
     "correspond",
     "grid_normals",
     "nearest_bruteforce",
+    "nearest_grid",
     "nearest_kdtree",
     "refine_subpixel",
     "sample_pixels",
@@ -176,6 +180,7 @@ def grid_normals(xyz, *, camera_center=None) -> np.ndarray:
     ``n = (∂X/∂row) × (∂X/∂col)``, with central differences where both neighbours are valid and
     one-sided ones at the edge of the valid region; the normal points towards the camera (towards
     `camera_center` if given, else by the handedness of the camera frame: x right, y down).
+    One compiled pass over the image, in float64 (the arithmetic of the NumPy formulation).
 
     Parameters
     ----------
@@ -189,6 +194,11 @@ def grid_normals(xyz, *, camera_center=None) -> np.ndarray:
     (H, W, 3) float32
         Unit normals; NaN where a pixel has no valid neighbour along a direction.
 
+    Raises
+    ------
+    ValueError
+        If `xyz` is not ``(H, W, 3)``.
+
     Examples
     --------
     >>> rr, cc = np.mgrid[0:3, 0:4].astype(float)
@@ -196,39 +206,84 @@ def grid_normals(xyz, *, camera_center=None) -> np.ndarray:
     >>> np.abs(n[1, 1]).tolist()
     [0.0, 0.0, 1.0]
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
+    xyz = _float_image(xyz)
     if xyz.ndim != 3 or xyz.shape[2] != 3:
         raise ValueError(f"xyz: expected shape (H, W, 3), got {xyz.shape}")
+    if camera_center is None:
+        return _normals_kernel(xyz, np.zeros(3), False)
+    center = np.asarray(camera_center, dtype=np.float64).reshape(3)
+    return _normals_kernel(xyz, center, True)
 
-    def derivative(axis: int) -> np.ndarray:
-        d = np.full_like(xyz, np.nan)
-        n = xyz.shape[axis]
-        sl = [slice(None)] * 3
 
-        def take(start, stop):
-            s = list(sl)
-            s[axis] = slice(start, stop)
-            return tuple(s)
+def _float_image(a) -> np.ndarray:
+    """`a` as a C-contiguous float32 or float64 array (other types as float64), for the kernels."""
+    a = np.asarray(a)
+    if a.dtype not in (np.float32, np.float64):
+        a = a.astype(np.float64)
+    return np.ascontiguousarray(a)
 
-        if n >= 3:
-            d[take(1, n - 1)] = 0.5 * (xyz[take(2, n)] - xyz[take(0, n - 2)])
-        if n >= 2:
-            forward = np.full_like(xyz, np.nan)
-            forward[take(0, n - 1)] = xyz[take(1, n)] - xyz[take(0, n - 1)]
-            backward = np.full_like(xyz, np.nan)
-            backward[take(1, n)] = forward[take(0, n - 1)]
-            d = np.where(np.isnan(d), forward, d)
-            d = np.where(np.isnan(d), backward, d)
-        return d
 
-    normal = np.cross(derivative(0), derivative(1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-        if camera_center is not None:
-            view = np.asarray(camera_center, dtype=np.float64) - xyz
-            flip = np.einsum("...k,...k->...", normal, view) < 0
-            normal[flip] *= -1
-    return normal.astype(np.float32)
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _one_sided(xyz, r, c, k, dr, dc, i, n):
+    """``∂X_k`` at ``(r, c)`` along ``(dr, dc)`` where the central difference is NaN: forward,
+    else backward (`i`: the pixel's index along the direction, `n`: the image's extent)."""
+    d = np.nan
+    if i < n - 1:
+        d = np.float64(xyz[r + dr, c + dc, k]) - np.float64(xyz[r, c, k])
+    if np.isnan(d) and i > 0:
+        d = np.float64(xyz[r, c, k]) - np.float64(xyz[r - dr, c - dc, k])
+    return d
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _normals_kernel(xyz, center, toward_center):
+    """:func:`grid_normals` per pixel: the same float64 operations in the same order."""
+    h, w = xyz.shape[0], xyz.shape[1]
+    out = np.empty((h, w, 3), dtype=np.float32)
+    nan = np.nan
+    for r in range(h):
+        for c in range(w):
+            a0 = a1 = a2 = b0 = b1 = b2 = nan
+            if 0 < r < h - 1:  # central differences, the common case
+                a0 = 0.5 * (np.float64(xyz[r + 1, c, 0]) - np.float64(xyz[r - 1, c, 0]))
+                a1 = 0.5 * (np.float64(xyz[r + 1, c, 1]) - np.float64(xyz[r - 1, c, 1]))
+                a2 = 0.5 * (np.float64(xyz[r + 1, c, 2]) - np.float64(xyz[r - 1, c, 2]))
+            if 0 < c < w - 1:
+                b0 = 0.5 * (np.float64(xyz[r, c + 1, 0]) - np.float64(xyz[r, c - 1, 0]))
+                b1 = 0.5 * (np.float64(xyz[r, c + 1, 1]) - np.float64(xyz[r, c - 1, 1]))
+                b2 = 0.5 * (np.float64(xyz[r, c + 1, 2]) - np.float64(xyz[r, c - 1, 2]))
+            # one-sided differences where a central one is missing (per component, as NumPy);
+            # both need the pixel itself
+            x0 = np.float64(xyz[r, c, 0])
+            x1 = np.float64(xyz[r, c, 1])
+            x2 = np.float64(xyz[r, c, 2])
+            if np.isnan(a0) and not np.isnan(x0):
+                a0 = _one_sided(xyz, r, c, 0, 1, 0, r, h)
+            if np.isnan(a1) and not np.isnan(x1):
+                a1 = _one_sided(xyz, r, c, 1, 1, 0, r, h)
+            if np.isnan(a2) and not np.isnan(x2):
+                a2 = _one_sided(xyz, r, c, 2, 1, 0, r, h)
+            if np.isnan(b0) and not np.isnan(x0):
+                b0 = _one_sided(xyz, r, c, 0, 0, 1, c, w)
+            if np.isnan(b1) and not np.isnan(x1):
+                b1 = _one_sided(xyz, r, c, 1, 0, 1, c, w)
+            if np.isnan(b2) and not np.isnan(x2):
+                b2 = _one_sided(xyz, r, c, 2, 0, 1, c, w)
+            n0 = a1 * b2 - a2 * b1
+            n1 = a2 * b0 - a0 * b2
+            n2 = a0 * b1 - a1 * b0
+            norm = np.sqrt(n0 * n0 + (n1 * n1 + n2 * n2))
+            n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+            if toward_center:
+                v0 = center[0] - x0
+                v1 = center[1] - x1
+                v2 = center[2] - x2
+                if n0 * v0 + n1 * v1 + n2 * v2 < 0:
+                    n0, n1, n2 = -n0, -n1, -n2
+            out[r, c, 0] = n0
+            out[r, c, 1] = n1
+            out[r, c, 2] = n2
+    return out
 
 
 def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarray:
@@ -253,26 +308,49 @@ def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarr
     Raises
     ------
     ValueError
-        If `scan` has no ``camera_center``.
+        If `scan` has no ``camera_center``, or `normals` is not ``(H, W, 3)``.
     """
     _check_scan(scan, "scan")
     if scan.camera_center is None:
         raise ValueError(f"scan {scan.name!r}: camera_center is needed for the viewing angle")
     valid = valid_mask(scan)
+    center = np.asarray(scan.camera_center, dtype=np.float64).reshape(3)
+    xyz = _float_image(scan.xyz)
     if normals is None:
-        normals = grid_normals(scan.xyz, camera_center=scan.camera_center)
-    normals = np.asarray(normals, dtype=np.float64)
-    view = np.asarray(scan.camera_center, dtype=np.float64) - np.asarray(scan.xyz, np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        view /= np.linalg.norm(view, axis=-1, keepdims=True)
-        cos = np.clip(np.nan_to_num(np.einsum("...k,...k->...", normals, view)), 0, 1)
-    cos[~valid] = 0.0
+        normals = _normals_kernel(xyz, center, True)
+    normals = _float_image(normals)
+    if normals.shape != xyz.shape:
+        raise ValueError(f"normals: expected shape {xyz.shape}, got {normals.shape}")
+    cos = _cosine_kernel(normals, xyz, center, valid)
     if smooth_px > 0:
         norm = scipy.ndimage.gaussian_filter(valid.astype(np.float64), smooth_px)
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = np.nan_to_num(scipy.ndimage.gaussian_filter(cos, smooth_px) / norm)
         cos[~valid] = 0.0
     return cos
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _cosine_kernel(normals, xyz, center, valid):
+    """:func:`view_cosine` before smoothing: ``clip(n · (C − X) / |C − X|, 0, 1)`` in float64,
+    NaN as 0 and 0 on invalid pixels."""
+    h, w = valid.shape
+    out = np.zeros((h, w), dtype=np.float64)
+    for r in range(h):
+        for c in range(w):
+            if not valid[r, c]:
+                continue
+            v0 = center[0] - np.float64(xyz[r, c, 0])
+            v1 = center[1] - np.float64(xyz[r, c, 1])
+            v2 = center[2] - np.float64(xyz[r, c, 2])
+            norm = np.sqrt(v0 * v0 + (v1 * v1 + v2 * v2))
+            v0, v1, v2 = v0 / norm, v1 / norm, v2 / norm
+            cos = (np.float64(normals[r, c, 0]) * v0 + np.float64(normals[r, c, 1]) * v1) \
+                + np.float64(normals[r, c, 2]) * v2
+            if np.isnan(cos):
+                cos = 0.0
+            out[r, c] = min(max(cos, 0.0), 1.0)
+    return out
 
 
 # -- nearest neighbour in projector space ----------------------------------------------------
@@ -348,6 +426,298 @@ def nearest_kdtree(
     query = np.stack([parent.xp[rows, cols], parent.yp[rows, cols]], axis=-1).astype(np.float64)
     dist, index = tree.query(query, k=1, workers=workers)
     return cr[index], cc[index], dist**2
+
+
+def nearest_grid(
+    parent: Scan, child: Scan, rows, cols, *, cache: CorrespondenceCache | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest child pixel in projector space with a bucket grid (the brute force's output).
+
+    The child's valid pixels are sorted into square cells of about two pixels in projector
+    space; each parent pixel searches the cells around its own, ring by ring, until no cell
+    left can hold a nearer pixel (a parent pixel the child never saw falls back to a k-d tree of
+    the pixels at the edge of the child's coverage). Exact: the same pixels and distances as
+    :func:`nearest_bruteforce`, ties to the first child pixel in row-major order.
+
+    Parameters
+    ----------
+    parent, child : Scan
+    rows, cols : (N,) int
+        Parent pixels to match.
+    cache : CorrespondenceCache, optional
+        Keeps the child's grid for the next search in the same child.
+
+    Returns
+    -------
+    child_rows, child_cols : (N,) intp
+    distance2_px2 : (N,) float64
+        Squared projector distance, panel px².
+
+    Raises
+    ------
+    ValueError
+        If the child has no valid pixels.
+    """
+    rows, cols = _match_pixels(parent, child, rows, cols)
+    grid = (cache if cache is not None else CorrespondenceCache())._entry(child).grid
+    index, dist2 = grid.nearest(np.asarray(parent.xp)[rows, cols].astype(np.float64),
+                                np.asarray(parent.yp)[rows, cols].astype(np.float64))
+    return grid.rows[index], grid.cols[index], dist2
+
+
+def _match_pixels(parent: Scan, child: Scan, rows, cols) -> tuple[np.ndarray, np.ndarray]:
+    """Checked scans; the parent pixels ``rows, cols`` as intp."""
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    return np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+
+
+class CorrespondenceCache:
+    """What :func:`correspond` derives from a scan, kept for the next call with the same scan.
+
+    Matching one scan several times (the merge report's camera pairs; fusion's every ordered
+    pair) then computes its valid mask, its inner region (jumps and border removed), its
+    smoothed view cosine and relative modulation, and the bucket grid of its projector
+    coordinates (:func:`nearest_grid`) once. Scans are recognised by identity, and the cache
+    holds them: do not change a cached scan's arrays in place (:func:`dataclasses.replace`
+    makes a new scan). About 25 bytes per pixel of each scan.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:20, 0:20].astype(np.float32)
+    >>> one = np.ones((20, 20), np.float32)
+    >>> a = Scan("a", np.stack([cc, rr, 0 * rr], -1), cc, rr, one, one, one, one > 0)
+    >>> cache = CorrespondenceCache()
+    >>> m = correspond(a, a, stride=4, cache=cache)
+    >>> n = correspond(a, a, stride=2, cache=cache)  # a's images and grid reused
+    >>> len(cache), m.n_pairs, n.n_pairs
+    (1, 16, 64)
+    """
+
+    def __init__(self) -> None:
+        self._entries: dict[int, _ScanImages] = {}
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def clear(self) -> None:
+        """Forget every scan."""
+        self._entries.clear()
+
+    def _entry(self, scan: Scan) -> _ScanImages:
+        entry = self._entries.get(id(scan))
+        if entry is None or entry.scan is not scan:
+            entry = self._entries[id(scan)] = _ScanImages(scan)
+        return entry
+
+
+class _ScanImages:
+    """One scan's images for :func:`correspond`, each computed when first asked for."""
+
+    def __init__(self, scan: Scan):
+        self.scan = scan
+        self.valid = valid_mask(scan)
+        self._inner: dict[tuple[float, int], np.ndarray] = {}
+        self._grid: _ProjectorGrid | None = None
+        self._cosine: np.ndarray | None = None
+        self._modulation: np.ndarray | None = None
+
+    def inner(self, max_jump_px: float, border_px: int) -> np.ndarray:
+        """(H, W) bool valid pixels without jumps, eroded by `border_px`."""
+        key = (float(max_jump_px), int(border_px))
+        if key not in self._inner:
+            self._inner[key] = _eroded(_without_jumps(self.scan, self.valid, max_jump_px),
+                                       border_px)
+        return self._inner[key]
+
+    @property
+    def grid(self) -> _ProjectorGrid:
+        if self._grid is None:
+            self._grid = _ProjectorGrid(self.scan, self.valid)
+        return self._grid
+
+    def cosine(self) -> np.ndarray:
+        """(H, W) float64 :func:`view_cosine` smoothed over 2 px."""
+        if self._cosine is None:
+            self._cosine = view_cosine(self.scan, smooth_px=2.0)
+        return self._cosine
+
+    def modulation(self) -> np.ndarray:
+        """(H, W) float64 relative modulation (:func:`_relative_modulation`)."""
+        if self._modulation is None:
+            self._modulation = _relative_modulation(self.scan, self.valid)
+        return self._modulation
+
+
+_GRID_RINGS = 3  # rings of cells searched around a query before the boundary fallback (≥ 3)
+
+
+class _ProjectorGrid:
+    """A bucket grid over a child scan's valid pixels in projector space: exact nearest search.
+
+    The valid pixels' ``(xp, yp)`` are sorted into square cells of about two pixels each. A
+    query searches the cells around its own ring by ring (:func:`_grid_nearest`) until the best
+    distance is below the distance to any cell not yet searched, at most `_GRID_RINGS` rings.
+    A query still undecided then (a parent pixel the child never saw, farther than that ring
+    from every child pixel) has its nearest child pixel at the edge of an empty region of the
+    grid: those pixels (cells with an empty cell within ``⌈_GRID_RINGS / 2⌉`` cells, see
+    :meth:`_boundary_tree`) are searched with a k-d tree. Ties go to the first child pixel in
+    row-major order, as in :func:`nearest_bruteforce` (in the grid; the k-d tree's tie is its
+    own, but ties between float coordinates do not occur in measured data).
+    """
+
+    def __init__(self, scan: Scan, valid: np.ndarray):
+        self.rows, self.cols = np.nonzero(valid)
+        if self.rows.size == 0:
+            raise ValueError(f"child {scan.name!r}: no valid pixels")
+        x = np.asarray(scan.xp, dtype=np.float64)[self.rows, self.cols]
+        y = np.asarray(scan.yp, dtype=np.float64)[self.rows, self.cols]
+        self.x, self.y = x, y
+        self.x0, self.y0 = float(x.min()), float(y.min())
+        span_x, span_y = float(x.max()) - self.x0, float(y.max()) - self.y0
+        n = x.size
+        cell = _pixel_spacing(scan, valid) * np.sqrt(2.0)  # about two pixels per cell
+        # at most ~4 cells per pixel, whatever the spread of the coordinates
+        cell = max(cell, np.sqrt(span_x * span_y / (4.0 * n + 1024.0)), 1e-6)
+        self.cell = float(cell)
+        self.nx = int(span_x / cell) + 1
+        self.ny = int(span_y / cell) + 1
+        gx = np.minimum(((x - self.x0) / cell).astype(np.int64), self.nx - 1)
+        gy = np.minimum(((y - self.y0) / cell).astype(np.int64), self.ny - 1)
+        self.start, order = _bucket_sort(gy * self.nx + gx, self.nx * self.ny)
+        self.sx, self.sy, self.sindex = x[order], y[order], order
+        self.cell_of = (gy * self.nx + gx)
+        self._tree = None
+
+    def nearest(self, qx, qy, *, workers: int = -1) -> tuple[np.ndarray, np.ndarray]:
+        """Index (into the valid pixels, row-major) and squared distance of each query's nearest.
+
+        Parameters
+        ----------
+        qx, qy : (N,) float64
+            Projector coordinates, finite.
+        workers : int
+            Threads for the k-d tree of the undecided queries (``-1``: all cores).
+        """
+        qx = np.ascontiguousarray(qx, dtype=np.float64)
+        qy = np.ascontiguousarray(qy, dtype=np.float64)
+        best, d2, done = _grid_nearest(qx, qy, self.sx, self.sy, self.sindex, self.start,
+                                       self.x0, self.y0, self.cell, self.nx, self.ny,
+                                       _GRID_RINGS)
+        todo = np.flatnonzero(~done)
+        if todo.size:
+            tree, members = self._boundary_tree()
+            _, j = tree.query(np.stack([qx[todo], qy[todo]], axis=-1), workers=workers)
+            other = members[j]
+            other_d2 = (qx[todo] - self.x[other]) ** 2 + (qy[todo] - self.y[other]) ** 2
+            b, bd2 = best[todo], d2[todo]
+            take = (b < 0) | (other_d2 < bd2) | ((other_d2 == bd2) & (other < b))
+            best[todo] = np.where(take, other, b)
+            d2[todo] = np.where(take, other_d2, bd2)
+        return best, d2
+
+    def _boundary_tree(self):
+        """k-d tree of the pixels whose cell has an empty cell within ``⌈rings / 2⌉`` cells.
+
+        A query undecided after `rings` rings has no pixel within ``rings × cell`` of it, so
+        the open disc through its nearest pixel ``p`` centred on the query is empty; the disc of
+        radius ``rings × cell / 2`` inside it and tangent at ``p`` then holds a whole cell
+        (``rings / 2 > √2``), empty, within ``⌈rings / 2⌉`` cells of ``p``'s: ``p`` is in the
+        tree.
+        """
+        if self._tree is None:
+            occupied = (np.diff(self.start) > 0).reshape(self.ny, self.nx)
+            reach = 2 * (-(-_GRID_RINGS // 2)) + 1
+            inner = scipy.ndimage.minimum_filter(occupied, size=reach, mode="constant", cval=0)
+            members = np.flatnonzero(~inner.ravel()[self.cell_of])
+            tree = scipy.spatial.cKDTree(np.stack([self.x[members], self.y[members]], axis=-1))
+            self._tree = (tree, members)
+        return self._tree
+
+
+def _pixel_spacing(scan: Scan, valid: np.ndarray) -> float:
+    """Typical distance of neighbouring valid pixels in projector space, panel px (geometric
+    mean of the median steps along rows and columns; on every fourth row and column)."""
+    xp = np.asarray(scan.xp, dtype=np.float64)[::4, ::4]
+    yp = np.asarray(scan.yp, dtype=np.float64)[::4, ::4]
+    ok = valid[::4, ::4]
+    steps = []
+    for axis in (0, 1):
+        lo = (slice(None, -1), slice(None)) if axis == 0 else (slice(None), slice(None, -1))
+        hi = (slice(1, None), slice(None)) if axis == 0 else (slice(None), slice(1, None))
+        both = ok[lo] & ok[hi]
+        d = np.hypot(xp[hi] - xp[lo], yp[hi] - yp[lo])[both] / 4.0
+        steps.append(float(np.median(d)) if d.size else np.nan)
+    spacing = float(np.sqrt(steps[0] * steps[1]))
+    return spacing if np.isfinite(spacing) and spacing > 0 else 0.0
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _bucket_sort(cell, n_cells):
+    """Counting sort of `cell` ids: ``start`` (n_cells + 1) and the stable order of the items."""
+    start = np.zeros(n_cells + 1, dtype=np.int64)
+    for c in cell:
+        start[c + 1] += 1
+    for k in range(n_cells):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(cell.size, dtype=np.int64)
+    for i in range(cell.size):
+        order[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    return start, order
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _visit_cell(cid, x, y, sx, sy, sindex, start, b, bd2):
+    """The best of `b` (squared distance `bd2`) and the points of cell `cid` (ties: lower index)."""
+    for p in range(start[cid], start[cid + 1]):
+        d2 = (x - sx[p]) ** 2 + (y - sy[p]) ** 2
+        if d2 < bd2 or (d2 == bd2 and sindex[p] < b):
+            b, bd2 = sindex[p], d2
+    return b, bd2
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _grid_nearest(qx, qy, sx, sy, sindex, start, x0, y0, cell, nx, ny, rings):
+    """Nearest point of the grid for each query, by rings of cells around the query's cell.
+
+    Returns the index of the nearest point found (−1 if none), its squared distance, and
+    whether it is proven nearest: its distance is below the distance from the query to every
+    cell beyond the rings searched (ties to the lower index).
+    """
+    n = qx.size
+    best = np.full(n, -1, dtype=np.int64)
+    best_d2 = np.full(n, np.inf)
+    done = np.zeros(n, dtype=np.bool_)
+    limit = 2.0**40
+    for i in range(n):
+        x, y = qx[i], qy[i]
+        fx = min(max((x - x0) / cell, -limit), limit)
+        fy = min(max((y - y0) / cell, -limit), limit)
+        ci, cj = np.floor(fx), np.floor(fy)
+        # distance from the query to the edges of its own cell, in cells
+        margin = min(fx - ci, ci + 1.0 - fx, fy - cj, cj + 1.0 - fy)
+        ci, cj = int(ci), int(cj)
+        b, bd2 = -1, np.inf
+        for k in range(rings + 1):
+            for gy in range(max(cj - k, 0), min(cj + k, ny - 1) + 1):
+                if gy == cj - k or gy == cj + k:  # top and bottom rows of the ring
+                    for gx in range(max(ci - k, 0), min(ci + k, nx - 1) + 1):
+                        b, bd2 = _visit_cell(gy * nx + gx, x, y, sx, sy, sindex, start, b, bd2)
+                else:  # its left and right cells
+                    if 0 <= ci - k < nx:
+                        b, bd2 = _visit_cell(gy * nx + ci - k, x, y, sx, sy, sindex, start,
+                                             b, bd2)
+                    if 0 <= ci + k < nx:
+                        b, bd2 = _visit_cell(gy * nx + ci + k, x, y, sx, sy, sindex, start,
+                                             b, bd2)
+            reach = (k + margin) * cell
+            if b >= 0 and bd2 < reach * reach * (1.0 - 1e-9):
+                done[i] = True
+                break
+        best[i], best_d2[i] = b, bd2
+    return best, best_d2, done
 
 
 # -- sub-pixel refinement --------------------------------------------------------------------
@@ -428,7 +798,12 @@ def refine_subpixel(
 # cache on disk unless no directory at all can hold numba's cache (nail2nail._numba_cache)
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, max_shift):
-    """Compiled :func:`refine_subpixel` plus bilinear interpolation of ``xyz`` (same arithmetic)."""
+    """Compiled :func:`refine_subpixel` plus bilinear interpolation of ``xyz`` (same arithmetic).
+
+    `xp`, `yp`, `xyz` may be float32 or float64: every value is read as float64, so float32
+    images give the results of their float64 copies without the copies.
+    """
+    f8 = np.float64
     n = rows.size
     h, w = xp.shape
     out_r = np.empty(n)
@@ -438,11 +813,11 @@ def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, ma
     for i in range(n):
         r0, c0 = rows[i], cols[i]
         tx, ty = target_xp[i], target_yp[i]
-        fx, fy = xp[r0, c0], yp[r0, c0]
-        ax = 0.5 * (xp[r0, c0 + 1] - xp[r0, c0 - 1])
-        ay = 0.5 * (yp[r0, c0 + 1] - yp[r0, c0 - 1])
-        bx = 0.5 * (xp[r0 + 1, c0] - xp[r0 - 1, c0])
-        by = 0.5 * (yp[r0 + 1, c0] - yp[r0 - 1, c0])
+        fx, fy = f8(xp[r0, c0]), f8(yp[r0, c0])
+        ax = 0.5 * (f8(xp[r0, c0 + 1]) - f8(xp[r0, c0 - 1]))
+        ay = 0.5 * (f8(yp[r0, c0 + 1]) - f8(yp[r0, c0 - 1]))
+        bx = 0.5 * (f8(xp[r0 + 1, c0]) - f8(xp[r0 - 1, c0]))
+        by = 0.5 * (f8(yp[r0 + 1, c0]) - f8(yp[r0 - 1, c0]))
         r, c = float(r0), float(c0)
         bad = False
         for k in range(iterations + 2):
@@ -450,8 +825,10 @@ def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, ma
                 ri = min(max(int(np.floor(r)), 0), h - 2)
                 ci = min(max(int(np.floor(c)), 0), w - 2)
                 fr, fc = r - ri, c - ci
-                x00, x01, x10, x11 = xp[ri, ci], xp[ri, ci + 1], xp[ri + 1, ci], xp[ri + 1, ci + 1]
-                y00, y01, y10, y11 = yp[ri, ci], yp[ri, ci + 1], yp[ri + 1, ci], yp[ri + 1, ci + 1]
+                x00, x01 = f8(xp[ri, ci]), f8(xp[ri, ci + 1])
+                x10, x11 = f8(xp[ri + 1, ci]), f8(xp[ri + 1, ci + 1])
+                y00, y01 = f8(yp[ri, ci]), f8(yp[ri, ci + 1])
+                y10, y11 = f8(yp[ri + 1, ci]), f8(yp[ri + 1, ci + 1])
                 xt = x00 + (x01 - x00) * fc
                 xb = x10 + (x11 - x10) * fc
                 yt = y00 + (y01 - y00) * fc
@@ -487,10 +864,29 @@ def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, ma
         ci = min(max(int(np.floor(c)), 0), w - 2)
         fr, fc = r - ri, c - ci
         for j in range(3):
-            top = xyz[ri, ci, j] + (xyz[ri, ci + 1, j] - xyz[ri, ci, j]) * fc
-            bottom = xyz[ri + 1, ci, j] + (xyz[ri + 1, ci + 1, j] - xyz[ri + 1, ci, j]) * fc
+            p00, p01 = f8(xyz[ri, ci, j]), f8(xyz[ri, ci + 1, j])
+            p10, p11 = f8(xyz[ri + 1, ci, j]), f8(xyz[ri + 1, ci + 1, j])
+            top = p00 + (p01 - p00) * fc
+            bottom = p10 + (p11 - p10) * fc
             out_xyz[i, j] = top + (bottom - top) * fr
     return out_r, out_c, out_res, out_xyz
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _bilinear_values(image, r, c):
+    """The value of :func:`nail2nail._interpolate.bilinear` (same arithmetic), compiled."""
+    h, w = image.shape
+    out = np.empty(r.size)
+    for i in range(r.size):
+        r0 = min(max(int(np.floor(r[i])), 0), h - 2)
+        c0 = min(max(int(np.floor(c[i])), 0), w - 2)
+        fr, fc = r[i] - r0, c[i] - c0
+        f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
+        f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+        top = f00 + (f01 - f00) * fc
+        bottom = f10 + (f11 - f10) * fc
+        out[i] = top + (bottom - top) * fr
+    return out
 
 
 # -- the correspondence ----------------------------------------------------------------------
@@ -618,13 +1014,14 @@ def correspond(
     border_px: int = 2,
     max_jump_px: float = 2.0,
     refine: bool = True,
-    method: str = "kdtree",
+    method: str = "grid",
     workers: int = -1,
     max_view_angle_deg: float | None = 70.0,
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
     outlier_mad: float = 4.0,
     outlier_block_px: int = 32,
+    cache: CorrespondenceCache | None = None,
 ) -> Correspondence:
     """Corresponding pixels of two scans in projector space, and their world points.
 
@@ -662,8 +1059,10 @@ def correspond(
         the local slope) a pixel is a discontinuity, panel px.
     refine : bool
         Sub-pixel refinement; ``False`` takes the nearest child pixel as the appendix.
-    method : {"kdtree", "bruteforce"}
-        Nearest-neighbour search; ``"bruteforce"`` is the appendix's, for small inputs only.
+    method : {"grid", "kdtree", "bruteforce"}
+        Nearest-neighbour search, all exact: a bucket grid (:func:`nearest_grid`, the fastest),
+        a k-d tree built for the call (:func:`nearest_kdtree`), or the appendix's exhaustive
+        search (:func:`nearest_bruteforce`, for small inputs only).
     workers : int
         Threads for the k-d tree query (``-1``: all cores).
     max_view_angle_deg : float or None
@@ -679,6 +1078,9 @@ def correspond(
         The excess must also exceed this many local MADs.
     outlier_block_px : int
         Size of the parent-image blocks over which the local median and MAD are taken, px.
+    cache : CorrespondenceCache, optional
+        Keeps what is derived from each scan (masks, view cosine, modulation, search grid) for
+        the next call with the same scan; matching one scan several times, pass one cache.
 
     Returns
     -------
@@ -712,22 +1114,26 @@ def correspond(
         max_jump_px=max_jump_px, refine=refine, method=method, workers=workers,
         max_view_angle_deg=max_view_angle_deg, min_relative_modulation=min_relative_modulation,
         outlier_mm=outlier_mm, outlier_mad=outlier_mad, outlier_block_px=outlier_block_px,
+        cache=cache,
     )
 
 
-def _relative_modulation(scan: Scan) -> np.ndarray:
+def _relative_modulation(scan: Scan, valid: np.ndarray | None = None) -> np.ndarray:
     """Modulation over its median on the valid pixels, 0 where invalid (the quality image)."""
-    valid = valid_mask(scan)
+    valid = valid_mask(scan) if valid is None else valid
     m = np.nan_to_num(np.asarray(scan.modulation, dtype=np.float64))
     median = float(np.median(m[valid])) if valid.any() else 0.0
     return np.where(valid, m / median, 0.0) if median > 0 else np.zeros_like(m)
 
 
 def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_px, refine,
-                method, workers, max_view_angle_deg, min_relative_modulation, outlier_mm,
-                outlier_mad, outlier_block_px, quality=None) -> Correspondence:
+                method="grid", workers=-1, max_view_angle_deg=70.0,
+                min_relative_modulation=1 / 3, outlier_mm=0.025, outlier_mad=4.0,
+                outlier_block_px=32, quality=None, cache=None) -> Correspondence:
     """:func:`correspond`; `quality` maps ``id(scan)`` to its ``[view cosine, relative
-    modulation]`` images, so a caller matching one scan many times computes them once."""
+    modulation]`` images (None: not yet computed; filled here), so a caller matching one scan
+    many times computes them once. `cache` (:class:`CorrespondenceCache`) keeps those and the
+    rest of what is derived from a scan (masks, search grid) across calls."""
     _check_scan(parent, "parent")
     _check_scan(child, "child")
     stride = as_int(stride, "stride", minimum=1)
@@ -744,48 +1150,55 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     if max_view_angle_deg is not None and not 0 < max_view_angle_deg <= 90:
         raise ValueError(f"max_view_angle_deg: expected a number in (0, 90] or None, "
                          f"got {max_view_angle_deg}")
-    if method not in ("kdtree", "bruteforce"):
-        raise ValueError(f"method: expected 'kdtree' or 'bruteforce', got {method!r}")
+    if method not in ("grid", "kdtree", "bruteforce"):
+        raise ValueError(f"method: expected 'grid', 'kdtree' or 'bruteforce', got {method!r}")
+    if cache is None:
+        cache = CorrespondenceCache()
+    elif not isinstance(cache, CorrespondenceCache):
+        raise TypeError(f"cache: expected a CorrespondenceCache, got {type(cache).__name__}")
 
-    parent_valid = valid_mask(parent)
-    child_valid = valid_mask(child)
+    parent_images, child_images = cache._entry(parent), cache._entry(child)
+    parent_valid, child_valid = parent_images.valid, child_images.valid
     if not child_valid.any():
         raise ValueError(f"child {child.name!r}: no valid pixels")
     rows, cols = sample_pixels(parent_valid, stride=stride)
     n_sampled = rows.size
     dropped = dict.fromkeys(DROP_REASONS, 0)
 
-    keep = _eroded(_without_jumps(parent, parent_valid, max_jump_px), border_px)[rows, cols]
+    keep = parent_images.inner(max_jump_px, border_px)[rows, cols]
     dropped["parent_border"] = int(np.count_nonzero(~keep))
     rows, cols = rows[keep], cols[keep]
+    target_xp = np.asarray(parent.xp)[rows, cols].astype(np.float64)
+    target_yp = np.asarray(parent.yp)[rows, cols].astype(np.float64)
 
-    search = nearest_kdtree if method == "kdtree" else nearest_bruteforce
-    kwargs = {"workers": workers} if method == "kdtree" else {}
-    nr, nc, dist2 = search(parent, child, rows, cols, **kwargs)
+    if method == "grid":
+        grid = child_images.grid
+        index, dist2 = grid.nearest(target_xp, target_yp, workers=workers)
+        nr, nc = grid.rows[index], grid.cols[index]
+    elif method == "kdtree":
+        nr, nc, dist2 = nearest_kdtree(parent, child, rows, cols, workers=workers)
+    else:
+        nr, nc, dist2 = nearest_bruteforce(parent, child, rows, cols)
 
-    child_inner = _eroded(_without_jumps(child, child_valid, max_jump_px), border_px)
-    keep = child_inner[nr, nc]
+    keep = child_images.inner(max_jump_px, border_px)[nr, nc]
     rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
+    target_xp, target_yp = target_xp[keep], target_yp[keep]
     if refine:
         sub_r, sub_c, residual, xyz_child = _refine_kernel(
-            np.ascontiguousarray(child.xp, dtype=np.float64),
-            np.ascontiguousarray(child.yp, dtype=np.float64),
-            np.ascontiguousarray(child.xyz, dtype=np.float64),
-            parent.xp[rows, cols].astype(np.float64),
-            parent.yp[rows, cols].astype(np.float64),
-            nr, nc, _NEWTON_STEPS, _MAX_SHIFT_PX,
+            _float_image(child.xp), _float_image(child.yp), _float_image(child.xyz),
+            target_xp, target_yp, nr, nc, _NEWTON_STEPS, _MAX_SHIFT_PX,
         )
         finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
     else:
         sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
-        xyz_child = np.asarray(child.xyz, dtype=np.float64)[nr, nc]
+        xyz_child = np.asarray(child.xyz)[nr, nc].astype(np.float64)
         finite = np.ones(nr.size, dtype=bool)
     dropped["child_border"] = int(np.count_nonzero(~keep) + np.count_nonzero(~finite))
 
     with np.errstate(invalid="ignore"):
         good = finite & (residual <= max_residual_px)
     dropped["residual"] = int(np.count_nonzero(finite & ~good))
-    xyz_parent = np.asarray(parent.xyz, dtype=np.float64)[rows[good], cols[good]]
+    xyz_parent = np.asarray(parent.xyz)[rows[good], cols[good]].astype(np.float64)
     pairs = {
         "parent_rc": np.stack([rows[good], cols[good]], axis=-1),
         "child_nearest": np.stack([nr[good], nc[good]], axis=-1),
@@ -805,10 +1218,11 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         quality = {}
 
     def images(scan, k):
-        cache = quality.setdefault(id(scan), [None, None])
-        if cache[k] is None:
-            cache[k] = view_cosine(scan, smooth_px=2.0) if k == 0 else _relative_modulation(scan)
-        return cache[k]
+        slot = quality.setdefault(id(scan), [None, None])
+        if slot[k] is None:
+            entry = cache._entry(scan)
+            slot[k] = entry.cosine() if k == 0 else entry.modulation()
+        return slot[k]
 
     for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
         if limit is None or n == 0:
@@ -818,7 +1232,8 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         for scan, (r, c) in ((parent, (pr, pc)), (child, (cr, cc))):
             if code == 0 and scan.camera_center is None:
                 continue
-            value = bilinear(images(scan, code), r.astype(np.float64), c.astype(np.float64))[0]
+            value = _bilinear_values(images(scan, code), r.astype(np.float64),
+                                     c.astype(np.float64))
             ok &= value >= threshold
         reason[(reason < 0) & ~ok] = code
     if outlier_mm is not None and n:
