@@ -88,7 +88,9 @@ class Capture:
         without a float copy: ``uint8`` for ``bit_depth`` 8, ``uint16`` (right-aligned, ``0 …
         2**bit_depth - 1``) otherwise, a quarter (8-bit) or half of the float stack's memory;
         :func:`frame_intensities` turns any part of them into the float frames, bit for bit.
-        Frames already cached as floats are read again from disk.
+        Frames already cached as floats are read again from disk. The frames are decoded in
+        ``min(os.cpu_count(), n_frames)`` threads (Pillow's PNG decoder releases the GIL), each
+        straight into the returned stack; the first bad frame, in frame order, raises.
 
         Raises
         ------
