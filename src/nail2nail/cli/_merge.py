@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
         "merge",
         help="merge error between cameras in projector space, and the fused super scan",
         description="For every valid pixel (or every K-th) of the parent camera of each pair, "
-        "find the child pixel with the nearest projector coordinates (k-d tree, sub-pixel), "
+        "find the child pixel with the nearest projector coordinates (bucket grid, sub-pixel), "
         "report the world distance of the pairs (thesis chapter four) with figures, and fuse "
         "all cameras into one nail-to-nail point cloud and mesh (super.ply, super mat5).",
     )
@@ -37,7 +37,9 @@ def add_parser(sub) -> None:
     p.add_argument("--border", type=int, default=2,
                    help="erosion of each camera's valid region, px")
     p.add_argument("--no-super", action="store_true", help="skip the super scan")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=True,
+                   help="write the PNG figures (heat maps, histograms, marked pixels, renders "
+                   "of the super scan; --no-figures: none)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
     p.set_defaults(func=run)
@@ -55,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     pairs = parse_pairs(args.pairs, len(scans))
     summary = write_merge(
         scans, args.out, pairs=pairs, stride=args.stride, max_residual_px=args.max_residual,
-        border_px=args.border, figures=not args.no_figures, super_scan=not args.no_super,
+        border_px=args.border, figures=args.figures, super_scan=not args.no_super,
         progress=not args.json and sys.stderr.isatty(),
     )
     summary = {"scan_dir": str(args.scan_dir), **summary}

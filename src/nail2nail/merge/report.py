@@ -17,7 +17,7 @@ from tqdm import tqdm
 from .._validation import as_int
 from ..io._atomic import atomic_directory, write_npz
 from ..io._json import write_json
-from .correspondence import correspond
+from .correspondence import CorrespondenceCache, correspond
 from .fusion import fuse_scans, write_super_mat5, write_super_ply
 
 __all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
@@ -56,7 +56,9 @@ def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
 
 
 def _save_mapping(path: Path, corr) -> Path:
-    # float32 (µm-level values at mm scale keep ~7 digits) halves the files
+    # float32 (µm-level values at mm scale keep ~7 digits) halves the files; the integer and
+    # string arrays (the mapping matrix is mostly −1) deflate at level 1, the float noise is
+    # stored: on the full-resolution finger 13 MB in 0.07 s, against 11 MB in 1.3 s all at zlib 6
     arrays = {
         "mapping": corr.mapping, "parent_rc": corr.parent_rc.astype(np.int32),
         "child_rc": corr.child_rc.astype(np.float32),
@@ -73,7 +75,8 @@ def _save_mapping(path: Path, corr) -> Path:
             "rejected_distance_mm": r.distance_mm.astype(np.float32),
             "rejected_reason": np.asarray(r.reason, dtype=str),
         }
-    return write_npz(path, arrays)
+    return write_npz(path, arrays, compress={
+        name: 1 for name, a in arrays.items() if a.dtype.kind in "iuU"})
 
 
 def write_merge(
@@ -164,9 +167,11 @@ def _relocate(obj, old: str, new: str):
 MIN_KEPT_FRACTION = 0.2
 
 
-def _check_kept(corr) -> None:
-    """0 pairs kept of a camera pair: an error; fewer than :data:`MIN_KEPT_FRACTION`: a warning."""
-    stats = corr.statistics()
+def _check_kept(corr, stats: dict | None = None) -> None:
+    """0 pairs kept of a camera pair: an error; fewer than :data:`MIN_KEPT_FRACTION`: a warning.
+
+    `stats` is ``corr.statistics()`` if already computed."""
+    stats = corr.statistics() if stats is None else stats
     kept, found = int(stats["pairs"]), int(stats["before_rejection"]["pairs"])
     pair = f"{corr.parent_name} ↔ {corr.child_name}"
     if kept == 0:
@@ -191,11 +196,13 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         )
     outputs: list[str] = []
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": outputs}
+    cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
     for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
         corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
-                          border_px=border_px)
+                          border_px=border_px, cache=cache)
         key = f"{i}-{j}"
-        _check_kept(corr)
+        stats = corr.statistics()
+        _check_kept(corr, stats)
         files = {"mapping": _save_mapping(out / f"merge_{key}_mapping.npz", corr)}
         if figures:
             files["heatmap"] = plot_merge_heatmap(corr, out / f"merge_{key}_heatmap.png",
@@ -211,7 +218,9 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                 every=every)
         files = {k: str(v) for k, v in files.items()}
         outputs.extend(files.values())
-        summary["merge"][key] = {**corr.statistics(), "files": files}
+        summary["merge"][key] = {**stats, "files": files}
+        del corr
+    del cache  # its images are not needed by the fusion: freed before it
     if super_scan:
         sup = fuse_scans(scans, max_residual_px=max_residual_px)
         files = {"ply": write_super_ply(out / "super.ply", sup)}
