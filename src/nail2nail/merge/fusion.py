@@ -62,8 +62,6 @@ __all__ = [
 _CACHE = cache_enabled()
 _JIT = {"cache": _CACHE, "nogil": True, "error_model": "numpy"}
 _DBL_MAX = float(np.finfo(np.float64).max)
-_STEP_R = np.array([1, 0, 1, 1])  # the four lines through a pixel (spikes): row, column, diagonals
-_STEP_C = np.array([0, 1, 1, -1])
 _EMPTY = -1  # an empty slot of the cell table
 _CELL_BITS = 20  # per axis in a cell key
 _HASH = -7046029254386353131  # 0x9E3779B97F4A7C15 (Fibonacci hashing), as int64
@@ -107,59 +105,89 @@ def _bilinear(image, r, c):
     return top + (bottom - top) * fr
 
 
+_STEP_R = (1, 0, 1, 1)  # the four lines through a pixel (spikes): column, row, diagonals
+_STEP_C = (0, 1, 1, -1)
+
+
+@numba.njit(**_JIT)
+def _is_spike(xyz, ok, r, c, spike_mm):
+    """:func:`spikes` at one pixel, the full test."""
+    h, w = ok.shape
+    chord = np.empty((4, 3))
+    mid = np.empty((4, 3))
+    line = np.zeros(4, np.bool_)
+    for k in range(4):
+        rb, cb = r - _STEP_R[k], c - _STEP_C[k]
+        ra, ca = r + _STEP_R[k], c + _STEP_C[k]
+        line[k] = (0 <= rb < h and 0 <= cb < w and 0 <= ra < h and 0 <= ca < w and ok[rb, cb]
+                   and ok[ra, ca])
+        if line[k]:
+            for d in range(3):
+                before, after = np.float64(xyz[rb, cb, d]), np.float64(xyz[ra, ca, d])
+                chord[k, d] = after - before
+                mid[k, d] = 0.5 * (before + after)
+    n0 = n1 = n2 = 0.0
+    for k in range(4):
+        for m in range(k + 1, 4):
+            if not (line[k] and line[m]):
+                continue  # a NaN cross product: nan_to_num adds 0
+            # orient every pair's cross product alike: by the sign of the pixel steps' own
+            sign = 1.0 if _STEP_R[k] * _STEP_C[m] - _STEP_C[k] * _STEP_R[m] > 0 else -1.0
+            a0, a1, a2 = chord[k, 0], chord[k, 1], chord[k, 2]
+            b0, b1, b2 = chord[m, 0], chord[m, 1], chord[m, 2]
+            n0 += _nan_to_num(sign * (a1 * b2 - a2 * b1))
+            n1 += _nan_to_num(sign * (a2 * b0 - a0 * b2))
+            n2 += _nan_to_num(sign * (a0 * b1 - a1 * b0))
+    length = _norm3(n0, n1, n2)
+    n0, n1, n2 = n0 / length, n1 / length, n2 / length
+    x0, x1, x2 = np.float64(xyz[r, c, 0]), np.float64(xyz[r, c, 1]), np.float64(xyz[r, c, 2])
+    smallest = np.inf
+    lines = 0
+    for k in range(4):
+        if line[k]:
+            lines += np.isfinite(mid[k, 0])
+            offset = abs(_dot3(x0 - mid[k, 0], x1 - mid[k, 1], x2 - mid[k, 2], n0, n1, n2))
+            if offset < smallest:  # np.fmin: a NaN offset leaves it
+                smallest = offset
+    return lines >= 2 and np.isfinite(smallest) and smallest > spike_mm
+
+
 @numba.njit(**_JIT)
 def _spike_kernel(xyz, valid, spike_mm):  # pragma: no cover - compiled
-    """:func:`spikes` pixel by pixel."""
+    """:func:`spikes` pixel by pixel.
+
+    The offset on a line is at most the distance from the pixel to the line's midpoint (the
+    normal is a unit vector), so a pixel within `spike_mm` of a midpoint is no spike (with a
+    margin far above the rounding): only the others (spikes, steps) take the full test.
+    """
     h, w = valid.shape
-    ok = np.zeros((h, w), np.bool_)
+    ok = np.empty((h, w), np.bool_)
     for r in range(h):
         for c in range(w):
             ok[r, c] = (valid[r, c] and np.isfinite(xyz[r, c, 0]) and np.isfinite(xyz[r, c, 1])
                         and np.isfinite(xyz[r, c, 2]))
+    near2 = (spike_mm * (1.0 - 1e-9)) ** 2
     out = np.zeros((h, w), np.bool_)
-    chord = np.empty((4, 3))
-    mid = np.empty((4, 3))
-    line = np.zeros(4, np.bool_)
     for r in range(h):
         for c in range(w):
             if not ok[r, c]:
                 continue
+            near = False
             for k in range(4):
                 rb, cb = r - _STEP_R[k], c - _STEP_C[k]
                 ra, ca = r + _STEP_R[k], c + _STEP_C[k]
-                line[k] = (0 <= rb < h and 0 <= cb < w and 0 <= ra < h and 0 <= ca < w
-                           and ok[rb, cb] and ok[ra, ca])
-                if line[k]:
+                if (0 <= rb < h and 0 <= cb < w and 0 <= ra < h and 0 <= ca < w and ok[rb, cb]
+                        and ok[ra, ca]):
+                    d2 = 0.0
                     for d in range(3):
                         before, after = np.float64(xyz[rb, cb, d]), np.float64(xyz[ra, ca, d])
-                        chord[k, d] = after - before
-                        mid[k, d] = 0.5 * (before + after)
-            n0 = n1 = n2 = 0.0
-            for k in range(4):
-                for m in range(k + 1, 4):
-                    if not (line[k] and line[m]):
-                        continue  # a NaN cross product: nan_to_num adds 0
-                    # orient every pair's cross product alike: by the sign of the steps' own
-                    sign = 1.0 if _STEP_R[k] * _STEP_C[m] - _STEP_C[k] * _STEP_R[m] > 0 else -1.0
-                    a0, a1, a2 = chord[k, 0], chord[k, 1], chord[k, 2]
-                    b0, b1, b2 = chord[m, 0], chord[m, 1], chord[m, 2]
-                    n0 += _nan_to_num(sign * (a1 * b2 - a2 * b1))
-                    n1 += _nan_to_num(sign * (a2 * b0 - a0 * b2))
-                    n2 += _nan_to_num(sign * (a0 * b1 - a1 * b0))
-            length = _norm3(n0, n1, n2)
-            n0, n1, n2 = n0 / length, n1 / length, n2 / length
-            x0, x1, x2 = np.float64(xyz[r, c, 0]), np.float64(xyz[r, c, 1]), \
-                np.float64(xyz[r, c, 2])
-            smallest = np.inf
-            lines = 0
-            for k in range(4):
-                if line[k]:
-                    lines += 1
-                    offset = abs(_dot3(x0 - mid[k, 0], x1 - mid[k, 1], x2 - mid[k, 2],
-                                       n0, n1, n2))
-                    if offset < smallest:  # np.fmin: a NaN offset leaves it
-                        smallest = offset
-            out[r, c] = lines >= 2 and np.isfinite(smallest) and smallest > spike_mm
+                        e = np.float64(xyz[r, c, d]) - 0.5 * (before + after)
+                        d2 += e * e
+                    if d2 < near2:
+                        near = True
+                        break
+            if not near:
+                out[r, c] = _is_spike(xyz, ok, r, c, spike_mm)
     return out
 
 
@@ -334,110 +362,134 @@ def _confirm_kernel(trust, index, parent_rc, xyz_parent, xyz_child, surface_mm):
             trust[i] = np.inf
 
 
-# -- a uniform grid of cells over points: fixed-radius and nearest-neighbour queries ----------
+# -- a uniform grid of cells over each camera's points: fixed-radius and nearest searches ------
+# Cells are cubes of `size` mm from `origin`, clamped to `shape` along the axes `axes` (a cell
+# index is monotone in the coordinate, so clamping loses no neighbour). The points are sorted
+# by (group, column, cell along the column): a column is the line of cells along the last axis,
+# so a query reads a few contiguous runs, each found by a binary search.
 @numba.njit(**_JIT)
-def _cell(x, origin, size):
-    """Cell index along one axis, clamped to the key's range (monotone in `x`)."""
-    v = min(max((x - origin) / size, 0.0), np.float64((1 << _CELL_BITS) - 1))
-    return np.int64(v)
-
-
-@numba.njit(**_JIT)
-def _cell_key(ix, iy, iz):
-    return (ix << (2 * _CELL_BITS)) | (iy << _CELL_BITS) | iz
+def _cell(x, origin, size, n):
+    """Cell index along one axis, clamped to ``[0, n)``."""
+    return np.int64(min(max((x - origin) / size, 0.0), n - 1.0))
 
 
 @numba.njit(**_JIT)
-def _find_slot(table, key):
-    """The slot of `key` in the open-addressing `table` (linear probing), or the empty slot
-    where it would go."""
-    mask = table.size - 1
-    slot = ((key * _HASH) >> 24) & mask
-    while table[slot] != key and table[slot] != _EMPTY:
-        slot = (slot + 1) & mask
-    return slot
+def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - compiled
+    """Sort each group's points (``points[group_start[g]:group_start[g + 1]]``) by column and
+    cell, with cells of `size` from the points' lowest corner and at most `max_cells` along
+    each axis of ``axes`` (the points' extents, longest first; the columns run along the last).
 
-
-@numba.njit(**_JIT)
-def _grid_build(points, origin, size):  # pragma: no cover - compiled
-    """Points sorted by cell: ``(table, start, count, sorted_points, sorted_index)``; a cell's
-    points are ``sorted_points[start[s]:start[s] + count[s]]`` with ``s`` its slot in `table`
-    (cell keys, :data:`_EMPTY` where none)."""
+    Returns ``(column_start, sorted_cell, sorted_points, sorted_index, origin, shape, axes)``:
+    column ``t = (g × shape[0] + a) × shape[1] + b`` holds the sorted points
+    ``column_start[t]:column_start[t + 1]``, `sorted_cell` their cell along ``axes[2]``
+    (ascending in a column) and `sorted_index` their row in `points`.
+    """
     n = points.shape[0]
-    keys = np.empty(n, np.int64)
-    runs = 0
-    last = _EMPTY
+    n_groups = group_start.size - 1
+    low = np.full(3, np.inf)
+    high = np.full(3, -np.inf)
     for i in range(n):
-        key = _cell_key(_cell(points[i, 0], origin[0], size), _cell(points[i, 1], origin[1], size),
-                        _cell(points[i, 2], origin[2], size))
-        keys[i] = key
-        if key != last:  # neighbouring pixels mostly share a cell: one lookup per run
-            runs += 1
-            last = key
-    capacity = 16
-    while capacity < 2 * runs:
-        capacity *= 2
-    table = np.full(capacity, _EMPTY, np.int64)
-    count = np.zeros(capacity, np.int32)
-    last, slot = _EMPTY, 0
-    for i in range(n):
-        if keys[i] != last:
-            last = keys[i]
-            slot = _find_slot(table, last)
-            table[slot] = last
-        count[slot] += 1
-    start = np.empty(capacity, np.int32)
-    total = 0
-    for s in range(capacity):
-        start[s] = total
-        total += count[s]
-    cursor = start.copy()
+        for d in range(3):
+            low[d] = min(low[d], points[i, d])
+            high[d] = max(high[d], points[i, d])
+    extent = high - low
+    axes = np.argsort(-extent, kind="mergesort")
+    shape = np.empty(3, np.int64)
+    for k in range(3):
+        shape[k] = np.int64(min(np.floor(extent[axes[k]] / size) + 1.0, max_cells[k]))
+    n_columns = n_groups * shape[0] * shape[1]
+    column = np.empty(n, np.int32)
+    column_start = np.zeros(n_columns + 1, np.int64)
+    sorted_cell = np.empty(n, np.int32)
     sorted_points = np.empty((n, 3), points.dtype)
     sorted_index = np.empty(n, np.int32)
-    last = _EMPTY
-    for i in range(n):
-        if keys[i] != last:
-            last = keys[i]
-            slot = _find_slot(table, last)
-        p = cursor[slot]
-        cursor[slot] += 1
-        sorted_points[p] = points[i]
+    for g in range(n_groups):
+        for i in range(group_start[g], group_start[g + 1]):
+            a = _cell(points[i, axes[0]], low[axes[0]], size, shape[0])
+            b = _cell(points[i, axes[1]], low[axes[1]], size, shape[1])
+            column[i] = (g * shape[0] + a) * shape[1] + b
+            column_start[column[i] + 1] += 1
+    for t in range(n_columns):
+        column_start[t + 1] += column_start[t]
+    cursor = column_start[:-1].copy()
+    for i in range(n):  # by column, in the points' order
+        p = cursor[column[i]]
+        cursor[column[i]] += 1
         sorted_index[p] = i
-    return table, start, count, sorted_points, sorted_index
+        sorted_cell[p] = _cell(points[i, axes[2]], low[axes[2]], size, shape[2])
+        for d in range(3):
+            sorted_points[p, d] = points[i, d]
+    for t in range(n_columns):  # then by cell within a column: insertion (runs are sorted)
+        for p in range(column_start[t] + 1, column_start[t + 1]):
+            key = sorted_cell[p]
+            if sorted_cell[p - 1] <= key:
+                continue
+            index = sorted_index[p]
+            x0, x1, x2 = sorted_points[p, 0], sorted_points[p, 1], sorted_points[p, 2]
+            m = p
+            while m > column_start[t] and sorted_cell[m - 1] > key:
+                sorted_cell[m] = sorted_cell[m - 1]
+                sorted_index[m] = sorted_index[m - 1]
+                for d in range(3):
+                    sorted_points[m, d] = sorted_points[m - 1, d]
+                m -= 1
+            sorted_cell[m] = key
+            sorted_index[m] = index
+            sorted_points[m, 0], sorted_points[m, 1], sorted_points[m, 2] = x0, x1, x2
+    return column_start, sorted_cell, sorted_points, sorted_index, low, shape, axes
 
 
 @numba.njit(**_JIT)
-def _cell_range(x, radius, origin, size):
-    # the margin keeps every point whose rounded distance is below `radius`
-    reach = radius * (1.0 + 1e-9) + 1e-12
-    return _cell(x - reach, origin, size), _cell(x + reach, origin, size)
+def _cell_range(x, radius, origin, size, n):
+    """Cells along one axis that a ball of `radius` around `x` may reach."""
+    reach = radius * (1.0 + 1e-9) + 1e-12  # keeps every point whose rounded distance is below
+    return _cell(x - reach, origin, size, n), _cell(x + reach, origin, size, n)
 
 
 @numba.njit(**_JIT)
-def _dedupe_kernel(table, start, count, sorted_points, sorted_index, origin, size, group,
-                   group_rank, keep, rank, query, query_index, radius):  # pragma: no cover
-    """Drop from `keep` each of `query_index`'s points (its row in `query`) that lies closer
-    than `radius` to a kept point of a group ranked before `rank`; return how many."""
+def _run(column_start, sorted_cell, column, lo, hi):
+    """The sorted points of `column` with a cell in ``[lo, hi]``: ``(first, stop)``."""
+    first, stop = column_start[column], column_start[column + 1]
+    while first < stop:  # binary search of the first cell ≥ lo
+        half = (first + stop) // 2
+        if sorted_cell[half] < lo:
+            first = half + 1
+        else:
+            stop = half
+    stop = first
+    end = column_start[column + 1]
+    while stop < end and sorted_cell[stop] <= hi:
+        stop += 1
+    return first, stop
+
+
+@numba.njit(**_JIT)
+def _dedupe_kernel(column_start, sorted_cell, sorted_points, sorted_index, origin, size, shape,
+                   axes, searched, sorted_keep, keep, query, query_start,
+                   radius):  # pragma: no cover - compiled
+    """Drop from `keep` each point of `query` (``keep[query_start + k]``) that lies closer than
+    `radius` to a point of a `searched` group kept in `sorted_keep`; return how many."""
     r2 = radius * radius  # cKDTree's bound: squared, strict
     removed = 0
-    for k in range(query_index.size):
-        i = query_index[k]
-        if not keep[i]:
+    for k in range(query.shape[0]):
+        if not keep[query_start + k]:
             continue
         q0, q1, q2 = np.float64(query[k, 0]), np.float64(query[k, 1]), np.float64(query[k, 2])
-        x_lo, x_hi = _cell_range(q0, radius, origin[0], size)
-        y_lo, y_hi = _cell_range(q1, radius, origin[1], size)
-        z_lo, z_hi = _cell_range(q2, radius, origin[2], size)
+        a_lo, a_hi = _cell_range(query[k, axes[0]], radius, origin[axes[0]], size, shape[0])
+        b_lo, b_hi = _cell_range(query[k, axes[1]], radius, origin[axes[1]], size, shape[1])
+        z_lo, z_hi = _cell_range(query[k, axes[2]], radius, origin[axes[2]], size, shape[2])
         near = False
-        for ix in range(x_lo, x_hi + 1):
-            for iy in range(y_lo, y_hi + 1):
-                for iz in range(z_lo, z_hi + 1):
-                    slot = _find_slot(table, _cell_key(ix, iy, iz))
-                    if table[slot] == _EMPTY:
-                        continue
-                    for p in range(start[slot], start[slot] + count[slot]):
-                        j = sorted_index[p]
-                        if group_rank[group[j]] >= rank or not keep[j]:
+        for g in range(searched.size):
+            if not searched[g] or near:
+                continue
+            for a in range(a_lo, a_hi + 1):
+                for b in range(b_lo, b_hi + 1):
+                    if near:
+                        break
+                    first, stop = _run(column_start, sorted_cell,
+                                       (g * shape[0] + a) * shape[1] + b, z_lo, z_hi)
+                    for p in range(first, stop):
+                        if not sorted_keep[p]:
                             continue
                         d0 = q0 - np.float64(sorted_points[p, 0])
                         d1 = q1 - np.float64(sorted_points[p, 1])
@@ -445,14 +497,8 @@ def _dedupe_kernel(table, start, count, sorted_points, sorted_index, origin, siz
                         if (d0 * d0 + d1 * d1) + d2 * d2 < r2:
                             near = True
                             break
-                    if near:
-                        break
-                if near:
-                    break
-            if near:
-                break
         if near:
-            keep[i] = False
+            keep[query_start + k] = False
             removed += 1
     return removed
 
@@ -498,9 +544,10 @@ def _smallest_eigen(a00, a01, a02, a11, a12, a22):
 
 
 @numba.njit(**_JIT)
-def _off_surface_kernel(table, start, count, sorted_points, sorted_index, origin, size, group,
-                        trust, own_group, query, score, radius, surface_mm):  # pragma: no cover
-    """For each query point: off the plane of its 8 nearest points of other groups within
+def _off_surface_kernel(column_start, sorted_cell, sorted_points, sorted_index, origin, size,
+                        shape, axes, trust, own_group, query, score, radius,
+                        surface_mm):  # pragma: no cover - compiled
+    """For each query point: off the plane of its 8 nearest points of the other groups within
     `radius` (at least 3, sorted by distance) by more than `surface_mm`, where those are planar
     and their mean `trust` exceeds the point's `score`. See :func:`fuse_scans`, step 4."""
     k_max = 8
@@ -509,36 +556,38 @@ def _off_surface_kernel(table, start, count, sorted_points, sorted_index, origin
     best_d = np.empty(k_max)
     best_i = np.empty(k_max, np.int64)
     best_p = np.empty(k_max, np.int64)
+    t = np.zeros(k_max)
+    n_groups = (column_start.size - 1) // (shape[0] * shape[1])
     for q in range(query.shape[0]):
         q0, q1, q2 = query[q, 0], query[q, 1], query[q, 2]
-        x_lo, x_hi = _cell_range(q0, radius, origin[0], size)
-        y_lo, y_hi = _cell_range(q1, radius, origin[1], size)
-        z_lo, z_hi = _cell_range(q2, radius, origin[2], size)
+        a_lo, a_hi = _cell_range(query[q, axes[0]], radius, origin[axes[0]], size, shape[0])
+        b_lo, b_hi = _cell_range(query[q, axes[1]], radius, origin[axes[1]], size, shape[1])
+        z_lo, z_hi = _cell_range(query[q, axes[2]], radius, origin[axes[2]], size, shape[2])
         found = 0
-        for ix in range(x_lo, x_hi + 1):
-            for iy in range(y_lo, y_hi + 1):
-                for iz in range(z_lo, z_hi + 1):
-                    slot = _find_slot(table, _cell_key(ix, iy, iz))
-                    if table[slot] == _EMPTY:
-                        continue
-                    for p in range(start[slot], start[slot] + count[slot]):
-                        j = sorted_index[p]
-                        if group[j] == own_group:
-                            continue
+        for g in range(n_groups):
+            if g == own_group:
+                continue
+            for a in range(a_lo, a_hi + 1):
+                for b in range(b_lo, b_hi + 1):
+                    first, stop = _run(column_start, sorted_cell,
+                                       (g * shape[0] + a) * shape[1] + b, z_lo, z_hi)
+                    for p in range(first, stop):
                         d0 = q0 - np.float64(sorted_points[p, 0])
                         d1 = q1 - np.float64(sorted_points[p, 1])
                         d2 = q2 - np.float64(sorted_points[p, 2])
                         d = (d0 * d0 + d1 * d1) + d2 * d2
                         if d >= r2:
                             continue
-                        if found == k_max and (d > best_d[k_max - 1] or (
-                                d == best_d[k_max - 1] and j > best_i[k_max - 1])):
+                        j = sorted_index[p]
+                        last = best_d[k_max - 1]
+                        if found == k_max and (d > last or (d == last and j > best_i[k_max - 1])):
                             continue
-                        m = found if found < k_max else k_max - 1  # insertion, (d, j) order
+                        m = found if found < k_max else k_max - 1  # insert, in (d, j) order
                         while m > 0 and (best_d[m - 1] > d or (best_d[m - 1] == d
                                                                and best_i[m - 1] > j)):
-                            best_d[m], best_i[m], best_p[m] = best_d[m - 1], best_i[m - 1], \
-                                best_p[m - 1]
+                            best_d[m] = best_d[m - 1]
+                            best_i[m] = best_i[m - 1]
+                            best_p[m] = best_p[m - 1]
                             m -= 1
                         best_d[m], best_i[m], best_p[m] = d, j, p
                         found = min(found + 1, k_max)
@@ -567,9 +616,8 @@ def _off_surface_kernel(table, start, count, sorted_points, sorted_index, origin
         # points along a line (a grazing view's single row) define no plane
         planar = l1 > 0.05 * l2
         offset = abs(_dot3(q0 - c0, q1 - c1, q2 - c2, n0, n1, n2))
-        t = np.zeros(k_max)
-        for m in range(found):
-            t[m] = trust[best_i[m]]
+        for m in range(k_max):
+            t[m] = trust[best_i[m]] if m < found else 0.0
         mean = (((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]))) / found
         out[q] = planar and offset > surface_mm and mean > score[q]
     return out
@@ -577,55 +625,48 @@ def _off_surface_kernel(table, start, count, sorted_points, sorted_index, origin
 
 # -- the fused grid: normals and mesh ---------------------------------------------------------
 @numba.njit(**_JIT)
-def _composite(xyz, index, keep, fused, r, c, d):
-    """The fused point where the pixel is kept, else the scan's own (grid_normals' input)."""
-    i = index[r, c]
-    if i >= 0 and keep[i]:
-        return fused[i, d]
-    return np.float64(xyz[r, c, d])
-
-
-@numba.njit(**_JIT)
-def _derivative(xyz, index, keep, fused, r, c, d, dr, dc, n):
-    """:func:`grid_normals`' difference along one axis at one pixel and coordinate: central,
-    else forward, else backward (NaN propagates per coordinate)."""
-    pos = r if dr else c
-    value = np.nan
-    if 1 <= pos <= n - 2:
-        value = 0.5 * (_composite(xyz, index, keep, fused, r + dr, c + dc, d)
-                       - _composite(xyz, index, keep, fused, r - dr, c - dc, d))
-    if value != value and pos <= n - 2:
-        value = (_composite(xyz, index, keep, fused, r + dr, c + dc, d)
-                 - _composite(xyz, index, keep, fused, r, c, d))
-    if value != value and pos >= 1:
-        value = (_composite(xyz, index, keep, fused, r, c, d)
-                 - _composite(xyz, index, keep, fused, r - dr, c - dc, d))
-    return value
-
-
-@numba.njit(**_JIT)
 def _fused_normals(xyz, index, keep, fused, rows, cols, center, use_center):  # pragma: no cover
     """:func:`grid_normals` of the grid holding the fused points on the kept pixels (and the
-    scan's own elsewhere), at the kept pixels `rows`, `cols` only."""
+    scan's own elsewhere), at the kept pixels `rows`, `cols` only (same arithmetic)."""
     h, w = index.shape
     out = np.empty((rows.size, 3), np.float32)
+    # the pixel and its neighbours above, below, left and right; NaN beyond the image
+    near = np.empty((5, 3))
+    step_r = (0, -1, 1, 0, 0)
+    step_c = (0, 0, 0, -1, 1)
+    deriv = np.empty((2, 3))
     for k in range(rows.size):
         r, c = rows[k], cols[k]
-        a0 = _derivative(xyz, index, keep, fused, r, c, 0, 1, 0, h)
-        a1 = _derivative(xyz, index, keep, fused, r, c, 1, 1, 0, h)
-        a2 = _derivative(xyz, index, keep, fused, r, c, 2, 1, 0, h)
-        b0 = _derivative(xyz, index, keep, fused, r, c, 0, 0, 1, w)
-        b1 = _derivative(xyz, index, keep, fused, r, c, 1, 0, 1, w)
-        b2 = _derivative(xyz, index, keep, fused, r, c, 2, 0, 1, w)
+        for m in range(5):
+            rr, cc = r + step_r[m], c + step_c[m]
+            if 0 <= rr < h and 0 <= cc < w:
+                i = index[rr, cc]
+                if i >= 0 and keep[i]:
+                    for d in range(3):
+                        near[m, d] = fused[i, d]
+                else:
+                    for d in range(3):
+                        near[m, d] = np.float64(xyz[rr, cc, d])
+            else:
+                for d in range(3):
+                    near[m, d] = np.nan
+        for axis in range(2):  # central difference, else forward, else backward
+            before, after = 1 + 2 * axis, 2 + 2 * axis
+            for d in range(3):
+                value = 0.5 * (near[after, d] - near[before, d])
+                if value != value:
+                    value = near[after, d] - near[0, d]
+                if value != value:
+                    value = near[0, d] - near[before, d]
+                deriv[axis, d] = value
+        a0, a1, a2 = deriv[0, 0], deriv[0, 1], deriv[0, 2]
+        b0, b1, b2 = deriv[1, 0], deriv[1, 1], deriv[1, 2]
         n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
         length = _norm3(n0, n1, n2)
         n0, n1, n2 = n0 / length, n1 / length, n2 / length
-        if use_center:
-            p0 = _composite(xyz, index, keep, fused, r, c, 0)
-            p1 = _composite(xyz, index, keep, fused, r, c, 1)
-            p2 = _composite(xyz, index, keep, fused, r, c, 2)
-            if _dot3(n0, n1, n2, center[0] - p0, center[1] - p1, center[2] - p2) < 0:
-                n0, n1, n2 = -n0, -n1, -n2
+        if use_center and _dot3(n0, n1, n2, center[0] - near[0, 0], center[1] - near[0, 1],
+                                center[2] - near[0, 2]) < 0:
+            n0, n1, n2 = -n0, -n1, -n2
         out[k, 0], out[k, 1], out[k, 2] = n0, n1, n2
     return out
 
@@ -683,6 +724,17 @@ def _mesh_kernel(index, vertex, points, normals, max_edge_mm, offset):  # pragma
                 out[m, 2] = (b if flip else e) + offset
                 counts[t] = m + 1
     return first[:counts[0]], second[:counts[1]]
+
+
+def _grid(points: np.ndarray, group_start: np.ndarray, size: float) -> tuple:
+    """The cell grid of :func:`_grid_build` over `points` with cells of `size` mm: the leading
+    arguments of :func:`_dedupe_kernel` and :func:`_off_surface_kernel`. At most 512 × 512
+    columns (points beyond fall in the border cells, which only slows the search); they run
+    along the shortest extent, so they cross a finger's surface (and hold points) only where it
+    faces that axis: a column is short."""
+    column_start, cell, sorted_points, index, origin, shape, axes = _grid_build(
+        points, group_start, size, np.array([512, 512, 1 << 20]))
+    return column_start, cell, sorted_points, index, origin, size, shape, axes
 
 
 # -- public functions --------------------------------------------------------------------------
@@ -1134,23 +1186,23 @@ def fuse_scans(
     clock("spacing")
 
     grid = None
-    if dedupe or surface:
-        points = np.concatenate([np.asarray(s.xyz)[v] for s, v in zip(scans, valid, strict=True)])
-        group = np.repeat(np.arange(n, dtype=np.int8), sizes)
-        cell_mm = float(radius if surface else dedupe_mm)
-        origin = points.min(axis=0).astype(np.float64)
-        grid = (*_grid_build(points, origin, cell_mm), origin, cell_mm, group)
+    if dedupe or surface:  # one grid of cells per camera over its valid points
+        points = np.concatenate([np.take(np.asarray(s.xyz).reshape(-1, 3), p, axis=0)
+                                 for s, p in zip(scans, pixels, strict=True)])
+        grid = _grid(points, start, float(radius if surface else dedupe_mm))
     clock("grid")
     # duplicates the correspondence cannot see (edges of valid regions): points closer than
     # dedupe_mm to a point of a camera ranked higher are dropped
     removed = dict.fromkeys((s.name for s in scans), 0)
     if dedupe:
-        group_rank = np.array([rank[c] for c in range(n)])
         for k in range(1, n):
             i = priority[k]
+            searched = np.zeros(n, dtype=bool)
+            searched[priority[:k]] = True
+            sorted_keep = np.take(keep_all, grid[3])
             removed[scans[i].name] = int(_dedupe_kernel(
-                *grid, group_rank, keep_all, rank[i], points[start[i]:start[i + 1]],
-                np.arange(start[i], start[i + 1]), float(dedupe_mm)))
+                *grid, searched, sorted_keep, keep_all, points[start[i]:start[i + 1]],
+                int(start[i]), float(dedupe_mm)))
     if grid is not None:
         del points
     clock("dedupe")
