@@ -36,6 +36,7 @@ from ..reconstruction import Scan
 from .correspondence import (
     REJECT_REASONS,
     Correspondence,
+    CorrespondenceCache,
     _check_scan,
     _correspond,
     grid_normals,
@@ -1092,7 +1093,9 @@ def fuse_scans(
     for i, s in enumerate(scans):
         _check_scan(s, f"scans[{i}]")
     n = len(scans)
-    valid = [valid_mask(s) for s in scans]
+    # each scan's masks, view cosine and search grid, once for all its pairs
+    cache = CorrespondenceCache()
+    valid = [cache._entry(s).valid for s in scans]
     for s, v in zip(scans, valid, strict=True):
         if not v.any():
             raise ValueError(f"scans: {s.name!r} has no valid pixels")
@@ -1143,10 +1146,11 @@ def fuse_scans(
             if i != j:
                 corr[i, j] = _correspond(
                     scans[i], scans[j], stride=1, max_residual_px=max_residual_px,
-                    border_px=border_px, max_jump_px=2.0, refine=True, method="kdtree",
+                    border_px=border_px, max_jump_px=2.0, refine=True, method="grid",
                     workers=-1, max_view_angle_deg=max_view_angle_deg,
                     min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
-                    outlier_mad=outlier_mad, outlier_block_px=32, quality=quality)
+                    outlier_mad=outlier_mad, outlier_block_px=32, quality=quality,
+                    cache=cache)
     clock("correspond")
 
     # the valid pixels of all cameras, numbered camera by camera in row-major order: `keep`
