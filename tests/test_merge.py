@@ -307,6 +307,17 @@ def test_cli_merge_text_and_pairs(scan_dir, tmp_path, capsys):
         "merge.json", "merge_2-0_mapping.npz"]
 
 
+def test_cli_merge_figures_on_and_off(scan_dir, tmp_path):
+    from nail2nail.cli._main import main
+
+    base = ["merge", str(scan_dir), "--pairs", "0-1", "--stride", "2", "--no-super"]
+    assert main([*base, "--out", str(tmp_path / "on"), "--figures"]) == 0
+    assert sorted(p.name for p in (tmp_path / "on").glob("*.png")) == [
+        f"merge_0-1_{k}.png" for k in ("heatmap", "histogram", "marked", "points3d")]
+    assert main([*base, "--out", str(tmp_path / "off"), "--no-figures"]) == 0
+    assert not list((tmp_path / "off").glob("*.png"))
+
+
 @pytest.mark.parametrize(("extra", "message"), [
     (["--pairs", "0-7"], "must name two different cameras"),
     (["--pairs", "0:1"], "expected PARENT-CHILD"),

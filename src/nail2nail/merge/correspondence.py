@@ -4,8 +4,9 @@ All cameras of the scanner look at one projector, so a surface point seen by two
 same projector coordinates ``(xp, yp)`` in both scans. For every (sampled) pixel of a *parent*
 scan, :func:`correspond` finds the *child* pixel with the nearest ``(xp, yp)`` (a bucket grid over
 the child's valid pixels in projector space, :func:`nearest_grid`, instead of the appendix's
-``closest_proj_point`` loop over the whole child frame), refines it to the sub-pixel position where the child's interpolated projector coordinates
-equal the parent's, and interpolates the child's world point there. The world distance between
+``closest_proj_point`` loop over the whole child frame), refines it to the sub-pixel position
+where the child's interpolated projector coordinates equal the parent's, and interpolates the
+child's world point there. The world distance between
 the two points of a pair is the merge error (thesis "Merging in Projector Space", Fig. 32–35).
 
 A nearest neighbour always exists, even where the child never saw the point, so the overlap is
@@ -121,8 +122,12 @@ def _without_jumps(scan: Scan, valid: np.ndarray, max_jump_px: float) -> np.ndar
     smooth map, as at grazing views, does not jump).
     """
     out = valid.copy()
+    box = _valid_box(valid, 1)  # the rest of the image holds no valid pixel to test
+    if box is None:
+        return out
+    inside = out[box]
     for f in (scan.xp, scan.yp):
-        f = np.asarray(f, dtype=np.float32)
+        f = np.asarray(f)[box].astype(np.float32)
         for axis in (0, 1):
             forward = np.diff(f, axis=axis)
             lo = [slice(None)] * 2
@@ -134,8 +139,19 @@ def _without_jumps(scan: Scan, valid: np.ndarray, max_jump_px: float) -> np.ndar
                 jump = (second > max_jump_px) & (second > 0.5 * (np.abs(d_plus) + np.abs(d_minus)))
             inner = [slice(None)] * 2
             inner[axis] = slice(1, -1)
-            out[tuple(inner)] &= ~jump
+            inside[tuple(inner)] &= ~jump
     return out
+
+
+def _valid_box(valid: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+    """Rows and columns of the bounding box of `valid`, widened by `margin` px within the
+    image; None without a valid pixel."""
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0:
+        return None
+    h, w = valid.shape
+    return (slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h)),
+            slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w)))
 
 
 def _eroded(mask: np.ndarray, border_px: int) -> np.ndarray:
@@ -272,13 +288,14 @@ def _normals_kernel(xyz, center, toward_center):
             n0 = a1 * b2 - a2 * b1
             n1 = a2 * b0 - a0 * b2
             n2 = a0 * b1 - a1 * b0
-            norm = np.sqrt(n0 * n0 + (n1 * n1 + n2 * n2))
+            # NumPy's orders of summation: norm (x0 + x1) + x2, einsum (x0 + x2) + x1
+            norm = np.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
             n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
             if toward_center:
                 v0 = center[0] - x0
                 v1 = center[1] - x1
                 v2 = center[2] - x2
-                if n0 * v0 + n1 * v1 + n2 * v2 < 0:
+                if (n0 * v0 + n2 * v2) + n1 * v1 < 0:
                     n0, n1, n2 = -n0, -n1, -n2
             out[r, c, 0] = n0
             out[r, c, 1] = n1
@@ -313,7 +330,11 @@ def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarr
     _check_scan(scan, "scan")
     if scan.camera_center is None:
         raise ValueError(f"scan {scan.name!r}: camera_center is needed for the viewing angle")
-    valid = valid_mask(scan)
+    return _view_cosine(scan, valid_mask(scan), normals=normals, smooth_px=smooth_px)
+
+
+def _view_cosine(scan: Scan, valid: np.ndarray, *, normals=None, smooth_px: float = 0.0):
+    """:func:`view_cosine` of a checked scan with a camera centre, its valid mask given."""
     center = np.asarray(scan.camera_center, dtype=np.float64).reshape(3)
     xyz = _float_image(scan.xyz)
     if normals is None:
@@ -322,11 +343,16 @@ def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarr
     if normals.shape != xyz.shape:
         raise ValueError(f"normals: expected shape {xyz.shape}, got {normals.shape}")
     cos = _cosine_kernel(normals, xyz, center, valid)
-    if smooth_px > 0:
-        norm = scipy.ndimage.gaussian_filter(valid.astype(np.float64), smooth_px)
+    # smoothed over the valid pixels' box widened by the Gaussian's radius (scipy's truncate
+    # 4 σ): beyond it both images are 0, so the box gives the whole image's values
+    box = _valid_box(valid, int(4.0 * float(smooth_px) + 0.5)) if smooth_px > 0 else None
+    if box is not None:
+        inside = valid[box]
+        norm = scipy.ndimage.gaussian_filter(inside.astype(np.float64), smooth_px)
         with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.nan_to_num(scipy.ndimage.gaussian_filter(cos, smooth_px) / norm)
-        cos[~valid] = 0.0
+            smooth = np.nan_to_num(scipy.ndimage.gaussian_filter(cos[box], smooth_px) / norm)
+        smooth[~inside] = 0.0
+        cos[box] = smooth
     return cos
 
 
@@ -343,10 +369,10 @@ def _cosine_kernel(normals, xyz, center, valid):
             v0 = center[0] - np.float64(xyz[r, c, 0])
             v1 = center[1] - np.float64(xyz[r, c, 1])
             v2 = center[2] - np.float64(xyz[r, c, 2])
-            norm = np.sqrt(v0 * v0 + (v1 * v1 + v2 * v2))
+            norm = np.sqrt((v0 * v0 + v1 * v1) + v2 * v2)  # NumPy's orders, as above
             v0, v1, v2 = v0 / norm, v1 / norm, v2 / norm
-            cos = (np.float64(normals[r, c, 0]) * v0 + np.float64(normals[r, c, 1]) * v1) \
-                + np.float64(normals[r, c, 2]) * v2
+            cos = (np.float64(normals[r, c, 0]) * v0 + np.float64(normals[r, c, 2]) * v2) \
+                + np.float64(normals[r, c, 1]) * v1
             if np.isnan(cos):
                 cos = 0.0
             out[r, c] = min(max(cos, 0.0), 1.0)
@@ -539,7 +565,11 @@ class _ScanImages:
     def cosine(self) -> np.ndarray:
         """(H, W) float64 :func:`view_cosine` smoothed over 2 px."""
         if self._cosine is None:
-            self._cosine = view_cosine(self.scan, smooth_px=2.0)
+            _check_scan(self.scan, "scan")
+            if self.scan.camera_center is None:
+                raise ValueError(f"scan {self.scan.name!r}: camera_center is needed for the "
+                                 "viewing angle")
+            self._cosine = _view_cosine(self.scan, self.valid, smooth_px=2.0)
         return self._cosine
 
     def modulation(self) -> np.ndarray:
@@ -577,8 +607,11 @@ class _ProjectorGrid:
         span_x, span_y = float(x.max()) - self.x0, float(y.max()) - self.y0
         n = x.size
         cell = _pixel_spacing(scan, valid) * np.sqrt(2.0)  # about two pixels per cell
-        # at most ~4 cells per pixel, whatever the spread of the coordinates
-        cell = max(cell, np.sqrt(span_x * span_y / (4.0 * n + 1024.0)), 1e-6)
+        # at most 1.5 m + 1 cells (m = 4 n + 1024), whatever the spread of the coordinates:
+        # (sx / c + 1)(sy / c + 1) with sx sy / c² ≤ m / 2 and (sx + sy) / c ≤ m
+        m = 4.0 * n + 1024.0
+        cell = max(cell, np.sqrt(2.0 * span_x * span_y / m), 2.0 * span_x / m,
+                   2.0 * span_y / m, 1e-6)
         self.cell = float(cell)
         self.nx = int(span_x / cell) + 1
         self.ny = int(span_y / cell) + 1

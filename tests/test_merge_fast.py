@@ -1,0 +1,560 @@
+"""Issue 11: the fast merge gives the results of the implementation it replaced.
+
+The NumPy implementations that the compiled and cached paths replaced are kept here, verbatim in
+their arithmetic, as references: normals, view cosine, discontinuities, the whole
+correspondence (k-d tree or brute force, float64 copies, per-call images) and the point-cloud
+render. Speed is shown by ``bench/correspond.py``, not asserted here.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.ndimage
+from PIL import Image
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _synthetic import synthetic_scans
+
+from nail2nail._interpolate import bilinear
+from nail2nail.merge.correspondence import (
+    _GRID_RINGS,
+    DROP_REASONS,
+    REJECT_REASONS,
+    Correspondence,
+    CorrespondenceCache,
+    _correspond,
+    _eroded,
+    _grid_nearest,
+    _refine_kernel,
+    _relative_modulation,
+    _without_jumps,
+    correspond,
+    grid_normals,
+    nearest_bruteforce,
+    nearest_grid,
+    nearest_kdtree,
+    sample_pixels,
+    valid_mask,
+    view_cosine,
+)
+from nail2nail.merge.statistics import local_outliers
+from nail2nail.reconstruction import Scan
+
+SIZE = (96, 120)  # (width, height), as tests/test_merge.py
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return synthetic_scans(size=SIZE, noise_px=0.05, seed=3)
+
+
+@pytest.fixture(scope="module")
+def holed(noisy):
+    """The noisy scans with a hole, a jump in the projector map and a lone valid pixel."""
+    out = []
+    for k, s in enumerate(noisy):
+        mask = s.mask.copy()
+        mask[50:58, 40:52] = False  # a hole the other cameras see through
+        mask[5, 5] = True  # a lone pixel (outside the cylinder: xyz NaN, so still invalid)
+        xp = s.xp.copy()
+        xp[:, 70 + 3 * k:] += 6.0  # a depth-discontinuity-like step
+        out.append(replace(s, mask=mask, xp=xp))
+    return out
+
+
+# -- references: the NumPy code the fast paths replaced ----------------------------------------
+def reference_grid_normals(xyz, *, camera_center=None):
+    xyz = np.asarray(xyz, dtype=np.float64)
+
+    def derivative(axis):
+        d = np.full_like(xyz, np.nan)
+        n = xyz.shape[axis]
+
+        def take(start, stop):
+            s = [slice(None)] * 3
+            s[axis] = slice(start, stop)
+            return tuple(s)
+
+        if n >= 3:
+            d[take(1, n - 1)] = 0.5 * (xyz[take(2, n)] - xyz[take(0, n - 2)])
+        if n >= 2:
+            forward = np.full_like(xyz, np.nan)
+            forward[take(0, n - 1)] = xyz[take(1, n)] - xyz[take(0, n - 1)]
+            backward = np.full_like(xyz, np.nan)
+            backward[take(1, n)] = forward[take(0, n - 1)]
+            d = np.where(np.isnan(d), forward, d)
+            d = np.where(np.isnan(d), backward, d)
+        return d
+
+    normal = np.cross(derivative(0), derivative(1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        if camera_center is not None:
+            view = np.asarray(camera_center, dtype=np.float64) - xyz
+            flip = np.einsum("...k,...k->...", normal, view) < 0
+            normal[flip] *= -1
+    return normal.astype(np.float32)
+
+
+def reference_view_cosine(scan, *, normals=None, smooth_px=0.0):
+    valid = valid_mask(scan)
+    if normals is None:
+        normals = reference_grid_normals(scan.xyz, camera_center=scan.camera_center)
+    normals = np.asarray(normals, dtype=np.float64)
+    view = np.asarray(scan.camera_center, dtype=np.float64) - np.asarray(scan.xyz, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        view /= np.linalg.norm(view, axis=-1, keepdims=True)
+        cos = np.clip(np.nan_to_num(np.einsum("...k,...k->...", normals, view)), 0, 1)
+    cos[~valid] = 0.0
+    if smooth_px > 0:
+        norm = scipy.ndimage.gaussian_filter(valid.astype(np.float64), smooth_px)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.nan_to_num(scipy.ndimage.gaussian_filter(cos, smooth_px) / norm)
+        cos[~valid] = 0.0
+    return cos
+
+
+def reference_without_jumps(scan, valid, max_jump_px):
+    out = valid.copy()
+    for f in (scan.xp, scan.yp):
+        f = np.asarray(f, dtype=np.float32)
+        for axis in (0, 1):
+            forward = np.diff(f, axis=axis)
+            lo, hi = [slice(None)] * 2, [slice(None)] * 2
+            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+            d_minus, d_plus = forward[tuple(lo)], forward[tuple(hi)]
+            second = np.abs(d_plus - d_minus)
+            with np.errstate(invalid="ignore"):
+                jump = (second > max_jump_px) & (second > 0.5 * (np.abs(d_plus) + np.abs(d_minus)))
+            inner = [slice(None)] * 2
+            inner[axis] = slice(1, -1)
+            out[tuple(inner)] &= ~jump
+    return out
+
+
+def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border_px=2,
+                         max_jump_px=2.0, refine=True, method="kdtree",
+                         max_view_angle_deg=70.0, min_relative_modulation=1 / 3,
+                         outlier_mm=0.025, outlier_mad=4.0, outlier_block_px=32):
+    """The correspondence before issue 11: every image per call, float64 copies."""
+    parent_valid, child_valid = valid_mask(parent), valid_mask(child)
+    rows, cols = sample_pixels(parent_valid, stride=stride)
+    n_sampled = rows.size
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+    keep = _eroded(reference_without_jumps(parent, parent_valid, max_jump_px),
+                   border_px)[rows, cols]
+    dropped["parent_border"] = int(np.count_nonzero(~keep))
+    rows, cols = rows[keep], cols[keep]
+    search = nearest_kdtree if method == "kdtree" else nearest_bruteforce
+    nr, nc, dist2 = search(parent, child, rows, cols)
+    child_inner = _eroded(reference_without_jumps(child, child_valid, max_jump_px), border_px)
+    keep = child_inner[nr, nc]
+    rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
+    if refine:
+        sub_r, sub_c, residual, xyz_child = _refine_kernel(
+            np.ascontiguousarray(child.xp, dtype=np.float64),
+            np.ascontiguousarray(child.yp, dtype=np.float64),
+            np.ascontiguousarray(child.xyz, dtype=np.float64),
+            parent.xp[rows, cols].astype(np.float64), parent.yp[rows, cols].astype(np.float64),
+            nr, nc, 2, 1.5)
+        finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
+    else:
+        sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
+        xyz_child = np.asarray(child.xyz, dtype=np.float64)[nr, nc]
+        finite = np.ones(nr.size, dtype=bool)
+    dropped["child_border"] = int(np.count_nonzero(~keep) + np.count_nonzero(~finite))
+    with np.errstate(invalid="ignore"):
+        good = finite & (residual <= max_residual_px)
+    dropped["residual"] = int(np.count_nonzero(finite & ~good))
+    pairs = {
+        "parent_rc": np.stack([rows[good], cols[good]], axis=-1),
+        "child_nearest": np.stack([nr[good], nc[good]], axis=-1),
+        "child_rc": np.stack([sub_r[good], sub_c[good]], axis=-1),
+        "xyz_parent": np.asarray(parent.xyz, dtype=np.float64)[rows[good], cols[good]],
+        "xyz_child": xyz_child[good],
+        "residual_px": residual[good],
+    }
+    n = pairs["parent_rc"].shape[0]
+    reason = np.full(n, -1, dtype=np.int8)
+    pr, pc = pairs["parent_rc"].T
+    cr, cc = pairs["child_rc"].T
+    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
+        if limit is None or n == 0:
+            continue
+        threshold = np.cos(np.radians(limit)) if code == 0 else limit
+        ok = np.ones(n, dtype=bool)
+        for scan, (r, c) in ((parent, (pr, pc)), (child, (cr, cc))):
+            if code == 0 and scan.camera_center is None:
+                continue
+            image = (reference_view_cosine(scan, smooth_px=2.0) if code == 0
+                     else _relative_modulation(scan))
+            ok &= bilinear(image, r.astype(np.float64), c.astype(np.float64))[0] >= threshold
+        reason[(reason < 0) & ~ok] = code
+    if outlier_mm is not None and n:
+        live = reason < 0
+        distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
+        out = local_outliers(pr[live], pc[live], distance[live], block_px=outlier_block_px,
+                             floor_mm=outlier_mm, k_mad=outlier_mad)
+        reason[np.flatnonzero(live)[out]] = 2
+    for code, name in enumerate(REJECT_REASONS):
+        dropped[name] = int(np.count_nonzero(reason == code))
+    return pairs, reason, dropped, n_sampled
+
+
+def reference_render(points, *, normals=None, colors=None, elev=0.0, azim=0.0,
+                     size=(600, 800), splat=2):
+    pts = np.asarray(points, dtype=np.float64)
+    finite = np.isfinite(pts).all(axis=1)
+    a, e = np.radians(azim), np.radians(elev)
+    eye = np.array([np.sin(a) * np.cos(e), np.sin(e), np.cos(a) * np.cos(e)])
+    right = np.cross([0.0, 1.0, 0.0], eye)
+    if np.linalg.norm(right) < 1e-9:
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(eye, right)
+    p = pts[finite] - pts[finite].mean(axis=0)
+    u, v, depth = p @ right, p @ up, p @ eye
+    width, height = int(size[0]), int(size[1])
+    scale = 0.9 * min(width / max(np.ptp(u), 1e-9), height / max(np.ptp(v), 1e-9))
+    ix = np.round(width / 2 + scale * (u - (u.max() + u.min()) / 2)).astype(np.int64)
+    iy = np.round(height / 2 - scale * (v - (v.max() + v.min()) / 2)).astype(np.int64)
+    if normals is not None:
+        n = np.nan_to_num(np.asarray(normals, dtype=np.float64)[finite])
+        n *= np.where(n @ eye < 0, -1.0, 1.0)[:, None]
+        light = eye + 0.5 * up + 0.3 * right
+        light /= np.linalg.norm(light)
+        shade = 0.2 + 0.8 * np.clip(n @ light, 0, 1)
+    else:
+        shade = np.ones(p.shape[0])
+    if colors is None:
+        rgb = np.full((p.shape[0], 3), 200.0)
+    else:
+        rgb = np.asarray(colors, dtype=np.float64)[finite]
+        rgb *= 230.0 / max(float(np.percentile(rgb, 99)), 1.0)
+    rgb = np.clip(rgb * shade[:, None], 0, 255).astype(np.uint8)
+    offsets = np.arange(-splat, splat + 1)
+    dy, dx = (g.ravel() for g in np.meshgrid(offsets, offsets, indexing="ij"))
+    px, py = (ix[:, None] + dx).ravel(), (iy[:, None] + dy).ravel()
+    pd, pc = np.repeat(depth, dx.size), np.repeat(np.arange(p.shape[0]), dx.size)
+    inside = (px >= 0) & (px < width) & (py >= 0) & (py < height)
+    px, py, pd, pc = px[inside], py[inside], pd[inside], pc[inside]
+    pixel = py * width + px
+    order = np.lexsort((pd, pixel))
+    last = np.r_[pixel[order][1:] != pixel[order][:-1], True]
+    image = np.full((height * width, 3), 255, dtype=np.uint8)
+    image[pixel[order][last]] = rgb[pc[order][last]]
+    return image.reshape(height, width, 3)
+
+
+def _same(a, b) -> bool:
+    """Equal arrays, NaN equal to NaN, same shape."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and bool(np.all((a == b) | (np.isnan(a) & np.isnan(b))))
+
+
+# -- normals and view cosine -----------------------------------------------------------------
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_grid_normals_are_the_numpy_normals_bit_for_bit(holed, dtype):
+    for scan in holed:
+        xyz = np.where(scan.mask[..., None], scan.xyz, np.nan).astype(dtype)
+        xyz[10, 20, 1] = np.nan  # one component missing: handled per component, as NumPy
+        for center in (None, scan.camera_center):
+            assert _same(grid_normals(xyz, camera_center=center),
+                         reference_grid_normals(xyz, camera_center=center))
+
+
+@pytest.mark.parametrize("shape", [(1, 5), (2, 4), (3, 3), (5, 1)])
+def test_grid_normals_of_tiny_grids(shape):
+    rr, cc = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    xyz = np.stack([cc, -rr, 0.1 * cc * rr], -1)
+    assert _same(grid_normals(xyz), reference_grid_normals(xyz))
+    assert grid_normals(xyz.astype(np.int64)).dtype == np.float32  # other types as float64
+
+
+@pytest.mark.parametrize("smooth_px", [0.0, 2.0, 0.7])
+def test_view_cosine_is_the_numpy_cosine(holed, smooth_px):
+    for scan in holed:
+        # the same arithmetic in NumPy's order of summation (this platform's: a mismatch of
+        # the last bit would not change a result of the merge)
+        fast = view_cosine(scan, smooth_px=smooth_px)
+        ref = reference_view_cosine(scan, smooth_px=smooth_px)
+        assert _same(fast, ref)
+    normals = grid_normals(holed[1].xyz, camera_center=holed[1].camera_center)
+    assert _same(view_cosine(holed[1], normals=normals),
+                 reference_view_cosine(holed[1], normals=normals))
+    with pytest.raises(ValueError, match="normals: expected shape"):
+        view_cosine(holed[1], normals=normals[:-1])
+
+
+def test_view_cosine_smoothing_box_reaches_the_image_edge():
+    # valid pixels at the image's edge: the box is cut there and scipy's reflection applies
+    scan = synthetic_scans(size=(40, 30), angles_deg=(0.0,), shape="sphere", radius=14.0)[0]
+    assert scan.mask[:, 0].any() or scan.mask[0].any()
+    assert _same(view_cosine(scan, smooth_px=2.0), reference_view_cosine(scan, smooth_px=2.0))
+
+
+def test_without_jumps_in_the_valid_box_is_the_whole_image_test(holed):
+    for scan in holed:
+        valid = valid_mask(scan)
+        for jump in (0.5, 2.0):
+            assert np.array_equal(_without_jumps(scan, valid, jump),
+                                  reference_without_jumps(scan, valid, jump))
+    empty = np.zeros(holed[0].mask.shape, bool)
+    assert not _without_jumps(holed[0], empty, 2.0).any()
+
+
+# -- nearest neighbour -----------------------------------------------------------------------
+def _cloud_scan(xp, yp, name="cloud"):
+    """A (3, ⌈N / 3⌉) scan of projector coordinates only (row-major; padding invalid): a point
+    set for the searches."""
+    n = xp.size
+    m = max(-(-n // 3), 3)
+    grids = []
+    for values in (xp, yp):
+        g = np.full(3 * m, np.nan, np.float32)
+        g[:n] = values
+        grids.append(g.reshape(3, m))
+    mask = np.isfinite(grids[0])
+    xyz = np.where(mask[..., None], np.zeros((3, m, 3)), np.nan).astype(np.float32)
+    one = np.ones((3, m), np.float32)
+    return Scan(name, xyz, grids[0], grids[1], one, one, one, mask)
+
+
+def _all_pixels(scan):
+    return np.nonzero(scan.mask)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nearest_grid_is_the_brute_force_also_far_from_the_child(seed):
+    rng = np.random.default_rng(seed)
+    # a child covering an annulus (a large empty disc inside) with uneven density, and
+    # parents everywhere: in it, in the hole, beyond it, far away
+    angle, radius = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(30, 60, 3000) ** 1.1
+    child = _cloud_scan(400 + radius * np.cos(angle), 300 + radius * np.sin(angle))
+    qx = np.concatenate([rng.uniform(250, 550, 1500), [400.0, 1e4, -3e3, 400.4]])
+    qy = np.concatenate([rng.uniform(150, 450, 1500), [300.0, 2e3, 9.0, 300.1]])
+    parent = _cloud_scan(qx, qy, "parent")
+    rows, cols = _all_pixels(parent)
+    b = nearest_bruteforce(parent, child, rows, cols)
+    g = nearest_grid(parent, child, rows, cols)
+    np.testing.assert_array_equal(g[0], b[0])
+    np.testing.assert_array_equal(g[1], b[1])
+    np.testing.assert_array_equal(g[2], b[2])  # the same formula: the same float64 distances
+    # the ring search leaves the far ones to the edge k-d tree
+    grid = CorrespondenceCache()._entry(child).grid
+    _, _, done = _grid_nearest(qx.astype(np.float32).astype(float),
+                               qy.astype(np.float32).astype(float), grid.sx,
+                               grid.sy, grid.sindex, grid.start, grid.x0, grid.y0, grid.cell,
+                               grid.nx, grid.ny, _GRID_RINGS)
+    assert done.sum() > 100 and (~done).sum() > 100
+
+
+def test_nearest_grid_ties_go_to_the_first_pixel_as_the_brute_force():
+    # a lattice: every query at a cell centre is equally far from four pixels
+    xx, yy = np.meshgrid(np.arange(20.0), np.arange(15.0))
+    child = _cloud_scan(xx.ravel(), yy.ravel())
+    qx, qy = np.array([3.5, 10.5, 0.5, 7.0]), np.array([2.5, 7.5, 13.5, 4.0])
+    parent = _cloud_scan(qx, qy, "parent")
+    rows, cols = _all_pixels(parent)
+    b = nearest_bruteforce(parent, child, rows, cols)
+    g = nearest_grid(parent, child, rows, cols)
+    for x, y in zip(b, g, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_nearest_grid_matches_bruteforce_on_scans(holed):
+    for i, j in ((0, 1), (1, 2), (2, 0), (1, 0)):
+        rows, cols = sample_pixels(valid_mask(holed[i]), stride=2)
+        b = nearest_bruteforce(holed[i], holed[j], rows, cols)
+        g = nearest_grid(holed[i], holed[j], rows, cols)
+        for x, y in zip(b, g, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_nearest_grid_on_degenerate_coordinates():
+    # every child pixel at one projector point, and a spread far too wide for a fine grid
+    child = _cloud_scan(np.full(50, 7.0), np.full(50, 3.0))
+    parent = _cloud_scan(np.array([7.0, 8.0, -5.0]), np.array([3.0, 3.0, 1e5]), "parent")
+    rows, cols = _all_pixels(parent)
+    found = nearest_grid(parent, child, rows, cols)
+    assert found[0].tolist() == [0, 0, 0] and found[1].tolist() == [0, 0, 0]  # ties: the first
+    rng = np.random.default_rng(4)
+    wide = _cloud_scan(rng.uniform(0, 1e7, 400), rng.uniform(0, 1e-3, 400))
+    b = nearest_bruteforce(parent, wide, rows, cols)
+    g = nearest_grid(parent, wide, rows, cols)
+    for x, y in zip(b, g, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert CorrespondenceCache()._entry(wide).grid.start.size <= 1.5 * (4 * 400 + 1024) + 2
+
+
+# -- the whole correspondence ----------------------------------------------------------------
+def _assert_matches_reference(m: Correspondence, ref) -> None:
+    pairs, reason, dropped, n_sampled = ref
+    assert m.dropped == dropped and m.n_sampled == n_sampled
+    both = m.all_pairs() if m.rejected is not None else m
+    kept, bad = reason < 0, reason >= 0
+    for name, value in pairs.items():
+        np.testing.assert_array_equal(getattr(m, name), value[kept], err_msg=name)
+        if m.rejected is not None:
+            np.testing.assert_array_equal(getattr(m.rejected, name), value[bad], err_msg=name)
+    if m.rejected is not None:
+        assert m.rejected.reason.tolist() == np.asarray(REJECT_REASONS)[reason[bad]].tolist()
+    assert both.n_pairs == reason.size
+
+
+@pytest.mark.parametrize("options", [
+    {},
+    {"stride": 3},
+    {"refine": False, "max_residual_px": 5.0},
+    {"border_px": 1, "max_jump_px": 0.8},
+    {"max_view_angle_deg": 55.0, "min_relative_modulation": 0.9},
+    {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None},
+])
+def test_correspond_gives_the_reference_results(holed, options):
+    for i, j in ((0, 1), (1, 2), (2, 1), (0, 2)):
+        ref = reference_correspond(holed[i], holed[j], **options)
+        for method in ("grid", "kdtree"):
+            _assert_matches_reference(correspond(holed[i], holed[j], method=method, **options),
+                                      ref)
+    weak = replace(holed[1], modulation=holed[1].modulation * np.float32(0.2))
+    _assert_matches_reference(correspond(holed[0], weak, **options),
+                              reference_correspond(holed[0], weak, **options))
+
+
+def test_correspond_matches_the_brute_force_reference(holed):
+    ref = reference_correspond(holed[0], holed[1], stride=4, method="bruteforce")
+    _assert_matches_reference(correspond(holed[0], holed[1], stride=4), ref)
+    _assert_matches_reference(correspond(holed[0], holed[1], stride=4, method="bruteforce"), ref)
+
+
+def test_cache_is_reused_and_gives_the_uncached_results(holed):
+    cache = CorrespondenceCache()
+    first = [correspond(holed[i], holed[j], cache=cache) for i, j in ((0, 1), (1, 2), (2, 0))]
+    assert len(cache) == 3
+    grid = cache._entry(holed[1]).grid
+    again = correspond(holed[0], holed[1], cache=cache, stride=2)
+    assert cache._entry(holed[1]).grid is grid  # built once
+    assert again.n_pairs < first[0].n_pairs
+    for m, (i, j) in zip(first, ((0, 1), (1, 2), (2, 0)), strict=True):
+        plain = correspond(holed[i], holed[j])
+        np.testing.assert_array_equal(m.parent_rc, plain.parent_rc)
+        np.testing.assert_array_equal(m.xyz_child, plain.xyz_child)
+        assert m.dropped == plain.dropped
+    # a replaced scan is a new scan: its images are derived again
+    moved = replace(holed[1], xp=holed[1].xp + np.float32(0.3))
+    _assert_matches_reference(correspond(holed[0], moved, cache=cache),
+                              reference_correspond(holed[0], moved))
+    assert len(cache) == 4
+    cache.clear()
+    assert len(cache) == 0
+    with pytest.raises(TypeError, match="cache: expected a CorrespondenceCache"):
+        correspond(holed[0], holed[1], cache={})
+
+
+def test_fusion_call_with_a_quality_dict_still_works(holed):
+    # fuse_scans' call: every option by keyword, its own view cosine through `quality`
+    quality = {id(s): [view_cosine(s, smooth_px=2.0), None] for s in holed}
+    kwargs = {"stride": 1, "max_residual_px": 0.5, "border_px": 1, "max_jump_px": 2.0,
+              "refine": True, "method": "kdtree", "workers": -1, "max_view_angle_deg": 70.0,
+              "min_relative_modulation": 1 / 3, "outlier_mm": 0.025, "outlier_mad": 4.0,
+              "outlier_block_px": 32}
+    a = _correspond(holed[0], holed[1], **kwargs, quality=quality)
+    assert quality[id(holed[1])][1] is not None  # filled, as before
+    b = _correspond(holed[0], holed[1], **{**kwargs, "method": "grid"}, quality=quality,
+                    cache=CorrespondenceCache())
+    _assert_matches_reference(a, reference_correspond(holed[0], holed[1], border_px=1))
+    _assert_matches_reference(b, reference_correspond(holed[0], holed[1], border_px=1))
+
+
+def test_refinement_reads_float32_as_its_float64_copy(noisy):
+    m = correspond(noisy[0], noisy[1], stride=2)
+    child = noisy[1]
+    tx = noisy[0].xp[tuple(m.parent_rc.T)].astype(float)
+    ty = noisy[0].yp[tuple(m.parent_rc.T)].astype(float)
+    nr, nc = m.child_nearest.T
+    single = _refine_kernel(child.xp, child.yp, child.xyz, tx, ty, nr, nc, 2, 1.5)
+    double = _refine_kernel(child.xp.astype(float), child.yp.astype(float),
+                            child.xyz.astype(float), tx, ty, nr, nc, 2, 1.5)
+    for a, b in zip(single, double, strict=True):
+        assert _same(a, b)
+
+
+# -- figures ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def cloud():
+    rng = np.random.default_rng(5)
+    t, y = rng.uniform(-2.0, 2.0, 4000), rng.uniform(-10, 10, 4000)
+    pts = np.stack([8 * np.sin(t), y, 8 * np.cos(t)], -1)
+    pts[::97] = np.nan
+    normals = pts / 8.0
+    colors = rng.integers(0, 120, (4000, 3)).astype(np.uint8)
+    return pts, normals, colors
+
+
+@pytest.mark.parametrize(("elev", "azim", "splat"), [(10.0, 0.0, 2), (15.0, 70.0, 1),
+                                                     (90.0, 0.0, 0), (-30.0, 200.0, 3)])
+def test_render_image_is_the_numpy_z_buffer(cloud, elev, azim, splat):
+    from nail2nail.merge.figures import _render_image
+
+    pts, normals, colors = cloud
+    for kwargs in ({"normals": normals, "colors": colors}, {}, {"colors": colors.astype(float)}):
+        fast = _render_image(pts, elev=elev, azim=azim, size=(120, 90), splat=splat, **kwargs)
+        ref = reference_render(pts, elev=elev, azim=azim, size=(120, 90), splat=splat, **kwargs)
+        assert np.mean(np.all(fast == ref, axis=-1)) > 0.999  # rounding of the projection
+
+
+def test_render_points_png_with_and_without_title(cloud, tmp_path):
+    from nail2nail.merge.figures import _render_image, render_points
+
+    pts, normals, colors = cloud
+    out = render_points(pts, tmp_path / "a.png", normals=normals, colors=colors, size=(200, 150),
+                        title="super scan (front): 3959 points")
+    with Image.open(out) as im:
+        assert im.size == (200, 190)
+        pixels = np.asarray(im.convert("RGB"))
+    assert np.array_equal(pixels[40:], _render_image(pts, normals=normals, colors=colors,
+                                                     size=(200, 150)))
+    assert (pixels[:40] < 128).any()  # the title is drawn
+    with Image.open(render_points(pts, tmp_path / "b.png", size=(200, 150))) as im:
+        assert im.size == (200, 150)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png"]
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 100, 1001, 30000])
+def test_percentile_of_uint8_from_the_histogram(n):
+    from nail2nail.merge.figures import _percentile_99
+
+    values = np.random.default_rng(n).integers(0, 256, (n, 3)).astype(np.uint8)
+    assert _percentile_99(values) == np.percentile(values.astype(float), 99)
+    assert _percentile_99(np.full(n, 7, np.uint8)) == 7.0
+
+
+def test_block_mean_ignores_nan():
+    from nail2nail.merge.figures import _block_mean
+
+    image = np.arange(35, dtype=float).reshape(5, 7)
+    image[0, :2] = np.nan
+    image[3:, 6] = np.nan
+    out = _block_mean(image, 2)
+    assert out.shape == (3, 4)
+    assert out[0, 0] == pytest.approx(np.nanmean(image[:2, :2]))
+    assert out[2, 3] != out[2, 3]  # the corner block holds only NaN
+    assert out[1, 3] == image[2, 6]  # a block cut at the edges
+    assert _block_mean(image, 1) is image
+
+
+def test_mapping_file_reads_back(noisy, tmp_path):
+    from nail2nail.merge.report import _save_mapping
+
+    m = correspond(noisy[0], noisy[1])
+    path = _save_mapping(tmp_path / "m.npz", m)
+    with np.load(path) as f:
+        np.testing.assert_array_equal(f["mapping"], m.mapping)
+        np.testing.assert_array_equal(f["parent_rc"], m.parent_rc)
+        np.testing.assert_array_equal(f["xyz_child"], m.xyz_child.astype(np.float32))
+        assert f["rejected_reason"].tolist() == m.rejected.reason.tolist()
