@@ -673,58 +673,150 @@ def _fused_normals(xyz, index, keep, fused, rows, cols, center, use_center):  # 
 
 
 @numba.njit(**_JIT)
-def _mesh_kernel(index, vertex, points, normals, max_edge_mm, offset):  # pragma: no cover
-    """:func:`grid_mesh`'s triangles: every block's first triangle (top-left, bottom-left,
-    top-right) in row-major order, then every block's second (top-right, bottom-left,
-    bottom-right); a pixel's vertex is ``vertex[index[r, c]]`` (−1: none)."""
+def _vertex_index(keep, fused):  # pragma: no cover - compiled
+    """Each kept point's vertex number (−1: not kept, or not finite in float32), and how many."""
+    vertex = np.full(keep.size, -1, np.int64)
+    n = 0
+    for i in range(keep.size):
+        if keep[i] and np.isfinite(np.float32(fused[i, 0])) and np.isfinite(
+                np.float32(fused[i, 1])) and np.isfinite(np.float32(fused[i, 2])):
+            vertex[i] = n
+            n += 1
+    return vertex, n
+
+
+@numba.njit(**_JIT)
+def _vertex_fill(keep, vertex, fused, rows, cols, normals, albedo, camera, offset, out_points,
+                 out_normals, out_colors, out_camera, out_pixel):  # pragma: no cover - compiled
+    """Write one camera's vertices from ``out_*[offset]`` on: point (float32), normal (of the
+    kept pixels, in their order), grey albedo ``clip(255 a + 0.5, 0, 255)`` as uint8, camera and
+    pixel."""
+    k = 0
+    for i in range(keep.size):
+        if not keep[i]:
+            continue
+        v = vertex[i]
+        if v >= 0:
+            o = offset + v
+            a = 255.0 * _nan_to_num(np.float64(albedo[rows[i], cols[i]])) + 0.5
+            grey = np.uint8(min(max(a, 0.0), 255.0))
+            for d in range(3):
+                out_points[o, d] = np.float32(fused[i, d])
+                out_normals[o, d] = normals[k, d]
+                out_colors[o, d] = grey
+            out_camera[o] = camera
+            out_pixel[o, 0] = rows[i]
+            out_pixel[o, 1] = cols[i]
+        k += 1
+
+
+@numba.njit(**_JIT)
+def _triangle(points, normals, a, b, e, max_edge_mm, below2, above2):
+    """Whether the triangle ``(a, b, e)`` has no edge longer than `max_edge_mm` (the norms
+    taken only when a squared length lies between `below2` and `above2`, i.e. at the
+    threshold), and whether its winding disagrees with the sum of its vertex normals."""
+    for u, v in ((a, b), (b, e), (e, a)):
+        d0 = np.float64(points[v, 0]) - np.float64(points[u, 0])
+        d1 = np.float64(points[v, 1]) - np.float64(points[u, 1])
+        d2 = np.float64(points[v, 2]) - np.float64(points[u, 2])
+        length2 = (d0 * d0 + d1 * d1) + d2 * d2
+        if length2 > below2 and not (length2 <= above2 and np.sqrt(length2) <= max_edge_mm):
+            return False, False
+    u0 = np.float64(points[b, 0]) - np.float64(points[a, 0])
+    u1 = np.float64(points[b, 1]) - np.float64(points[a, 1])
+    u2 = np.float64(points[b, 2]) - np.float64(points[a, 2])
+    v0 = np.float64(points[e, 0]) - np.float64(points[a, 0])
+    v1 = np.float64(points[e, 1]) - np.float64(points[a, 1])
+    v2 = np.float64(points[e, 2]) - np.float64(points[a, 2])
+    s0 = _nan_to_num((np.float64(normals[a, 0]) + np.float64(normals[b, 0]))
+                     + np.float64(normals[e, 0]))
+    s1 = _nan_to_num((np.float64(normals[a, 1]) + np.float64(normals[b, 1]))
+                     + np.float64(normals[e, 1]))
+    s2 = _nan_to_num((np.float64(normals[a, 2]) + np.float64(normals[b, 2]))
+                     + np.float64(normals[e, 2]))
+    flip = _dot3(u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0, s0, s1, s2) < 0
+    return True, flip
+
+
+@numba.njit(**_JIT)
+def _mesh_kernel(index, vertex, points, normals, max_edge_mm, offset, out,
+                 start):  # pragma: no cover - compiled
+    """:func:`grid_mesh`'s triangles into ``out[start:]``: every block's first triangle
+    (top-left, bottom-left, top-right) in row-major order, then every block's second
+    (top-right, bottom-left, bottom-right); a pixel's vertex is ``vertex[index[r, c]]`` (−1:
+    none), `offset` is added. Returns the end in `out`."""
     h, w = index.shape
-    n = points.shape[0]
-    first = np.empty((n, 3), np.int32)
-    second = np.empty((n, 3), np.int32)
-    counts = np.zeros(2, np.int64)
-    corner = np.empty(4, np.int64)  # tl, tr, bl, br
-    s = np.empty(3)
+    below2 = (max_edge_mm * (1.0 - 1e-9)) ** 2
+    above2 = (max_edge_mm * (1.0 + 1e-9)) ** 2
+    second = np.empty((points.shape[0], 3), np.int32)
+    n_first = n_second = 0
     for r in range(h - 1):
-        for c in range(w - 1):
-            for k in range(4):
-                i = index[r + k // 2, c + k % 2]
-                corner[k] = vertex[i] if i >= 0 else -1
-            for t in range(2):
-                if t == 0:
-                    a, b, e = corner[0], corner[2], corner[1]
-                else:
-                    a, b, e = corner[1], corner[2], corner[3]
-                if a < 0 or b < 0 or e < 0:
-                    continue
-                ab = _norm3(np.float64(points[b, 0]) - np.float64(points[a, 0]),
-                            np.float64(points[b, 1]) - np.float64(points[a, 1]),
-                            np.float64(points[b, 2]) - np.float64(points[a, 2]))
-                be = _norm3(np.float64(points[e, 0]) - np.float64(points[b, 0]),
-                            np.float64(points[e, 1]) - np.float64(points[b, 1]),
-                            np.float64(points[e, 2]) - np.float64(points[b, 2]))
-                ea = _norm3(np.float64(points[a, 0]) - np.float64(points[e, 0]),
-                            np.float64(points[a, 1]) - np.float64(points[e, 1]),
-                            np.float64(points[a, 2]) - np.float64(points[e, 2]))
-                if not max(max(ab, be), ea) <= max_edge_mm:
-                    continue
-                u0 = np.float64(points[b, 0]) - np.float64(points[a, 0])
-                u1 = np.float64(points[b, 1]) - np.float64(points[a, 1])
-                u2 = np.float64(points[b, 2]) - np.float64(points[a, 2])
-                v0 = np.float64(points[e, 0]) - np.float64(points[a, 0])
-                v1 = np.float64(points[e, 1]) - np.float64(points[a, 1])
-                v2 = np.float64(points[e, 2]) - np.float64(points[a, 2])
+        for c in range(w):  # the top-left of block (r, c) and the top-right of block (r, c - 1)
+            i = index[r, c]
+            if i < 0 or vertex[i] < 0:
+                continue
+            top = vertex[i]
+            j = index[r + 1, c]
+            below = vertex[j] if j >= 0 else -1
+            if below < 0:
+                continue
+            if c + 1 < w:  # (top-left, bottom-left, top-right)
+                j = index[r, c + 1]
+                right = vertex[j] if j >= 0 else -1
+                if right >= 0:
+                    ok, flip = _triangle(points, normals, top, below, right, max_edge_mm,
+                                         below2, above2)
+                    if ok:
+                        m = start + n_first
+                        out[m, 0] = top + offset
+                        out[m, 1] = (right if flip else below) + offset
+                        out[m, 2] = (below if flip else right) + offset
+                        n_first += 1
+            if c >= 1:  # (top-right, bottom-left, bottom-right) of block (r, c - 1)
+                j = index[r + 1, c - 1]
+                left = vertex[j] if j >= 0 else -1
+                if left >= 0:
+                    ok, flip = _triangle(points, normals, top, left, below, max_edge_mm,
+                                         below2, above2)
+                    if ok:
+                        second[n_second, 0] = top + offset
+                        second[n_second, 1] = (below if flip else left) + offset
+                        second[n_second, 2] = (left if flip else below) + offset
+                        n_second += 1
+    end = start + n_first
+    out[end:end + n_second] = second[:n_second]
+    return end + n_second
+
+
+@numba.njit(**_JIT)
+def _fused_images(index, keep, fused, normals, count, xp, yp, intensity, out_xyz, out_normals,
+                  out_mask, out_views, out_xp, out_yp, out_intensity):  # pragma: no cover
+    """One camera's fused grids: points and normals on the kept pixels (NaN elsewhere), the
+    mask, the number of views, ``xp``/``yp`` (NaN off the mask) and the intensity (0 off)."""
+    h, w = index.shape
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            i = index[r, c]
+            if i >= 0 and keep[i]:
                 for d in range(3):
-                    s[d] = _nan_to_num((np.float64(normals[a, d]) + np.float64(normals[b, d]))
-                                       + np.float64(normals[e, d]))
-                flip = _dot3(u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0,
-                             s[0], s[1], s[2]) < 0
-                out = first if t == 0 else second
-                m = counts[t]
-                out[m, 0] = a + offset
-                out[m, 1] = (e if flip else b) + offset
-                out[m, 2] = (b if flip else e) + offset
-                counts[t] = m + 1
-    return first[:counts[0]], second[:counts[1]]
+                    out_xyz[r, c, d] = fused[i, d]
+                    out_normals[r, c, d] = normals[k, d]
+                k += 1
+                out_mask[r, c] = True
+                out_views[r, c] = count[i]
+                out_xp[r, c] = xp[r, c]
+                out_yp[r, c] = yp[r, c]
+                out_intensity[r, c] = intensity[r, c]
+            else:
+                for d in range(3):
+                    out_xyz[r, c, d] = np.nan
+                    out_normals[r, c, d] = np.nan
+                out_mask[r, c] = False
+                out_views[r, c] = 0
+                out_xp[r, c] = np.nan
+                out_yp[r, c] = np.nan
+                out_intensity[r, c] = 0
 
 
 def _grid(points: np.ndarray, group_start: np.ndarray, size: float) -> tuple:
@@ -905,10 +997,11 @@ def grid_mesh(xyz, keep, *, max_edge_mm: float, normals=None) -> tuple[np.ndarra
     index[keep] = np.arange(n)
     if normals is None:
         normals = grid_normals(xyz)
-    first, second = _mesh_kernel(index, np.arange(n), np.ascontiguousarray(xyz[keep]),
-                                 np.ascontiguousarray(np.asarray(normals)[keep]),
-                                 float(max_edge_mm), 0)
-    return index, np.concatenate([first, second]).astype(np.int64)
+    faces = np.empty((2 * n, 3), dtype=np.int32)
+    end = _mesh_kernel(index, np.arange(n), np.ascontiguousarray(xyz[keep]),
+                       np.ascontiguousarray(np.asarray(normals)[keep]), float(max_edge_mm), 0,
+                       faces, 0)
+    return index, faces[:end].astype(np.int64)
 
 
 @dataclass
@@ -1252,7 +1345,7 @@ def fuse_scans(
     clock("off_surface")
 
     # normals from every valid pixel (fused where owned), so ownership edges keep them
-    owned, normals = [], []
+    normals = []  # per camera, of its kept pixels in row-major order
     for i, s in enumerate(scans):
         kept = np.flatnonzero(keeps[i])
         center = s.camera_center
@@ -1260,58 +1353,54 @@ def fuse_scans(
             np.ascontiguousarray(s.xyz), index[i], keeps[i], fused[i], rows[i][kept],
             cols[i][kept], np.asarray(center if center is not None else (0, 0, 0),
                                       np.float64).reshape(3), center is not None))
-        owned.append(kept)
     clock("normals")
 
-    verts, vnorm, vertex_pixels, faces = [], [], [], []
-    offset = 0
+    # the vertices: kept points finite in float32, camera by camera in row-major order
+    vertex, first = [], [0]
     for i in range(n):
-        kept = owned[i]
-        points = fused[i][kept].astype(np.float32)
-        finite = np.isfinite(points).all(axis=1)  # the float32 grid's vertices
-        vertex = np.full(sizes[i], -1, dtype=np.int64)
-        vertex[kept[finite]] = np.arange(np.count_nonzero(finite))
-        verts.append(points[finite])
-        vnorm.append(normals[i][finite])
-        vertex_pixels.append(kept[finite])
-        faces.extend(_mesh_kernel(index[i], vertex, verts[-1], vnorm[-1], float(max_edge_mm),
-                                  offset))
-        offset += verts[-1].shape[0]
+        v, count = _vertex_index(keeps[i], fused[i])
+        vertex.append(v)
+        first.append(first[-1] + count)
+    vertices = np.empty((first[-1], 3), dtype=np.float32)
+    vertex_normals = np.empty((first[-1], 3), dtype=np.float32)
+    colors = np.empty((first[-1], 3), dtype=np.uint8)
+    camera = np.empty(first[-1], dtype=np.int16)
+    pixel = np.empty((first[-1], 2), dtype=np.int32)
+    faces = np.empty((2 * first[-1], 3), dtype=np.int32)  # at most two per vertex
+    end = 0
+    for i, s in enumerate(scans):
+        _vertex_fill(keeps[i], vertex[i], fused[i], rows[i], cols[i], normals[i],
+                     np.ascontiguousarray(s.albedo), i, first[i], vertices, vertex_normals,
+                     colors, camera, pixel)
+        part = slice(first[i], first[i + 1])
+        end = _mesh_kernel(index[i], vertex[i], vertices[part], vertex_normals[part],
+                           float(max_edge_mm), first[i], faces, end)
+    faces = faces[:end]
     clock("mesh")
 
-    fused_scans, fused_normals, n_views, colors, cams, pix = [], [], [], [], [], []
+    fused_scans, fused_normals, n_views = [], [], []
     for i, s in enumerate(scans):
         h, w = valid[i].shape
-        flat = pixels[i][owned[i]]
-        mask = np.zeros(h * w, dtype=bool)
-        mask[flat] = True
-        mask = mask.reshape(h, w)
-        xyz = np.full((h * w, 3), np.nan, dtype=np.float32)
-        xyz[flat] = fused[i][owned[i]]
-        nm = np.full((h * w, 3), np.nan, dtype=np.float32)
-        nm[flat] = normals[i]
-        views = np.zeros(h * w, dtype=np.uint8)
-        views[flat] = counts[i][owned[i]]
+        xyz = np.empty((h, w, 3), dtype=np.float32)
+        nm = np.empty((h, w, 3), dtype=np.float32)
+        mask = np.empty((h, w), dtype=bool)
+        views = np.empty((h, w), dtype=np.uint8)
+        xp, yp = np.asarray(s.xp), np.asarray(s.yp)
+        xp_out = np.empty((h, w), dtype=np.result_type(xp.dtype, 0.0))  # np.where(mask, xp, nan)
+        yp_out = np.empty((h, w), dtype=np.result_type(yp.dtype, 0.0))
+        intensity = np.empty((h, w), dtype=np.float32)
+        _fused_images(index[i], keeps[i], fused[i], normals[i], counts[i], xp, yp,
+                      np.asarray(s.intensity), xyz, nm, mask, views, xp_out, yp_out, intensity)
         fused_scans.append(Scan(
-            name=s.name, xyz=xyz.reshape(h, w, 3), xp=np.where(mask, s.xp, np.nan),
-            yp=np.where(mask, s.yp, np.nan), albedo=s.albedo,
-            intensity=np.where(mask, s.intensity, 0).astype(np.float32),
+            name=s.name, xyz=xyz, xp=xp_out, yp=yp_out, albedo=s.albedo, intensity=intensity,
             modulation=s.modulation, mask=mask, camera_center=s.camera_center,
         ))
-        fused_normals.append(nm.reshape(h, w, 3))
-        n_views.append(views.reshape(h, w))
-        at = pixels[i][vertex_pixels[i]]
-        albedo = np.asarray(s.albedo).ravel()[at].astype(np.float64)
-        grey = np.clip(np.nan_to_num(albedo) * 255 + 0.5, 0, 255).astype(np.uint8)
-        colors.append(np.repeat(grey[:, None], 3, axis=1))
-        cams.append(np.full(at.size, i, dtype=np.int16))
-        pix.append(np.stack(np.divmod(at, w), axis=-1).astype(np.int32))
+        fused_normals.append(nm)
+        n_views.append(views)
     clock("output")
     return SuperScan(
-        scans=fused_scans, normals=fused_normals, n_views=n_views,
-        vertices=np.concatenate(verts), vertex_normals=np.concatenate(vnorm),
-        colors=np.concatenate(colors), faces=np.concatenate(faces),
-        camera=np.concatenate(cams), pixel=np.concatenate(pix),
+        scans=fused_scans, normals=fused_normals, n_views=n_views, vertices=vertices,
+        vertex_normals=vertex_normals, colors=colors, faces=faces, camera=camera, pixel=pixel,
         correspondences=corr, priority=priority, duplicates_removed=removed,
         points_rejected={s.name: {"spike": spikes_removed[s.name],
                                   "off_surface": off_surface[s.name]} for s in scans},
