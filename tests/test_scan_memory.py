@@ -1,5 +1,6 @@
-"""Issue 10: a scan's memory stays bounded (one camera's integer frames, bands of rows), and
-the banded scan is the whole-image one. Peak RSS at 4x the default size: bench/scan_memory.py."""
+"""Issue 10: a scan's memory stays bounded (one camera's integer frames; the NumPy reference in
+bands of rows), and the banded reference scan is the whole-image one. Peak RSS at 4x the default
+size: bench/scan_memory.py. The fused kernel against the reference: tests/test_scan_fast.py."""
 
 from __future__ import annotations
 
@@ -79,18 +80,21 @@ def test_banded_scan_frames_equals_whole_image(finger, monkeypatch, erode, max_g
     monkeypatch.setattr(scanning, "BAND_PIXELS", band * frames.shape[2])
     monkeypatch.setattr(reconstruction, "BAND_PIXELS", 2 * frames.shape[2])
     scan = scan_frames(frames, capture.pattern_set, camera,
-                       projector_distortion=calibration.projector_distortion, use=use, **options)
+                       projector_distortion=calibration.projector_distortion, use=use,
+                       method="numpy", **options)
     assert_same_scan(scan, ref)
     np.testing.assert_array_equal(scan.camera_center, camera_center(camera.camera))
 
 
 def test_scan_capture_reads_integer_frames_and_caches_none(finger, monkeypatch):
     """Issue 10: scan_capture holds one camera's 8-bit frames at a time and decodes them band
-    by band; the result is the whole-image scan of the float frames."""
+    by band (the NumPy reference); the result is the whole-image scan of the float frames."""
     cap, calibration = finger
     monkeypatch.setattr(scanning, "BAND_PIXELS", 5 * 256)
     capture = read_capture(cap, load=False)
-    scans = scan_capture(capture, calibration)
+    scan_capture(capture, calibration)  # the fused kernel: caches none either
+    assert capture.frames == {}
+    scans = scan_capture(capture, calibration, method="numpy")
     assert capture.frames == {}
     preloaded = read_capture(cap)  # float frames cached: used as they are
     for scan, name in zip(scans, capture.camera_names, strict=True):
@@ -99,22 +103,25 @@ def test_scan_capture_reads_integer_frames_and_caches_none(finger, monkeypatch):
                                projector_distortion=calibration.projector_distortion,
                                use="xpyp", max_gradient=gradient_limit(2.0, frames.shape))
         assert_same_scan(scan, ref)
-    for scan, again in zip(scans, scan_capture(preloaded, calibration), strict=True):
+    for scan, again in zip(scans, scan_capture(preloaded, calibration, method="numpy"),
+                           strict=True):
         np.testing.assert_array_equal(scan.xyz, again.xyz)
 
 
-def test_scan_capture_memory_is_bounded_by_the_band(finger, monkeypatch):
+@pytest.mark.parametrize("method", ["numba", "numpy"])
+def test_scan_capture_memory_is_bounded_by_the_band(finger, monkeypatch, method):
     """Traced allocations stay near outputs + one camera's 8-bit frames; unbanded, the float64
-    triangulation temporaries alone took ~0.6 kB per pixel (48 MB here)."""
+    triangulation temporaries alone took ~0.6 kB per pixel (48 MB here). (The fused kernel's
+    per-row temporaries are numba's, not traced: bench/scan_memory.py measures its RSS.)"""
     cap, calibration = finger
     capture = read_capture(cap, load=False)
     width, height = capture.camera("cam0")["size"]
     monkeypatch.setattr(scanning, "BAND_PIXELS", 16 * width)
     monkeypatch.setattr(reconstruction, "BAND_PIXELS", 16 * width)
-    scan_capture(capture, calibration)  # imports and caches outside the measurement
+    scan_capture(capture, calibration, method=method)  # imports, caches outside the measurement
     tracemalloc.start()
     try:
-        scans = scan_capture(capture, calibration)
+        scans = scan_capture(capture, calibration, method=method)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()

@@ -47,6 +47,7 @@ from nail2nail.patterns import PatternSet
 __all__ = [
     "EDGE",
     "LOW_MODULATION",
+    "NO_POINT",
     "OUT_OF_PANEL",
     "SATURATED",
     "SHADOW",
@@ -70,6 +71,7 @@ UNWRAP_ERROR = 8  #: inconsistency between frequencies above ``unwrap_tolerance`
 OUT_OF_PANEL = 16  #: decoded coordinate outside the panel's physical extent
 EDGE = 32  #: an invalid pixel within ``erode`` pixels
 STEEP = 64  #: decoded coordinate changes faster than ``max_gradient`` panel px per camera px
+NO_POINT = 128  #: triangulation gave no finite point (:func:`decode_fast` with a table)
 
 TWO_PI = 2.0 * np.pi
 
@@ -94,8 +96,8 @@ class Decoded:
         Valid pixels (``reason == 0``).
     reason : (H, W) uint8
         Bit set of :data:`LOW_MODULATION`, :data:`SATURATED`, :data:`SHADOW`,
-        :data:`UNWRAP_ERROR`, :data:`OUT_OF_PANEL` (per pixel) and :data:`EDGE`, :data:`STEEP`
-        (neighbourhood checks on the per-pixel validity).
+        :data:`UNWRAP_ERROR`, :data:`OUT_OF_PANEL` (per pixel), :data:`EDGE`, :data:`STEEP`
+        (neighbourhood checks on the per-pixel validity) and :data:`NO_POINT` (triangulation).
     xyz : (H, W, 3) float32 or None
         World points (mm, NaN where invalid) when a triangulation table was given.
     """
@@ -272,6 +274,14 @@ def _check_erode(erode) -> int:
     return int(erode)
 
 
+def _check_scale(full_scale) -> float | None:
+    if full_scale is None:
+        return None
+    if isinstance(full_scale, bool) or not 0 < float(full_scale) < np.inf:
+        raise ValueError(f"full_scale: expected a positive number or None, got {full_scale!r}")
+    return float(full_scale)
+
+
 def _check_gradient(max_gradient) -> float | None:
     if max_gradient is None:
         return None
@@ -324,9 +334,22 @@ def neighbourhood_reasons(reason, coords, *, erode: int = 1, max_gradient: float
     return out
 
 
+def _panel_coordinate(wrapped, unwrapped, size: float, periods: float, origin: float):
+    """``u = Phi size / (2 pi n) + origin`` (float32) of the finest wrapped and unwrapped phase.
+
+    Computed as ``phi size / (2 pi n) + k size / n + origin`` in float64 with the exact period
+    count ``k``, then rounded once: the float32 unwrapped phase itself (up to ``2 pi n`` = 402
+    rad, steps of 3e-5 rad) carries errors of 1e-4 px.
+    """
+    k = np.rint((unwrapped - wrapped) * np.float32(1.0 / TWO_PI))
+    u = (wrapped.astype(np.float64) * (size / (TWO_PI * periods))
+         + (k.astype(np.float64) * (size / periods) + origin))
+    return u.astype(np.float32)
+
+
 def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation,
-                  unwrap_tolerance, erode, max_gradient, keep_invalid) -> Decoded:
-    scale = _full_scale(frames.dtype)
+                  unwrap_tolerance, erode, max_gradient, keep_invalid, full_scale) -> Decoded:
+    scale = _full_scale(frames.dtype) if full_scale is None else full_scale
     height, width = frames.shape[1:]
     reason = np.zeros((height, width), dtype=np.uint8)
     saturated = frames.max(axis=0) >= saturation * scale
@@ -342,7 +365,9 @@ def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation
         phases = []
         amplitudes = []
         for f in freqs:
-            block = normalize_frames(frames[start:start + f.steps])
+            block = frames[start:start + f.steps].astype(np.float32)
+            if scale != 1.0:
+                block /= np.float32(scale)
             start += f.steps
             phi, b, _ = wrapped_phase(block, pattern_set.shifts(f.steps))
             phases.append(phi)
@@ -355,12 +380,12 @@ def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation
         )
         reason[bad] |= UNWRAP_ERROR
         size = pattern_set.axis_size(direction)
-        n = freqs[finest].periods
-        u = unwrapped * np.float32(size / (TWO_PI * n)) + np.float32(pattern_set.phase_origin)
+        u = _panel_coordinate(phases[finest], unwrapped, size, freqs[finest].periods,
+                              pattern_set.phase_origin)
         with np.errstate(invalid="ignore"):
             outside = (u < -0.5) | (u > size - 0.5)
         reason[outside] |= OUT_OF_PANEL
-        coords[direction] = u.astype(np.float32)
+        coords[direction] = u
     reason[min_amplitude < min_modulation] |= LOW_MODULATION
     reason = neighbourhood_reasons(reason, list(coords.values()), erode=erode,
                                    max_gradient=max_gradient)
@@ -391,6 +416,7 @@ def decode(
     erode: int = 1,
     max_gradient: float | None = None,
     keep_invalid: bool = False,
+    full_scale: float | None = None,
     method: str = "numpy",
     table=None,
 ) -> Decoded:
@@ -424,10 +450,13 @@ def decode(
         virtual scanner; scale it by ``1 / scale`` for reduced-resolution cameras.
     keep_invalid : bool
         Keep ``xp``, ``yp`` where invalid instead of NaN (diagnostics).
+    full_scale : float, optional
+        Value of full intensity of integer frames: 255 for uint8 and 65535 for uint16 by
+        default; ``2**bit_depth - 1`` for right-aligned values (frames read with ``raw=True``).
     method : {"numpy", "numba"}
         Plain NumPy reference, or the fused kernel of :func:`decode_fast`.
-    table : TriangulationTable, optional
-        With ``method="numba"``, also triangulate into ``Decoded.xyz``.
+    table : RayTable or TriangulationTable, optional
+        With ``method="numba"``, also triangulate into ``Decoded.xyz`` (:func:`decode_fast`).
 
     Returns
     -------
@@ -436,7 +465,8 @@ def decode(
     Raises
     ------
     ValueError, TypeError
-        On a frame count that does not match the pattern set, a wrong shape or dtype.
+        On a frame count that does not match the pattern set, a wrong shape or dtype, an
+        option out of range.
 
     Examples
     --------
@@ -450,7 +480,7 @@ def decode(
     options = dict(min_modulation=float(min_modulation), min_albedo=float(min_albedo),
                    saturation=float(saturation), unwrap_tolerance=float(unwrap_tolerance),
                    erode=_check_erode(erode), max_gradient=_check_gradient(max_gradient),
-                   keep_invalid=bool(keep_invalid))
+                   keep_invalid=bool(keep_invalid), full_scale=_check_scale(full_scale))
     if method == "numpy":
         if table is not None:
             raise ValueError("table: triangulation is fused only with method='numba'")
@@ -466,12 +496,22 @@ def decode(
 # cache=True unless no directory at all can hold numba's cache (nail2nail._numba_cache)
 _CACHE = cache_enabled()
 
+# Fast-math flags of the decoding arithmetic: fused multiply-adds and signed zeros only. Not
+# nnan/ninf (the NaN and finiteness tests must hold), not arcp/reassoc (divisions and sums round
+# as the reference's do, so thresholds fall on the same pixels).
+_FAST = {"nsz", "contract"}
 
-@numba.njit(inline="always", fastmath=True)
+#: Frames summed per pass over a row (a group's last block is padded with zero weights).
+_BLOCK = 3
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _atan2_0_2pi(y, x):  # pragma: no cover - compiled
-    """``atan2(y, x)`` mapped to ``[0, 2 pi)``, branch-free, |error| < 1.1e-5 rad.
+    """``atan2(y, x)`` in float32 mapped to ``[0, 2 pi)``, branch-free, |error| < 1.5e-7 rad.
 
-    Abramowitz & Stegun 4.4.47: odd degree-9 polynomial for ``atan`` on ``[0, 1]``.
+    ``atan(a) = a P(a^2)`` on ``[0, 1]`` with ``P`` of degree 7 (minimax, 3.7e-8 rad in exact
+    arithmetic), then the octant. The error is 5e-7 px of the finest 20 px period: float32
+    rounding of ``u`` dominates.
     """
     ax = abs(x)
     ay = abs(y)
@@ -479,213 +519,524 @@ def _atan2_0_2pi(y, x):  # pragma: no cover - compiled
     mn = min(ax, ay)
     a = mn / max(mx, np.float32(1e-30))
     s = a * a
-    r = a * (np.float32(0.9998660) + s * (np.float32(-0.3302995) + s * (
-        np.float32(0.1801410) + s * (np.float32(-0.0851330) + s * np.float32(0.0208351)))))
+    p = np.float32(-0.004054565772773874)
+    p = p * s + np.float32(0.021862953069985366)
+    p = p * s + np.float32(-0.05591232053743348)
+    p = p * s + np.float32(0.09642196935403262)
+    p = p * s + np.float32(-0.13908629429165978)
+    p = p * s + np.float32(0.19946565636345642)
+    p = p * s + np.float32(-0.3332986078429215)
+    p = p * s + np.float32(0.9999993355789593)
+    r = a * p
     r = np.float32(1.5707964) - r if ay > ax else r
     r = np.float32(3.1415927) - r if x < 0 else r
     r = np.float32(6.2831855) - r if y < 0 else r
     return r if r < np.float32(6.2831855) else np.float32(0.0)
 
 
-@numba.njit(parallel=True, fastmath=True, cache=_CACHE)
-def _fused_kernel(frames, cos_d, sin_d, group_start, group_steps, group_bscale, group_ratio,
-                  group_first,
-                  dir_groups, dir_coef, dir_origin, dir_size, inv_scale, sat_native,
-                  min_mod, min_alb, tol, out_u, out_mod, out_alb, out_reason):  # pragma: no cover
-    # Written for LLVM's loop vectoriser: every inner loop runs over the columns of one row
-    # without branches (conditional expressions become selects). Amplitudes are kept squared
-    # (group_bscale holds (2 / (N scale))^2) until the one square root of the output.
-    n_frames, height, width = frames.shape
-    n_dirs = dir_groups.shape[0]
-    inv_n = np.float32(1.0 / n_frames)
+@numba.njit(fastmath=_FAST, error_model="numpy")
+def _decode_row(frames, r, block_frame, block_cos, block_sin, block_size, group_block,
+                group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
+                dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol,
+                acc_s, acc_c, b2, total, peak, flags, min_b, fine_b, big_phi,
+                u_row, reason_row, mod_row, alb_row):  # pragma: no cover - compiled
+    """Decode camera row `r`: ``u_row (n_dirs, W)``, per-pixel reasons, modulation, albedo.
+
+    Every loop runs over the columns without branches (conditional expressions become
+    selects), for LLVM's vectoriser; the frames are read as stored (uint8, uint16, float32),
+    three at a time, and the amplitudes are kept squared until the output.
+    """
+    width = frames.shape[2]
+    zero = np.float32(0.0)
+    half = np.float32(0.5)
     two_pi = np.float32(TWO_PI)
     inv_two_pi = np.float32(1.0 / TWO_PI)
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    min_mod2 = min_mod * min_mod
-    for r in numba.prange(height):
-        acc_s = np.empty(width, dtype=np.float32)
-        acc_c = np.empty(width, dtype=np.float32)
-        total = np.zeros(width, dtype=np.float32)
-        peak = np.zeros(width, dtype=np.float32)
-        flags = np.zeros(width, dtype=np.uint8)
-        min_b = np.full(width, np.inf, dtype=np.float32)
-        fine_b = np.full(width, np.inf, dtype=np.float32)
-        big_phi = np.zeros(width, dtype=np.float32)
-        for d in range(n_dirs):
-            for j in range(dir_groups.shape[1]):
-                g = dir_groups[d, j]
-                if g < 0:
-                    break
-                # accumulate this frequency's frames (the row stays in L1 cache)
-                acc_s[:] = zero
-                acc_c[:] = zero
-                for k in range(group_start[g], group_start[g] + group_steps[g]):
-                    cd = cos_d[k]
-                    sd = sin_d[k]
+    for d in range(dir_groups.shape[0]):
+        for j in range(dir_levels[d]):  # coarse to fine
+            g = dir_groups[d, j]
+            first = group_block[g, 0]
+            for bi in range(first, first + group_block[g, 1]):
+                k0, k1, k2 = block_frame[bi, 0], block_frame[bi, 1], block_frame[bi, 2]
+                c0, c1, c2 = block_cos[bi, 0], block_cos[bi, 1], block_cos[bi, 2]
+                s0, s1, s2 = block_sin[bi, 0], block_sin[bi, 1], block_sin[bi, 2]
+                start = (d == 0) & (j == 0) & (bi == first)  # the row's first frames
+                if block_size[bi] == 1:  # a frequency's last frame or two, one at a time
                     for c in range(width):
-                        fv = np.float32(frames[k, r, c])
-                        acc_s[c] += fv * sd
-                        acc_c[c] += fv * cd
-                        total[c] += fv
-                        peak[c] = max(peak[c], fv)
-                bscale = group_bscale[g]
-                ratio = group_ratio[g]
-                if group_first[g]:
+                        f0 = np.float32(frames[k0, r, c])
+                        acc_s[c] += f0 * s0
+                        acc_c[c] += f0 * c0
+                        total[c] += f0
+                        peak[c] = max(peak[c], f0)
+                elif start:
                     for c in range(width):
-                        sv = acc_s[c]
-                        cv = acc_c[c]
-                        b2 = (sv * sv + cv * cv) * bscale
-                        min_b[c] = min(min_b[c], b2)
-                        big_phi[c] = _atan2_0_2pi(sv, cv)
-                        acc_c[c] = b2
+                        f0 = np.float32(frames[k0, r, c])
+                        f1 = np.float32(frames[k1, r, c])
+                        f2 = np.float32(frames[k2, r, c])
+                        acc_s[c] = f0 * s0 + f1 * s1 + f2 * s2
+                        acc_c[c] = f0 * c0 + f1 * c1 + f2 * c2
+                        total[c] = f0 + f1 + f2
+                        peak[c] = max(f0, max(f1, f2))
+                elif bi == first:
+                    for c in range(width):
+                        f0 = np.float32(frames[k0, r, c])
+                        f1 = np.float32(frames[k1, r, c])
+                        f2 = np.float32(frames[k2, r, c])
+                        acc_s[c] = f0 * s0 + f1 * s1 + f2 * s2
+                        acc_c[c] = f0 * c0 + f1 * c1 + f2 * c2
+                        total[c] += f0 + f1 + f2
+                        peak[c] = max(peak[c], max(f0, max(f1, f2)))
                 else:
                     for c in range(width):
-                        sv = acc_s[c]
-                        cv = acc_c[c]
-                        b2 = (sv * sv + cv * cv) * bscale
-                        min_b[c] = min(min_b[c], b2)
-                        phi = _atan2_0_2pi(sv, cv)
-                        target = big_phi[c] * ratio
-                        unwrapped = phi + two_pi * np.floor((target - phi) * inv_two_pi + half)
-                        flags[c] |= np.uint8(8) if abs(target - unwrapped) > tol else np.uint8(0)
-                        big_phi[c] = unwrapped
-                        acc_c[c] = b2
-            # acc_c holds the finest frequency's squared amplitude
-            coef = dir_coef[d]
-            origin = dir_origin[d]
-            upper = dir_size[d] - half
-            for c in range(width):
-                u = big_phi[c] * coef + origin
-                out_u[d, r, c] = u
-                outside = (u < -half) | (u > upper)
-                flags[c] |= np.uint8(16) if outside else np.uint8(0)
-                fine_b[c] = min(fine_b[c], acc_c[c])
+                        f0 = np.float32(frames[k0, r, c])
+                        f1 = np.float32(frames[k1, r, c])
+                        f2 = np.float32(frames[k2, r, c])
+                        acc_s[c] += f0 * s0 + f1 * s1 + f2 * s2
+                        acc_c[c] += f0 * c0 + f1 * c1 + f2 * c2
+                        total[c] += f0 + f1 + f2
+                        peak[c] = max(peak[c], max(f0, max(f1, f2)))
+            bscale = group_bscale[g]
+            ratio = group_ratio[g]
+            # acc_s, acc_c become this level's wrapped phase and period count
+            if j == 0:
+                for c in range(width):
+                    sv = acc_s[c]
+                    cv = acc_c[c]
+                    q = (sv * sv + cv * cv) * bscale
+                    min_b[c] = q if d == 0 else min(min_b[c], q)
+                    phi = _atan2_0_2pi(sv, cv)
+                    big_phi[c] = phi
+                    acc_s[c] = phi
+                    acc_c[c] = zero
+                    b2[c] = q
+                    flags[c] = np.uint8(0) if d == 0 else flags[c]
+            else:
+                for c in range(width):
+                    sv = acc_s[c]
+                    cv = acc_c[c]
+                    q = (sv * sv + cv * cv) * bscale
+                    min_b[c] = min(min_b[c], q)
+                    phi = _atan2_0_2pi(sv, cv)
+                    target = big_phi[c] * ratio
+                    k = np.rint((target - phi) * inv_two_pi)
+                    unwrapped = phi + two_pi * k
+                    flags[c] |= np.uint8(8) if abs(target - unwrapped) > tol else np.uint8(0)
+                    big_phi[c] = unwrapped
+                    acc_s[c] = phi
+                    acc_c[c] = k
+                    b2[c] = q
+        # u = phi size / (2 pi n) + k size / n + origin in float64 from the finest level's phase
+        # and its exact period count: rounded once, where the float32 unwrapped phase (up to
+        # 2 pi n = 402 rad) would carry errors of 1e-4 px
+        coef = dir_coef[d]
+        period = dir_period[d]
+        origin = dir_origin[d]
+        upper = dir_size[d] - half
+        u_out = u_row[d]
         for c in range(width):
-            alb = total[c] * inv_n * inv_scale
-            f = flags[c]
-            f |= np.uint8(2) if peak[c] >= sat_native else np.uint8(0)
-            f |= np.uint8(4) if alb < min_alb else np.uint8(0)
-            f |= np.uint8(1) if min_b[c] < min_mod2 else np.uint8(0)
-            out_reason[r, c] = f
-            out_alb[r, c] = alb
-            out_mod[r, c] = np.sqrt(fine_b[c])
+            fine_b[c] = b2[c] if d == 0 else min(fine_b[c], b2[c])
+            u = np.float32(np.float64(acc_s[c]) * coef + (np.float64(acc_c[c]) * period + origin))
+            u_out[c] = u
+            flags[c] |= np.uint8(16) if (u < -half) | (u > upper) else np.uint8(0)
+    for c in range(width):
+        alb = total[c] * inv_scale
+        f = flags[c]
+        f |= np.uint8(2) if peak[c] >= sat_native else np.uint8(0)
+        f |= np.uint8(4) if alb < min_alb else np.uint8(0)
+        f |= np.uint8(1) if min_b[c] < min_mod2 else np.uint8(0)
+        reason_row[c] = f
+        alb_row[c] = alb
+        mod_row[c] = np.sqrt(fine_b[c])
 
 
-@numba.njit(parallel=True, fastmath=True, cache=_CACHE)
-def _finish_kernel(pix_reason, u_raw, erode, max_gradient, keep_invalid, table_dir, num, den,
-                   modulation, out_reason, out_u, out_int, out_xyz):  # pragma: no cover
-    """Neighbourhood checks (as :func:`neighbourhood_reasons`), masking and triangulation.
+# Layout of the packed ray-triangulation constants (_pack_ray, _ray_points).
+_RAY_INV, _RAY_CENTER, _RAY_G, _RAY_H, _RAY_NORM = 0, 9, 12, 21, 24
+_RAY_DIST, _RAY_K, _RAY_KINV, _RAY_LENS, _RAY_SIZE = 29, 32, 38, 44, 49
+_USE_CODE = {"xpyp": 0, "xp": 1, "yp": 2}
+
+
+def _pack_ray(table) -> tuple[np.ndarray, np.ndarray]:
+    """A :class:`~nail2nail.reconstruction.RayTable`'s constants as the kernel reads them:
+    ``(ray_f (49,) float64, ray_i (4,) int64)``."""
+    f = np.zeros(_RAY_SIZE)
+    f[_RAY_INV:_RAY_INV + 9] = table.camera_inverse.ravel()
+    center = table.camera_center
+    f[_RAY_CENTER:_RAY_CENTER + 3] = center
+    M = table.projector_matrix
+    P = M[:, :3]
+    f[_RAY_G:_RAY_G + 9] = (P @ table.camera_inverse).ravel()  # q = P d from (x, y, 1)
+    f[_RAY_H:_RAY_H + 3] = P @ center + M[:, 3]  # the camera centre seen by the projector
+    f[_RAY_NORM:_RAY_NORM + 5] = [P[0] @ P[0], P[1] @ P[1], P[2] @ P[2], P[0] @ P[2],
+                                  P[1] @ P[2]]
+    has_dist = table.panel_distortion is not None
+    if has_dist:
+        f[_RAY_DIST:_RAY_DIST + 3] = table.panel_distortion
+    has_lens = table.projector_intrinsics is not None
+    if has_lens:
+        K = table.projector_intrinsics
+        f[_RAY_K:_RAY_K + 6] = K[:2].ravel()
+        f[_RAY_KINV:_RAY_KINV + 6] = np.linalg.inv(K)[:2].ravel()
+        f[_RAY_LENS:_RAY_LENS + 5] = table.projector_dist
+    i = np.array([_USE_CODE[table.use], has_dist, has_lens, table.lens_iterations], np.int64)
+    return f, i
+
+
+@numba.njit(fastmath=_FAST, error_model="numpy")
+def _ideal_panel(px, py, ray_f, ray_i, xd, yd, ideal_x, ideal_y):  # pragma: no cover
+    """Ideal pinhole coordinates ``ideal_x, ideal_y`` (float64) of panel coordinates
+    ``px, py`` of a projector with lens distortion: the radial distortion model
+    ``r -> r + rho^3 r^3`` (:func:`~nail2nail.distortion.ideal_from_panel`) if any, then the
+    OpenCV lens inverted by the fixed-point iteration of
+    :meth:`~nail2nail.camera_models.Pinhole.undistort` (same formula, same iteration count).
+    `xd`, `yd` are scratch."""
+    n = px.shape[0]
+    has_dist = ray_i[1]
+    cx, cy, k = ray_f[_RAY_DIST], ray_f[_RAY_DIST + 1], ray_f[_RAY_DIST + 2]
+    a0, a1, a2 = ray_f[_RAY_KINV], ray_f[_RAY_KINV + 1], ray_f[_RAY_KINV + 2]
+    a3, a4, a5 = ray_f[_RAY_KINV + 3], ray_f[_RAY_KINV + 4], ray_f[_RAY_KINV + 5]
+    k1, k2, p1 = ray_f[_RAY_LENS], ray_f[_RAY_LENS + 1], ray_f[_RAY_LENS + 2]
+    p2, k3 = ray_f[_RAY_LENS + 3], ray_f[_RAY_LENS + 4]
+    for i in range(n):
+        x = np.float64(px[i])
+        y = np.float64(py[i])
+        dx = x - cx
+        dy = y - cy
+        f = 1.0 + k * (dx * dx + dy * dy)
+        x = cx + dx * f if has_dist else x
+        y = cy + dy * f if has_dist else y
+        xd[i] = x * a0 + y * a1 + a2  # normalised, distorted
+        yd[i] = x * a3 + y * a4 + a5
+        ideal_x[i] = xd[i]
+        ideal_y[i] = yd[i]
+    for _ in range(ray_i[3]):  # iterations outermost: the column loop vectorises
+        for i in range(n):
+            x = ideal_x[i]
+            y = ideal_y[i]
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            ideal_x[i] = (xd[i] - dx) / radial
+            ideal_y[i] = (yd[i] - dy) / radial
+    b0, b1, b2 = ray_f[_RAY_K], ray_f[_RAY_K + 1], ray_f[_RAY_K + 2]
+    b3, b4, b5 = ray_f[_RAY_K + 3], ray_f[_RAY_K + 4], ray_f[_RAY_K + 5]
+    for i in range(n):
+        x = ideal_x[i]
+        y = ideal_y[i]
+        ideal_x[i] = x * b0 + y * b1 + b2
+        ideal_y[i] = x * b3 + y * b4 + b5
+
+
+@numba.njit(fastmath=_FAST, error_model="numpy")
+def _ray_points(px, py, x_step, xo, y0, yo, ray_f, use, has_dist, x_out, y_out,
+                z_out):  # pragma: no cover - compiled
+    """World points (float64, mm) on the rays of the camera pixels ``(x_step i + xo[i],
+    y0 + yo[i])`` from the panel coordinates ``px, py`` (ideal ones, or with the radial
+    distortion model `has_dist` removed here, :func:`~nail2nail.distortion.ideal_from_panel`).
+
+    The point ``X = C + t d``: ``t`` solves one projector plane (`use` 1: ``xp``, 2: ``yp``)
+    or, `use` 0, both in least squares, each residual divided by its plane normal's norm
+    (:func:`~nail2nail.reconstruction.reconstruct_points_ray`); in float64.
+    """
+    m0, m1, m2 = ray_f[_RAY_INV], ray_f[_RAY_INV + 1], ray_f[_RAY_INV + 2]
+    m3, m4, m5 = ray_f[_RAY_INV + 3], ray_f[_RAY_INV + 4], ray_f[_RAY_INV + 5]
+    m6, m7, m8 = ray_f[_RAY_INV + 6], ray_f[_RAY_INV + 7], ray_f[_RAY_INV + 8]
+    g0, g1, g2 = ray_f[_RAY_G], ray_f[_RAY_G + 1], ray_f[_RAY_G + 2]
+    g3, g4, g5 = ray_f[_RAY_G + 3], ray_f[_RAY_G + 4], ray_f[_RAY_G + 5]
+    g6, g7, g8 = ray_f[_RAY_G + 6], ray_f[_RAY_G + 7], ray_f[_RAY_G + 8]
+    h0, h1, h2 = ray_f[_RAY_H], ray_f[_RAY_H + 1], ray_f[_RAY_H + 2]
+    n00, n11, n22 = ray_f[_RAY_NORM], ray_f[_RAY_NORM + 1], ray_f[_RAY_NORM + 2]
+    n02, n12 = ray_f[_RAY_NORM + 3], ray_f[_RAY_NORM + 4]
+    e0, e1, e2 = ray_f[_RAY_CENTER], ray_f[_RAY_CENTER + 1], ray_f[_RAY_CENTER + 2]
+    cx, cy, k = ray_f[_RAY_DIST], ray_f[_RAY_DIST + 1], ray_f[_RAY_DIST + 2]
+    both = use == 0
+    on_x = use == 1
+    for i in range(px.shape[0]):
+        u = np.float64(px[i])
+        v = np.float64(py[i])
+        du = u - cx
+        dv = v - cy
+        f = 1.0 + k * (du * du + dv * dv)
+        u = cx + du * f if has_dist else u
+        v = cy + dv * f if has_dist else v
+        x = x_step * i + np.float64(xo[i])
+        y = y0 + np.float64(yo[i])
+        # projector coordinate p of row k of the projector matrix (P | p4): its plane's
+        # residual at C + t d is (a t - b) / |r| with r = P_k - p P_2, a = q_k - p q_2 for
+        # q = P d, b = p h_2 - h_k for h = P C + p4; t for one division
+        q2 = g6 * x + g7 * y + g8
+        ax = g0 * x + g1 * y + g2 - q2 * u
+        bx = h2 * u - h0
+        ay = g3 * x + g4 * y + g5 - q2 * v
+        by = h2 * v - h1
+        nx = n00 + u * (n22 * u - 2.0 * n02)  # |r|^2
+        ny = n11 + v * (n22 * v - 2.0 * n12)
+        num = (ax * bx * ny + ay * by * nx) if both else (bx if on_x else by)
+        den = (ax * ax * ny + ay * ay * nx) if both else (ax if on_x else ay)
+        t = num / den
+        x_out[i] = e0 + t * (m0 * x + m1 * y + m2)
+        y_out[i] = e1 + t * (m3 * x + m4 * y + m5)
+        z_out[i] = e2 + t * (m6 * x + m7 * y + m8)
+
+
+@numba.njit(fastmath=_FAST, error_model="numpy", cache=_CACHE)
+def _ray_points_flat(xc, yc, px, py, ray_f, ray_i):  # pragma: no cover - compiled
+    """:func:`_ray_points` (and :func:`_ideal_panel`) on 1-D float64 arrays:
+    ``(n, 3)`` float64."""
+    n = xc.shape[0]
+    out = np.empty((3, n))
+    if ray_i[2]:
+        ideal = np.empty((2, n))
+        _ideal_panel(px, py, ray_f, ray_i, out[0], out[1], ideal[0], ideal[1])
+        _ray_points(ideal[0], ideal[1], 0.0, xc, 0.0, yc, ray_f, ray_i[0], False, out[0],
+                    out[1], out[2])
+    else:
+        _ray_points(px, py, 0.0, xc, 0.0, yc, ray_f, ray_i[0], ray_i[1] != 0, out[0], out[1],
+                    out[2])
+    return out.T.copy()
+
+
+@numba.njit(error_model="numpy")
+def _check_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check_gradient,
+               flags, near, column):  # pragma: no cover - compiled
+    """Per-pixel reasons of row `e` plus :data:`EDGE` and :data:`STEEP` into `flags`, as
+    :func:`neighbourhood_reasons` (rows ``e - halo … e + halo`` in the ring buffers).
 
     EDGE: a pixel within Chebyshev distance `erode` (inside the image) is invalid; STEEP: a
     central-difference gradient of a decoded coordinate exceeds `max_gradient` (all four
-    neighbours valid). Reads `pix_reason`, `u_raw`; writes the outputs (no race between rows).
+    neighbours valid). Compiled without fast-math: the gradients round as the reference's.
     """
-    n_dirs, height, width = u_raw.shape
+    n_dirs = u_ring.shape[1]
+    width = u_ring.shape[2]
+    slot = e % ring
+    here = reason_ring[slot]
     half = np.float32(0.5)
-    nan = np.float32(np.nan)
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
-    two = np.float32(2.0)
-    g2 = max_gradient * max_gradient
-    check_gradient = max_gradient < np.inf
-    for r in numba.prange(height):
-        flags = np.empty(width, dtype=np.uint8)
+    for c in range(width):
+        flags[c] = here[c]
+    if erode > 0:
         for c in range(width):
-            flags[c] = pix_reason[r, c]
-        if erode > 0:
-            column = np.zeros(width, dtype=np.uint8)
-            for rr in range(max(r - erode, 0), min(r + erode + 1, height)):
-                for c in range(width):
-                    column[c] |= pix_reason[rr, c]
-            near = np.zeros(width, dtype=np.uint8)
-            for dc in range(-erode, erode + 1):
-                for c in range(max(0, -dc), min(width, width - dc)):
-                    near[c] |= column[c + dc]
+            column[c] = 0
+        for rr in range(max(e - erode, 0), min(e + erode + 1, height)):
+            row = reason_ring[rr % ring]
             for c in range(width):
-                flags[c] |= np.uint8(32) if (flags[c] == 0) & (near[c] != 0) else np.uint8(0)
-        if check_gradient and 0 < r < height - 1:
-            for d in range(n_dirs):
-                for c in range(1, width - 1):
-                    ok = (pix_reason[r, c] | pix_reason[r, c - 1] | pix_reason[r, c + 1]
-                          | pix_reason[r - 1, c] | pix_reason[r + 1, c]) == 0
-                    gx = (u_raw[d, r, c + 1] - u_raw[d, r, c - 1]) * half
-                    gy = (u_raw[d, r + 1, c] - u_raw[d, r - 1, c]) * half
-                    steep = ok & (gx * gx + gy * gy > g2)
-                    flags[c] |= np.uint8(64) if steep else np.uint8(0)
+                column[c] |= row[c]
         for c in range(width):
-            out_reason[r, c] = flags[c]
-            out_int[r, c] = min(two * modulation[r, c], one) if flags[c] == 0 else zero
+            near[c] = 0
+        for dc in range(-erode, erode + 1):
+            for c in range(max(0, -dc), min(width, width - dc)):
+                near[c] |= column[c + dc]
+        for c in range(width):
+            flags[c] |= np.uint8(32) if (flags[c] == 0) & (near[c] != 0) else np.uint8(0)
+    if check_gradient and 0 < e < height - 1:
+        g2 = max_gradient * max_gradient
+        above = reason_ring[(e - 1) % ring]
+        below = reason_ring[(e + 1) % ring]
         for d in range(n_dirs):
-            for c in range(width):
-                v = u_raw[d, r, c]
-                out_u[d, r, c] = v if (flags[c] == 0) | keep_invalid else nan
-        if table_dir >= 0:
-            for c in range(width):
-                p = u_raw[table_dir, r, c]
-                inv = one / (den[0, r, c] + den[1, r, c] * p)
-                inv = inv if flags[c] == 0 else nan
-                out_xyz[r, c, 0] = (num[0, r, c] + num[1, r, c] * p) * inv
-                out_xyz[r, c, 1] = (num[2, r, c] + num[3, r, c] * p) * inv
-                out_xyz[r, c, 2] = (num[4, r, c] + num[5, r, c] * p) * inv
+            ua = u_ring[(e - 1) % ring, d]
+            uc = u_ring[slot, d]
+            ub = u_ring[(e + 1) % ring, d]
+            for c in range(1, width - 1):
+                ok = (here[c] | here[c - 1] | here[c + 1] | above[c] | below[c]) == 0
+                gx = (uc[c + 1] - uc[c - 1]) * half
+                gy = (ub[c] - ua[c]) * half
+                flags[c] |= np.uint8(64) if ok & (gx * gx + gy * gy > g2) else np.uint8(0)
+
+
+@numba.njit(fastmath=_FAST, error_model="numpy")
+def _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check_gradient,
+                keep_invalid, tri_mode, table_dir, num, den, ray_f, ray_i, offsets, mod_row,
+                flags, near, column, f64, nan_row, zero_row, out_u, out_int, out_reason,
+                out_mask, out_xyz):  # pragma: no cover - compiled
+    """Row `e`'s neighbourhood checks (:func:`_check_row`), triangulation and outputs.
+
+    ``tri_mode`` 1: the rational table of one projector coordinate (float32); 2: on the camera
+    rays (:func:`_ray_points`, float64). Pixels without a finite point get :data:`NO_POINT`.
+    `f64` ``(7, W)`` float64 is scratch; `nan_row`, `zero_row` ``(W,)`` float32 hold NaN, 0.
+    """
+    width = u_ring.shape[2]
+    slot = e % ring
+    nan = np.float32(np.nan)
+    _check_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check_gradient, flags,
+               near, column)
+    x_out, y_out, z_out = f64[0], f64[1], f64[2]
+    if tri_mode == 1:
+        one = np.float32(1.0)
+        up = u_ring[slot, table_dir]
+        n0, n1, n2, n3, n4, n5 = num[0, e], num[1, e], num[2, e], num[3, e], num[4, e], num[5, e]
+        d0, d1 = den[0, e], den[1, e]
+        for c in range(width):
+            p = up[c]
+            inv = one / (d0[c] + d1[c] * p)
+            x_out[c] = (n0[c] + n1[c] * p) * inv
+            y_out[c] = (n2[c] + n3[c] * p) * inv
+            z_out[c] = (n4[c] + n5[c] * p) * inv
+    elif tri_mode == 2:
+        ix, iy = ray_i[4], ray_i[5]
+        # a direction the pattern set lacks: the reference's NaN image
+        ux = u_ring[slot, ix] if ix >= 0 else nan_row
+        uy = u_ring[slot, iy] if iy >= 0 else nan_row
+        ox = offsets[0, e] if ray_i[6] else zero_row  # lens-undistorted pixel centres
+        oy = offsets[1, e] if ray_i[6] else zero_row
+        if ray_i[2]:  # projector lens: ideal coordinates first
+            _ideal_panel(ux, uy, ray_f, ray_i, f64[3], f64[4], f64[5], f64[6])
+            _ray_points(f64[5], f64[6], 1.0, ox, np.float64(e), oy, ray_f, ray_i[0], False,
+                        x_out, y_out, z_out)
+        else:
+            _ray_points(ux, uy, 1.0, ox, np.float64(e), oy, ray_f, ray_i[0], ray_i[1] != 0,
+                        x_out, y_out, z_out)
+    reason = out_reason[e]
+    mask = out_mask[e]
+    intensity = out_int[e]
+    two = np.float32(2.0)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    if tri_mode > 0:
+        xyz = out_xyz[e]
+        for c in range(width):
+            x = x_out[c]
+            y = y_out[c]
+            z = z_out[c]
+            finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+            f = flags[c]
+            f |= np.uint8(128) if (f == 0) & ~finite else np.uint8(0)
+            valid = f == 0
+            xyz[c, 0] = np.float32(x) if valid else nan
+            xyz[c, 1] = np.float32(y) if valid else nan
+            xyz[c, 2] = np.float32(z) if valid else nan
+            flags[c] = f
+            reason[c] = f
+            mask[c] = valid
+            intensity[c] = min(two * mod_row[c], one) if valid else zero
+    else:
+        for c in range(width):
+            f = flags[c]
+            valid = f == 0
+            reason[c] = f
+            mask[c] = valid
+            intensity[c] = min(two * mod_row[c], one) if valid else zero
+    for d in range(u_ring.shape[1]):
+        src = u_ring[slot, d]
+        dst = out_u[d, e]
+        for c in range(width):
+            dst[c] = src[c] if (flags[c] == 0) | keep_invalid else nan
+
+
+@numba.njit(parallel=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
+def _decode_kernel(frames, block_frame, block_cos, block_sin, block_size, group_block,
+                   group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
+                   dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol, erode,
+                   max_gradient, check_gradient, keep_invalid, chunk, tri_mode, table_dir, num,
+                   den, ray_f, ray_i, offsets, out_u, out_mod, out_alb, out_int, out_reason,
+                   out_mask, out_xyz):  # pragma: no cover - compiled
+    """Decode, check, triangulate: chunks of `chunk` rows in parallel, each decoding its rows
+    and ``halo`` rows beyond either end (those the neighbourhood checks read) into ring
+    buffers of ``2 halo + 1`` rows; only per-row temporaries, no full-image scratch."""
+    height = frames.shape[1]
+    width = frames.shape[2]
+    n_dirs = dir_groups.shape[0]
+    halo = max(erode, 1 if check_gradient else 0)
+    ring = 2 * halo + 1
+    n_chunks = (height + chunk - 1) // chunk
+    for ci in numba.prange(n_chunks):
+        a = ci * chunk
+        b = min(a + chunk, height)
+        lo = max(a - halo, 0)
+        hi = min(b + halo, height)
+        u_ring = np.empty((ring, n_dirs, width), np.float32)
+        reason_ring = np.empty((ring, width), np.uint8)
+        f32 = np.empty((11, width), np.float32)
+        f32[9] = np.nan
+        f32[10] = 0.0
+        u8 = np.empty((3, width), np.uint8)
+        f64 = np.empty((7, width))
+        for rr in range(lo, hi):
+            slot = rr % ring
+            mod_row = f32[8]  # halo rows: modulation and albedo to scratch
+            alb_row = f32[8]
+            if (rr >= a) & (rr < b):
+                mod_row = out_mod[rr]
+                alb_row = out_alb[rr]
+            _decode_row(frames, rr, block_frame, block_cos, block_sin, block_size, group_block,
+                        group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
+                        dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol,
+                        f32[0], f32[1], f32[2], f32[3], f32[4], u8[0], f32[5], f32[6], f32[7],
+                        u_ring[slot], reason_ring[slot], mod_row, alb_row)
+            e = rr - halo
+            if e >= a:
+                _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient,
+                            check_gradient, keep_invalid, tri_mode, table_dir, num, den, ray_f,
+                            ray_i, offsets, out_mod[e], u8[0], u8[1], u8[2], f64, f32[9],
+                            f32[10], out_u, out_int, out_reason, out_mask, out_xyz)
+        for e in range(max(hi - halo, a), b):  # the last rows of the image
+            _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient,
+                        check_gradient, keep_invalid, tri_mode, table_dir, num, den, ray_f,
+                        ray_i, offsets, out_mod[e], u8[0], u8[1], u8[2], f64, f32[9], f32[10],
+                        out_u, out_int, out_reason, out_mask, out_xyz)
 
 
 @dataclass
 class _KernelPlan:
-    cos_d: np.ndarray  # (n_frames,) float32, per frame
-    sin_d: np.ndarray
-    group_start: np.ndarray  # (n_groups,) first frame of each frequency
-    group_steps: np.ndarray
+    block_frame: np.ndarray  # (n_blocks, 3) frames summed together (single: the first)
+    block_cos: np.ndarray  # (n_blocks, 3) float32 cos of the shifts
+    block_sin: np.ndarray
+    block_size: np.ndarray  # (n_blocks,) 3 or 1
+    group_block: np.ndarray  # (n_groups, 2) first block, number of blocks
     group_bscale: np.ndarray  # (2 / (N full_scale))^2
     group_ratio: np.ndarray  # periods / periods of the next coarser frequency
-    group_first: np.ndarray  # coarsest of its direction
     dir_groups: np.ndarray  # (n_dirs, 16) groups coarse to fine, -1 padded
-    dir_coef: np.ndarray  # size / (2 pi n_finest)
-    dir_origin: np.ndarray
-    dir_size: np.ndarray
+    dir_levels: np.ndarray  # (n_dirs,) number of groups
+    dir_coef: np.ndarray  # float64 size / (2 pi n_finest)
+    dir_period: np.ndarray  # float64 size / n_finest
+    dir_origin: np.ndarray  # float64
+    dir_size: np.ndarray  # float32
     directions: tuple[str, ...]
 
 
 def _plan(pattern_set: PatternSet, scale: float) -> _KernelPlan:
-    cos_d, sin_d = [], []
-    start, steps, bscale, ratio, first = [], [], [], [], []
-    dir_groups = -np.ones((len(pattern_set.directions), 16), dtype=np.int64)
-    coef, origin, size = [], [], []
+    block_frame, block_cos, block_sin, block_size = [], [], [], []
+    group_block, bscale, ratio = [], [], []
+    n_dirs = len(pattern_set.directions)
+    dir_groups = -np.ones((n_dirs, 16), dtype=np.int64)
+    levels, coef, period, origin, size = [], [], [], [], []
     frame = 0
     for d, direction in enumerate(pattern_set.directions):
         freqs = pattern_set.frequencies(direction)
         if len(freqs) > 16:
             raise ValueError(f"{direction}: at most 16 frequencies per direction")
-        first_group = len(start)
-        for f in freqs:  # groups in frame order
+        first_group = len(group_block)
+        for f in freqs:  # groups in frame order; N >= 3: threes, then the one or two left
             shifts = pattern_set.shifts(f.steps)
-            cos_d.extend(np.cos(shifts))
-            sin_d.extend(np.sin(shifts))
-            start.append(frame)
-            steps.append(f.steps)
+            starts = [*range(0, f.steps - 2, 3), *range(f.steps - f.steps % 3, f.steps)]
+            group_block.append((len(block_frame), len(starts)))
+            for b in starts:
+                k = [b, b + 1, b + 2] if b + 3 <= f.steps else [b, b, b]
+                block_frame.append([frame + i for i in k])
+                block_cos.append(np.cos(shifts[k]))
+                block_sin.append(np.sin(shifts[k]))
+                block_size.append(3 if b + 3 <= f.steps else 1)
             bscale.append((2.0 / (f.steps * scale)) ** 2)
             frame += f.steps
         order = np.argsort([f.periods for f in freqs], kind="stable")
         previous = None
         ratio.extend([1.0] * len(freqs))
-        first.extend([False] * len(freqs))
         for j, i in enumerate(order):  # unwrapping order: coarse to fine
             g = first_group + int(i)
             dir_groups[d, j] = g
             ratio[g] = 1.0 if previous is None else freqs[i].periods / previous
-            first[g] = previous is None
             previous = freqs[i].periods
         size_px = pattern_set.axis_size(direction)
+        levels.append(len(freqs))
         coef.append(size_px / (TWO_PI * previous))
+        period.append(size_px / previous)
         origin.append(pattern_set.phase_origin)
         size.append(size_px)
     f32 = np.float32
     return _KernelPlan(
-        cos_d=np.asarray(cos_d, f32), sin_d=np.asarray(sin_d, f32),
-        group_start=np.asarray(start, np.int64), group_steps=np.asarray(steps, np.int64),
-        group_bscale=np.asarray(bscale, f32), group_ratio=np.asarray(ratio, f32),
-        group_first=np.asarray(first, np.bool_), dir_groups=dir_groups,
-        dir_coef=np.asarray(coef, f32), dir_origin=np.asarray(origin, f32),
+        block_frame=np.asarray(block_frame, np.int64), block_cos=np.asarray(block_cos, f32),
+        block_sin=np.asarray(block_sin, f32), block_size=np.asarray(block_size, np.int64),
+        group_block=np.asarray(group_block, np.int64), group_bscale=np.asarray(bscale, f32),
+        group_ratio=np.asarray(ratio, f32), dir_groups=dir_groups,
+        dir_levels=np.asarray(levels, np.int64), dir_coef=np.asarray(coef, np.float64),
+        dir_period=np.asarray(period, np.float64), dir_origin=np.asarray(origin, np.float64),
         dir_size=np.asarray(size, f32), directions=tuple(pattern_set.directions),
     )
 
@@ -704,6 +1055,11 @@ def planar_table(table) -> tuple[np.ndarray, np.ndarray, str]:
     return num, den, table.axis
 
 
+def _chunk_rows(height: int) -> int:
+    """Rows per parallel chunk: four chunks a thread (each decodes ``2 halo`` extra rows)."""
+    return max(1, -(-height // (4 * numba.get_num_threads())))
+
+
 def decode_fast(
     frames,
     pattern_set: PatternSet,
@@ -716,22 +1072,50 @@ def decode_fast(
     erode: int = 1,
     max_gradient: float | None = None,
     keep_invalid: bool = False,
+    full_scale: float | None = None,
     out: Decoded | None = None,
 ) -> Decoded:
-    """Fused decode + unwrap (+ triangulate) in numba, parallel over rows.
+    """Fused decode + unwrap + neighbourhood checks (+ triangulation) in numba, one pass.
 
-    One pass over the frames (phase, amplitude, unwrapping, per-pixel reasons), a neighbourhood
-    pass (:func:`neighbourhood_reasons`), and a pass that masks and triangulates. Options as
-    :func:`decode`; same results within float32 rounding and the 1.1e-5 rad arctangent
-    approximation. `table` is a :class:`~nail2nail.reconstruction.TriangulationTable` or the
-    output of :func:`planar_table` (precompute it once to save the layout change); `out`, a
-    previous result of the same shape, is overwritten in place (no allocation).
+    Parallel over chunks of rows; each chunk decodes its rows and the few beyond either end
+    that the neighbourhood checks read (``erode`` rows, one for ``max_gradient``) into ring
+    buffers, so the only full-size arrays are the frames (read as stored: uint8, uint16 or
+    float32) and the outputs. Options as :func:`decode`; the results agree with the NumPy
+    reference within float32 rounding: ``xp``, ``yp`` within one float32 step (6.1e-5 px below
+    1024 px, 1.2e-4 px above), the arctangent being exact to 1.5e-7 rad; the mask the same but
+    for pixels whose value lies within rounding of a threshold (``tests/test_scan_fast.py``).
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W) uint8, uint16 or float array
+        As for :func:`decode`; float64 frames are copied to float32.
+    pattern_set : PatternSet
+    table : RayTable, TriangulationTable or tuple, optional
+        Also triangulate into ``Decoded.xyz``: a
+        :class:`~nail2nail.reconstruction.RayTable` (:func:`~nail2nail.reconstruction.ray_table`:
+        on the camera rays from one or both projector coordinates, float64, the projector's
+        distortion compensated) or a :class:`~nail2nail.reconstruction.TriangulationTable`
+        (one projector coordinate, rational form in float32; :func:`planar_table` saves its
+        layout change). Pixels without a finite point get :data:`NO_POINT`.
+    full_scale : float, optional
+        Value of full intensity of integer frames: 255 for uint8 and 65535 for uint16 by
+        default; ``2**bit_depth - 1`` for right-aligned values (``raw=True`` frames).
+    out : Decoded, optional
+        A previous result of the same shape and table kind, overwritten (no allocation).
 
     Returns
     -------
     Decoded
         With ``xyz`` when `table` is given.
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :func:`decode`; a table for another image size, or whose projector coordinates the
+        pattern set does not decode.
     """
+    from .reconstruction import RayTable
+
     frames = _check_frames(frames, pattern_set)
     erode = _check_erode(erode)
     max_gradient = _check_gradient(max_gradient)
@@ -739,11 +1123,35 @@ def decode_fast(
         frames = np.ascontiguousarray(frames)
     if np.issubdtype(frames.dtype, np.floating) and frames.dtype != np.float32:
         frames = frames.astype(np.float32)
-    scale = _full_scale(frames.dtype)
+    full_scale = _check_scale(full_scale)
+    scale = _full_scale(frames.dtype) if full_scale is None else full_scale
     plan = _plan(pattern_set, scale)
     height, width = frames.shape[1:]
     n_dirs = len(plan.directions)
-    if table is not None:
+    num = np.zeros((6, 1, 1), np.float32)
+    den = np.zeros((2, 1, 1), np.float32)
+    ray_f, ray_i = np.zeros(_RAY_SIZE), np.array([0, 0, 0, 0, -1, -1, 0], np.int64)
+    offsets = np.zeros((2, 1, 1), np.float32)
+    tri_mode, table_dir = 0, -1
+    if isinstance(table, RayTable):
+        if tuple(table.shape) != (height, width):
+            raise ValueError(f"table: expected a table for images of shape {(height, width)}, "
+                             f"got {tuple(table.shape)}")
+        missing = [d for d in ("x", "y") if d not in plan.directions]
+        if missing and table.needs_both:
+            raise ValueError(f"table: triangulation with use={table.use!r}, a projector "
+                             "distortion model or lens distortion needs both projector "
+                             f"coordinates; the pattern set has no {missing[0]!r} direction")
+        tri_mode = 2
+        packed, codes = _pack_ray(table)
+        ray_f = packed
+        ix = plan.directions.index("x") if "x" in plan.directions else -1
+        iy = plan.directions.index("y") if "y" in plan.directions else -1
+        has_offsets = table.pixel_offsets is not None
+        ray_i = np.concatenate([codes, [ix, iy, has_offsets]]).astype(np.int64)
+        if has_offsets:
+            offsets = table.pixel_offsets
+    elif table is not None:
         num, den, axis = planar_table(table)
         if num.shape != (6, height, width) or den.shape != (2, height, width):
             raise ValueError(
@@ -752,11 +1160,7 @@ def decode_fast(
             )
         if axis not in plan.directions:
             raise ValueError(f"table: its axis {axis!r} is not decoded by this pattern set")
-        table_dir = plan.directions.index(axis)
-    else:
-        num = np.zeros((6, 1, 1), np.float32)
-        den = np.zeros((2, 1, 1), np.float32)
-        table_dir = -1
+        tri_mode, table_dir = 1, plan.directions.index(axis)
     if out is None or out.shape != (height, width) or (table is not None and out.xyz is None):
         u = np.empty((n_dirs, height, width), np.float32)
         out = Decoded(
@@ -771,26 +1175,19 @@ def decode_fast(
         )
         out._u = u  # the (n_dirs, H, W) buffer behind xp and yp
     u = getattr(out, "_u", None)
-    if u is None:
-        raise ValueError("out: expected a Decoded returned by decode_fast")
+    if u is None or u.shape[0] != n_dirs:
+        raise ValueError("out: expected a Decoded returned by decode_fast for this pattern set")
     xyz = out.xyz if table is not None else np.zeros((1, 1, 3), np.float32)
-    scratch = getattr(out, "_scratch", None)
-    if scratch is None:  # per-pixel reasons and raw coordinates, read by the neighbourhood pass
-        scratch = out._scratch = (np.empty((height, width), np.uint8), np.empty_like(u))
-    pix_reason, u_raw = scratch
-    sat_native = np.float32(saturation * scale)
-    _fused_kernel(
-        frames, plan.cos_d, plan.sin_d, plan.group_start, plan.group_steps,
-        plan.group_bscale, plan.group_ratio,
-        plan.group_first, plan.dir_groups, plan.dir_coef, plan.dir_origin, plan.dir_size,
-        np.float32(1.0 / scale), sat_native,
-        np.float32(min_modulation), np.float32(min_albedo), np.float32(unwrap_tolerance),
-        u_raw, out.modulation, out.albedo, pix_reason,
+    f32 = np.float32
+    _decode_kernel(
+        frames, plan.block_frame, plan.block_cos, plan.block_sin, plan.block_size,
+        plan.group_block, plan.group_bscale, plan.group_ratio, plan.dir_groups, plan.dir_levels,
+        plan.dir_coef, plan.dir_period, plan.dir_origin, plan.dir_size,
+        f32(1.0 / (pattern_set.n_frames * scale)), f32(saturation * scale),
+        f32(min_modulation) * f32(min_modulation), f32(min_albedo),
+        f32(unwrap_tolerance), erode, f32(np.inf if max_gradient is None else max_gradient),
+        max_gradient is not None, bool(keep_invalid), _chunk_rows(height), tri_mode, table_dir,
+        num, den, ray_f, ray_i, offsets, u, out.modulation, out.albedo, out.intensity,
+        out.reason, out.mask, xyz,
     )
-    _finish_kernel(pix_reason, u_raw, erode,
-                   np.float32(np.inf if max_gradient is None else max_gradient),
-                   bool(keep_invalid), table_dir, num, den, out.modulation, out.reason, u,
-                   out.intensity, xyz)
-    np.equal(out.reason, 0, out=out.mask)
     return out
-

@@ -6,6 +6,14 @@ least-squares sense; :func:`triangulation_table` precomputes, per camera pixel, 
 function of the projector coordinate that eq. 3.14 reduces to, so a whole frame is triangulated
 with a multiply-add and a division per coordinate (the look-up-table idea of Liu et al.,
 Opt. Express 18(5), 2010, doi:10.1364/OE.18.005229).
+
+:func:`reconstruct_image` (float64 NumPy, in bands of rows) is the reference of a scan's
+triangulation. The scan's fast path (:func:`nail2nail.phase.decode_fast` with a
+:class:`RayTable` from :func:`ray_table`) solves the same problem on the camera ray: with the
+point ``X = C + t d`` on the ray of the (lens-undistorted) pixel, the projector planes give a
+one-dimensional weighted least-squares problem in ``t`` (:func:`reconstruct_points_ray`), solved
+per pixel in float64 inside the decoding kernel; the projector's radial distortion model and
+lens distortion are compensated there with the reference's formulas.
 """
 
 from __future__ import annotations
@@ -18,14 +26,17 @@ from ._validation import as_matrix
 
 __all__ = [
     "BAND_PIXELS",
+    "RayTable",
     "Scan",
     "TriangulationTable",
     "band_rows",
     "model_matrix",
     "pixel_grid",
+    "ray_table",
     "reconstruct_image",
     "reconstruct_points",
     "reconstruct_points_lsq",
+    "reconstruct_points_ray",
     "triangulate",
     "triangulation_table",
     "undistorted_pixels",
@@ -34,8 +45,10 @@ __all__ = [
 _AXES = {"x": 0, "y": 1}
 
 #: Pixels per band of rows in :func:`reconstruct_image` (its float64 temporaries take about
-#: 0.6 kB per pixel: some 80 MB a band).
+#: 0.6 kB per pixel: some 80 MB a band) and in the undistorted pixel centres of :func:`ray_table`.
 BAND_PIXELS = 1 << 17
+
+_USES = ("xpyp", "yp", "xp")
 
 
 def _axis_row(axis: str) -> int:
@@ -347,8 +360,7 @@ def reconstruct_image(
     yp = np.asarray(yp)
     if xp.shape != yp.shape or xp.ndim != 2:
         raise ValueError(f"xp, yp: expected two (H, W) arrays, got {xp.shape} and {yp.shape}")
-    if use not in ("xpyp", "yp", "xp"):
-        raise ValueError(f"use: expected 'xpyp', 'yp' or 'xp', got {use!r}")
+    _check_use(use)
     return _reconstruct_into(camera, projector, xp, yp, np.empty((*xp.shape, 3)), row0=0,
                              projector_distortion=projector_distortion, use=use)
 
@@ -406,3 +418,205 @@ def _reconstruct_rows(camera, projector, xp, yp, row0: int, *, projector_distort
         )
     p = panel[..., 1] if use == "yp" else panel[..., 0]
     return reconstruct_points(M_c, M_p, cam_xy[..., 0], cam_xy[..., 1], p, axis=use[0])
+
+
+def _check_use(use) -> str:
+    if use not in _USES:
+        raise ValueError(f"use: expected 'xpyp', 'yp' or 'xp', got {use!r}")
+    return use
+
+
+@dataclass
+class RayTable:
+    """A camera's triangulation on its pixel rays, precomputed once per calibration and size.
+
+    :func:`nail2nail.phase.decode_fast` (``table=``) triangulates every valid pixel with it,
+    in float64, as :func:`reconstruct_image` does (:func:`reconstruct_points_ray` per pixel).
+    Built by :func:`ray_table`.
+
+    Attributes
+    ----------
+    shape : (int, int)
+        Camera image ``(H, W)``.
+    use : {"xpyp", "yp", "xp"}
+        Projector coordinates used (:func:`reconstruct_image`).
+    camera_inverse : (3, 3) float64
+        ``M_c[:, :3]⁻¹`` of the camera's DLT matrix: the ray of the pixel at ``(x, y)`` runs
+        along ``camera_inverse @ (x, y, 1)``.
+    camera_center : (3,) float64
+        Optical centre, world mm.
+    projector_matrix : (3, 4) float64
+        Projector DLT matrix.
+    panel_distortion : (3,) float64 or None
+        ``(cx, cy, rho**3)``: the projector radial distortion (eq. 3.34) compensated in the
+        model (:func:`~nail2nail.distortion.ideal_from_panel`), px.
+    projector_intrinsics : (3, 3) float64 or None
+        ``K`` of a pinhole projector with lens distortion `projector_dist`.
+    projector_dist : (5,) float64 or None
+        Its OpenCV ``(k1, k2, p1, p2, k3)``.
+    pixel_offsets : (2, H, W) float32 or None
+        Lens-undistorted minus actual pixel centres ``(dx, dy)`` of a pinhole camera with
+        lens distortion, px (read-only, shared between tables of the same camera model).
+    lens_iterations : int
+        Fixed-point iterations inverting the projector's lens distortion
+        (:meth:`~nail2nail.camera_models.Pinhole.undistort`).
+    """
+
+    shape: tuple[int, int]
+    use: str
+    camera_inverse: np.ndarray
+    camera_center: np.ndarray
+    projector_matrix: np.ndarray
+    panel_distortion: np.ndarray | None = None
+    projector_intrinsics: np.ndarray | None = None
+    projector_dist: np.ndarray | None = None
+    pixel_offsets: np.ndarray | None = None
+    lens_iterations: int = 20
+
+    @property
+    def needs_both(self) -> bool:
+        """Whether it reads both projector coordinates (``use="xpyp"`` or a distortion)."""
+        return (self.use == "xpyp" or self.panel_distortion is not None
+                or self.projector_intrinsics is not None)
+
+
+def _ray_geometry(camera, projector, *, projector_distortion, use) -> dict:
+    """The fields of a :class:`RayTable` but its shape and pixel offsets."""
+    from .camera_models import Pinhole
+
+    _check_use(use)
+    M_c, M_p = model_matrix(camera), model_matrix(projector)
+    try:
+        inverse = np.linalg.inv(M_c[:, :3])
+    except np.linalg.LinAlgError:  # no rays: every point is NaN, as in the reference
+        inverse = np.full((3, 3), np.nan)
+    fields = dict(use=use, camera_inverse=inverse, camera_center=-inverse @ M_c[:, 3],
+                  projector_matrix=M_p)
+    if projector_distortion is not None:
+        cx, cy = np.asarray(projector_distortion["center"], dtype=float)
+        fields["panel_distortion"] = np.array([cx, cy, projector_distortion["rho"] ** 3], float)
+    if isinstance(projector, Pinhole) and np.any(projector.dist):
+        fields["projector_intrinsics"] = projector.K.copy()
+        fields["projector_dist"] = projector.dist.astype(float)
+    return fields
+
+
+#: Pixel offsets of recent pinhole cameras with lens distortion: ``(K, dist, shape) -> (2, H, W)``.
+_OFFSETS: dict = {}
+_OFFSETS_KEPT = 4
+
+
+def _pixel_offsets(camera, shape: tuple[int, int]) -> np.ndarray:
+    """Undistorted minus actual pixel centres ``(2, H, W)`` float32 of a pinhole camera with
+    lens distortion; computed in bands of rows (bounded float64 temporaries) and kept for the
+    last few camera models."""
+    key = (camera.K.tobytes(), camera.dist.tobytes(), tuple(shape))
+    if key in _OFFSETS:
+        _OFFSETS[key] = _OFFSETS.pop(key)  # most recently used last
+        return _OFFSETS[key]
+    height, width = shape
+    offsets = np.empty((2, height, width), np.float32)
+    columns = np.arange(width, dtype=float)
+    step = band_rows(width)
+    for a in range(0, height, step):
+        rows = np.arange(a, min(a + step, height), dtype=float)
+        grid = np.stack(np.broadcast_arrays(columns[None, :], rows[:, None]), axis=-1)
+        offsets[:, a:a + len(rows)] = np.moveaxis(undistorted_pixels(camera, grid) - grid, -1, 0)
+    offsets.flags.writeable = False
+    _OFFSETS[key] = offsets
+    while len(_OFFSETS) > _OFFSETS_KEPT:
+        del _OFFSETS[next(iter(_OFFSETS))]
+    return offsets
+
+
+def ray_table(camera, projector, shape, *, projector_distortion: dict | None = None,
+              use: str = "xpyp") -> RayTable:
+    """Precompute the triangulation of a camera's ``(H, W)`` pixels for the fused kernel.
+
+    Parameters
+    ----------
+    camera, projector : (3, 4) array or Pinhole
+        As for :func:`reconstruct_image`.
+    shape : (int, int)
+        Camera image ``(H, W)``.
+    projector_distortion : dict, optional
+        ``{"center": (x, y), "rho": ρ}`` compensated in the model (:func:`reconstruct_image`).
+    use : {"xpyp", "yp", "xp"}
+        Projector coordinates used (:func:`reconstruct_image`).
+
+    Returns
+    -------
+    RayTable
+        Small constants, and for a pinhole camera with lens distortion its undistorted pixel
+        centres (8 bytes per pixel, computed once per camera model and size).
+
+    Examples
+    --------
+    >>> Mc = np.array([[900., 0, 0, 500], [0, 900, 0, 600], [0, 0, 0.01, 1]])
+    >>> Mp = np.array([[800., 0, 300, 600], [0, 800, 300, 500], [0, 0, 0.01, 1]])
+    >>> table = ray_table(Mc, Mp, (4, 5))
+    >>> table.needs_both, table.pixel_offsets is None
+    (True, True)
+    """
+    from .camera_models import Pinhole
+
+    height, width = (int(v) for v in shape)
+    fields = _ray_geometry(camera, projector, projector_distortion=projector_distortion,
+                           use=use)
+    if isinstance(camera, Pinhole) and np.any(camera.dist):
+        fields["pixel_offsets"] = _pixel_offsets(camera, (height, width))
+    return RayTable(shape=(height, width), **fields)
+
+
+def reconstruct_points_ray(camera, projector, xc, yc, xp, yp, *,
+                           projector_distortion: dict | None = None,
+                           use: str = "xpyp") -> np.ndarray:
+    """World points on the camera rays of pixels ``(xc, yc)``: the fused kernel's triangulation.
+
+    The point ``X = C + t d`` lies on the ray of the (lens-undistorted) camera pixel. Each
+    projector coordinate ``p`` (``xp`` or ``yp``, ideal after the projector's distortion is
+    removed, :func:`reconstruct_image`) gives the plane ``r · X = e`` with
+    ``r = P_k - p P_2``; its residual divided by ``|r|`` (a distance) is ``(a t - b) / |r|``,
+    and ``t`` is the one projector plane's solution or, for ``use="xpyp"``, the weighted least
+    squares ``t = Σ a b / |r|² / Σ a² / |r|²``: :func:`reconstruct_points_lsq` with the camera
+    equations' weight taken to infinity (the reference's 1e3 puts points within 1e-8 mm of it).
+    Computed in float64 by the compiled code of :func:`nail2nail.phase.decode_fast`.
+
+    Parameters
+    ----------
+    camera, projector : (3, 4) array or Pinhole
+        As for :func:`reconstruct_image`.
+    xc, yc, xp, yp : (...) float
+        Camera pixel coordinates and decoded projector panel coordinates, px; broadcast
+        together.
+    projector_distortion : dict, optional
+        ``{"center", "rho"}`` compensated in the model.
+    use : {"xpyp", "yp", "xp"}
+
+    Returns
+    -------
+    (..., 3) float64
+        World points, mm; NaN where any coordinate used is NaN or the ray is parallel to the
+        projector planes.
+
+    Examples
+    --------
+    >>> Mc = np.array([[900., 0, 0, 500], [0, 900, 0, 600], [0, 0, 0.01, 1]])
+    >>> Mp = np.array([[800., 0, 300, 600], [0, 800, 300, 500], [0, 0, 0.01, 1]])
+    >>> from nail2nail.camera_models import project_dlt
+    >>> X = np.array([1.0, 2.0, 3.0])
+    >>> (xc, yc), (xp, yp) = project_dlt(Mc, X), project_dlt(Mp, X)
+    >>> reconstruct_points_ray(Mc, Mp, xc, yc, xp, yp).round(9).tolist()
+    [1.0, 2.0, 3.0]
+    """
+    from .phase import _pack_ray, _ray_points_flat
+
+    fields = _ray_geometry(camera, projector, projector_distortion=projector_distortion,
+                           use=use)
+    xc, yc, xp, yp = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (xc, yc, xp, yp)))
+    shape = xc.shape
+    cam = undistorted_pixels(camera, np.stack([xc, yc], axis=-1)).reshape(-1, 2)
+    ray_f, ray_i = _pack_ray(RayTable(shape=(1, 1), **fields))
+    points = _ray_points_flat(np.ascontiguousarray(cam[:, 0]), np.ascontiguousarray(cam[:, 1]),
+                              xp.ravel().copy(), yp.ravel().copy(), ray_f, ray_i)
+    return points.reshape(*shape, 3)

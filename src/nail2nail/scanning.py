@@ -1,7 +1,13 @@
 """From a capture to 3D scans: decode each camera's frames and reconstruct its points.
 
 This is the glue of the pipeline's first three stages (capture → decode → reconstruct); the
-work itself is done by :mod:`nail2nail.phase` and :mod:`nail2nail.reconstruction`.
+work itself is done by :mod:`nail2nail.phase` and :mod:`nail2nail.reconstruction`. A scan runs
+the fused numba kernel (:func:`nail2nail.phase.decode_fast` with a
+:func:`~nail2nail.reconstruction.ray_table`: decoding, neighbourhood checks and float64
+triangulation in one pass over the integer frames) for every option; ``method="numpy"`` runs
+the reference instead (:func:`nail2nail.phase.decode` and
+:func:`~nail2nail.reconstruction.reconstruct_image`, in bands of rows). The two agree within
+float32 rounding (``tests/test_scan_fast.py``).
 """
 
 from __future__ import annotations
@@ -14,11 +20,14 @@ from ._interpolate import bilinear
 from .camera_models import Pinhole
 from .io.calibration import CameraCalibration, RigCalibration, check_handedness
 from .io.capture import frame_intensities
-from .phase import _check_frames, decode
-from .reconstruction import Scan, _reconstruct_into, band_rows, model_matrix
+from .phase import NO_POINT, _check_frames, decode, decode_fast
+from .reconstruction import Scan, _check_use, _reconstruct_into, band_rows, model_matrix, ray_table
 
-#: Pixels per band of rows that :func:`scan_frames` decodes and triangulates at a time.
+#: Pixels per band of rows that the NumPy reference of :func:`scan_frames` (``method="numpy"``)
+#: decodes and triangulates at a time (the fused kernel needs no bands).
 BAND_PIXELS = 1 << 18
+
+_METHODS = ("numba", "numpy")
 
 __all__ = [
     "BAND_PIXELS",
@@ -84,14 +93,21 @@ def scan_frames(
     *,
     projector_distortion: dict | None = None,
     use: str = "xpyp",
+    method: str = "numba",
     **decode_options,
 ) -> Scan:
     """One camera's scan from its frames.
 
-    Decoded and triangulated in bands of rows of about :data:`BAND_PIXELS` pixels, each with
-    the rows around it that the neighbourhood checks of the decoder read (``erode`` rows, one
-    for ``max_gradient``): the result is the one of the whole image, with the temporaries of a
-    band in memory.
+    ``method="numba"`` decodes, checks and triangulates in one pass of the fused kernel
+    (:func:`nail2nail.phase.decode_fast` with :func:`~nail2nail.reconstruction.ray_table`): the
+    frames are read as they are (no float copy), and the only other full-size arrays are the
+    outputs. ``method="numpy"``, the reference, decodes (:func:`nail2nail.phase.decode`) and
+    triangulates (:func:`~nail2nail.reconstruction.reconstruct_image`) in bands of rows of
+    about :data:`BAND_PIXELS` pixels, each with the rows around it that the neighbourhood
+    checks read (``erode`` rows, one for ``max_gradient``): the result is the one of the whole
+    image, with the temporaries of a band in memory. The two agree within float32 rounding:
+    ``xp``, ``yp`` within 1e-4 px (one float32 step, 1.2e-4 px, beyond 1024 px), ``xyz`` within
+    1e-4 mm, the mask but for pixels within rounding of a threshold.
 
     Parameters
     ----------
@@ -105,24 +121,108 @@ def scan_frames(
         Projector radial distortion to compensate in the model (``{"center", "rho"}``); leave
         out when the patterns were pre-distorted.
     use : {"xpyp", "yp", "xp"}
-        Projector coordinates used for triangulation (:func:`reconstruct_image`).
+        Projector coordinates used for triangulation
+        (:func:`~nail2nail.reconstruction.reconstruct_image`).
+    method : {"numba", "numpy"}
+        The fused kernel, or the NumPy reference.
     **decode_options
-        Passed to :func:`nail2nail.phase.decode` (``min_modulation`` …).
+        Passed to :func:`nail2nail.phase.decode` (``min_modulation``, ``min_albedo``,
+        ``saturation``, ``unwrap_tolerance``, ``erode``, ``max_gradient``).
 
     Returns
     -------
     Scan
-        ``xyz`` NaN (and ``mask`` False) where decoding failed.
+        float32 images; ``xyz``, ``xp``, ``yp`` NaN, ``intensity`` 0 and ``mask`` False where
+        decoding or triangulation failed.
 
     Raises
     ------
     ValueError
-        Naming the camera: one projector direction where both are needed, or no valid pixel.
+        Naming the camera: one projector direction where both are needed, or no valid pixel;
+        an unknown `use` or `method`, a bad decode option.
     """
     frames = _check_frames(frames, pattern_set)
-    return _scan_bands(lambda a, b: frames[:, a:b], frames.shape[1:], pattern_set, camera,
+    return _scan(frames, pattern_set, camera, projector_distortion=projector_distortion, use=use,
+                 method=method, decode_options=decode_options)
+
+
+def _check_method(method) -> str:
+    if method not in _METHODS:
+        raise ValueError(f"method: expected 'numba' or 'numpy', got {method!r}")
+    return method
+
+
+def _scan(frames, pattern_set, camera: CameraCalibration, *, projector_distortion, use, method,
+          decode_options, bit_depth: int | None = None) -> Scan:
+    """:func:`scan_frames` of checked frames; integer values of `bit_depth` bits if given
+    (``raw=True``), else frames of their dtype's full scale."""
+    _check_method(method)
+    _check_use(use)
+    if method == "numba":
+        return _scan_fast(frames, pattern_set, camera, projector_distortion=projector_distortion,
+                          use=use, decode_options=decode_options,
+                          full_scale=None if bit_depth is None else 2**bit_depth - 1)
+    if bit_depth is None:
+        band = lambda a, b: frames[:, a:b]  # noqa: E731
+    else:  # made float band by band
+        band = lambda a, b: frame_intensities(frames[:, a:b], bit_depth)  # noqa: E731
+    return _scan_bands(band, frames.shape[1:], pattern_set, camera,
                        projector_distortion=projector_distortion, use=use,
                        decode_options=decode_options)
+
+
+def _check_directions(pattern_set, camera: CameraCalibration, use, projector_distortion):
+    """Refuse a pattern set with one projector direction where triangulation needs both."""
+    if "x" in pattern_set.directions and "y" in pattern_set.directions:
+        return
+    lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
+    if use == "xpyp" or projector_distortion is not None or lens:
+        raise ValueError(
+            f"camera {camera.name!r}: the pattern set has one projector direction, but "
+            "use='xpyp', a projector distortion model or a projector lens distortion "
+            "needs both (every point would be lost); use 'yp' or 'xp' with patterns "
+            "pre-distorted and a calibration without projector distortion"
+        )
+
+
+def _no_valid_pixel(camera: CameraCalibration, min_modulation, lit: int, decoded_valid: int):
+    """The error of a scan that keeps no pixel, with the reason."""
+    why = (f"no pixel has a fringe amplitude ≥ min_modulation {min_modulation:g}"
+           if lit == 0 else
+           f"none of its {lit} lit pixels decoded validly" if decoded_valid == 0 else
+           f"triangulation failed at all {decoded_valid} decoded pixels")
+    return ValueError(f"camera {camera.name!r}: the scan keeps 0 valid pixels ({why})")
+
+
+def _scan_fast(frames, pattern_set, camera: CameraCalibration, *, projector_distortion, use,
+               decode_options, full_scale) -> Scan:
+    """:func:`scan_frames` by the fused kernel: one pass, outputs and frames in memory."""
+    _check_directions(pattern_set, camera, use, projector_distortion)
+    options = dict(decode_options)
+    options.pop("keep_invalid", None)  # a scan's xp, yp are NaN where invalid regardless
+    height, width = frames.shape[1:]
+    table = ray_table(camera.camera, camera.projector, (height, width),
+                      projector_distortion=projector_distortion, use=use)
+    decoded = decode_fast(frames, pattern_set, table=table, full_scale=full_scale, **options)
+    if not decoded.mask.any():
+        min_modulation = options.get("min_modulation", 0.03)
+        lit = int(np.count_nonzero(decoded.modulation >= min_modulation))
+        decoded_valid = int(np.count_nonzero((decoded.reason & ~np.uint8(NO_POINT)) == 0))
+        raise _no_valid_pixel(camera, min_modulation, lit, decoded_valid)
+    nan = None
+    if decoded.xp is None or decoded.yp is None:
+        nan = np.full((height, width), np.nan, np.float32)
+    return Scan(
+        name=camera.name,
+        xyz=decoded.xyz,
+        xp=decoded.xp if decoded.xp is not None else nan,
+        yp=decoded.yp if decoded.yp is not None else nan,
+        albedo=decoded.albedo,
+        intensity=decoded.intensity,
+        modulation=decoded.modulation,
+        mask=decoded.mask,
+        camera_center=camera_center(camera.camera),
+    )
 
 
 def _halo(decode_options: dict) -> int:
@@ -138,7 +238,8 @@ def _halo(decode_options: dict) -> int:
 
 def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
                 projector_distortion, use, decode_options) -> Scan:
-    """:func:`scan_frames` with ``band_frames(a, b)`` giving the frames of rows ``a … b - 1``."""
+    """The NumPy reference of :func:`scan_frames`, ``band_frames(a, b)`` giving the frames of
+    rows ``a … b - 1``."""
     height, width = shape
     halo = _halo(decode_options)
     step = band_rows(width, BAND_PIXELS)
@@ -153,15 +254,8 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
         b = min(a + step, height)
         lo, hi = max(a - halo, 0), min(b + halo, height)
         decoded = decode(band_frames(lo, hi), pattern_set, **decode_options)
-        if a == 0 and (decoded.xp is None or decoded.yp is None):
-            lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
-            if use == "xpyp" or projector_distortion is not None or lens:
-                raise ValueError(
-                    f"camera {camera.name!r}: the pattern set has one projector direction, but "
-                    "use='xpyp', a projector distortion model or a projector lens distortion "
-                    "needs both (every point would be lost); use 'yp' or 'xp' with patterns "
-                    "pre-distorted and a calibration without projector distortion"
-                )
+        if a == 0:
+            _check_directions(pattern_set, camera, use, projector_distortion)
         rows = slice(a - lo, b - lo)
         nan = np.full((b - a, width), np.nan, f32)
         xp = decoded.xp[rows] if decoded.xp is not None else nan
@@ -183,11 +277,7 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
         mask[a:b] = band_mask
         del decoded, points
     if not mask.any():
-        why = (f"no pixel has a fringe amplitude ≥ min_modulation {min_modulation:g}"
-               if lit == 0 else
-               f"none of its {lit} lit pixels decoded validly" if decoded_valid == 0 else
-               f"triangulation failed at all {decoded_valid} decoded pixels")
-        raise ValueError(f"camera {camera.name!r}: the scan keeps 0 valid pixels ({why})")
+        raise _no_valid_pixel(camera, min_modulation, lit, decoded_valid)
     return Scan(
         name=camera.name,
         xyz=xyz,
@@ -210,6 +300,7 @@ def scan_capture(
     max_gradient: float | None = 2.0,
     allow_mirrored: bool = False,
     calibration_name: str = "calibration",
+    method: str = "numba",
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -227,8 +318,9 @@ def scan_capture(
     than :data:`MIN_KEPT_FRACTION` of its lit pixels a warning (``UserWarning``) with the figure.
 
     Memory: one camera's frames at a time, as their integer values (read with ``raw=True``
-    and not cached, unless the capture holds them already), decoded and triangulated in bands
-    of rows (:func:`scan_frames`); the scans themselves take 33 bytes per pixel.
+    and not cached, unless the capture holds them already), decoded and triangulated by the
+    fused kernel straight from them (:func:`scan_frames`; with ``method="numpy"``, in bands of
+    rows made float); the scans themselves take 33 bytes per pixel.
 
     Parameters
     ----------
@@ -236,19 +328,36 @@ def scan_capture(
         From :func:`nail2nail.io.capture.read_capture` (``load=False`` saves memory).
     calibration : RigCalibration
         Camera names must match the capture's.
+    use : {"xpyp", "yp", "xp"}
+        Projector coordinates used for triangulation (:func:`scan_frames`).
+    progress : bool
+        Show a progress bar.
+    max_gradient : float or None
+        Steep-pixel limit stated for a 1024 × 1280 camera (:func:`gradient_limit`).
     allow_mirrored : bool
         Scan with mirrored cameras (:func:`nail2nail.io.calibration.check_handedness`).
     calibration_name : str
         How errors name the calibration (its file).
+    method : {"numba", "numpy"}
+        The fused kernel, or the NumPy reference (:func:`scan_frames`).
+    **decode_options
+        Passed to :func:`scan_frames` (``min_modulation`` …).
+
+    Returns
+    -------
+    list of Scan
+        One per camera of the capture, in its order.
 
     Raises
     ------
     ValueError
         Naming the calibration, capture and camera: sizes that differ, a mirrored camera, a
-        camera with no valid pixel.
+        camera with no valid pixel; an unknown `use` or `method`.
     """
     from tqdm.auto import tqdm
 
+    _check_method(method)
+    _check_use(use)
     names = capture.camera_names
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
@@ -263,7 +372,7 @@ def scan_capture(
     scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
-                                  decode_options=decode_options))
+                                  method=method, decode_options=decode_options))
         kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
@@ -273,23 +382,19 @@ def scan_capture(
     return scans
 
 
-def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient,
+def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
                  decode_options) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
-    made float band by band (:func:`~nail2nail.io.capture.frame_intensities`); frames the
-    capture has cached are used as they are."""
+    decoded as they are (``method="numba"``) or made float band by band
+    (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
+    as they are."""
     cached = name in capture.frames
     frames = _check_frames(capture.frames[name] if cached else capture.load_frames(name, raw=True),
                            capture.pattern_set)
-    if cached:
-        band = lambda a, b: frames[:, a:b]  # noqa: E731
-    else:
-        bit_depth = capture.bit_depth
-        band = lambda a, b: frame_intensities(frames[:, a:b], bit_depth)  # noqa: E731
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
-    return _scan_bands(band, frames.shape[1:], capture.pattern_set, calibration.camera(name),
-                       projector_distortion=calibration.projector_distortion, use=use,
-                       decode_options=options)
+    return _scan(frames, capture.pattern_set, calibration.camera(name),
+                 projector_distortion=calibration.projector_distortion, use=use, method=method,
+                 decode_options=options, bit_depth=None if cached else capture.bit_depth)
 
 
 def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **decode_options):
