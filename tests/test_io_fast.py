@@ -8,6 +8,7 @@ No timings here: ``bench/io.py`` measures.
 from __future__ import annotations
 
 import io
+import json
 import os
 import warnings
 import zipfile
@@ -202,6 +203,24 @@ def test_decompression_bomb_in_threads_and_filters_restored(tmp_path, monkeypatc
     assert warnings.filters == before
 
 
+@pytest.mark.parametrize("size", [[8, 2**63], [2**40, 2**40], [100000, 100000], [7, 6]])
+def test_manifest_size_checked_before_the_stack_is_made(tmp_path, size):
+    """Regression (fuzz, capture_json): a manifest size far from the frames' was allocated
+    before any frame was read (numpy: 'Maximum allowed dimension exceeded', or gigabytes)."""
+    frames = [np.zeros((6, 8), np.uint8)] * 3
+    root = _capture(tmp_path, frames)
+    manifest = json.loads((root / "capture.json").read_text())
+    manifest["cameras"][0]["size"] = size
+    (root / "capture.json").write_text(json.dumps(manifest))
+    capture = read_capture(root, load=False)
+    for raw in (True, False):
+        with pytest.raises(ValueError, match=rf"000.png: frame is 8 x 6 px \(W x H\), but camera "
+                                             rf"cam0's size in .*capture.json is {size[0]} x"):
+            capture.load_frames("cam0", raw=raw)
+    with pytest.raises(ValueError, match=r"000.png: frame is 8 x 6 px"):
+        capture.frame_shape("cam0")
+
+
 def test_frames_of_another_size_without_manifest_size(tmp_path):
     frames = [np.zeros((8, 6), np.uint8)] * 3
     root = _capture(tmp_path, frames, size=False)
@@ -372,6 +391,8 @@ def _packed(tmp_path):
     (lambda m: m.update({"xp.values": m["xp.values"].astype(np.longdouble),
                          "xp.fill": m["xp.fill"].astype(np.longdouble)}), "float16/32/64"),
     (lambda m: m.update({"xyz.values": m["xyz.values"][:, :2]}), "xyz.values must be"),
+    (lambda m: m.update({"xp.values": np.float32(1.0)}), "xp.values must be"),
+    (lambda m: m.update({"xyz.values": m["xyz.values"][None]}), "xyz.values must be"),
     (lambda m: m.update({"xyz.fill": m["xyz.fill"][0]}), "xyz.values must be"),
     (lambda m: m.update({"albedo.where": m["mask.bits"][:3]}), "albedo.where must be"),
     (lambda m: m.update({"albedo.where": np.zeros_like(m["mask.bits"])}), "albedo.values holds"),
@@ -495,6 +516,10 @@ def test_save_scans_round_trip(tmp_path):
         assert_same_scan(scan, back)
         assert (tmp_path / "s" / entry["ply"]).is_file()
         assert np.array_equal(read_mat5(tmp_path / "s" / entry["mat5"]).mask, scan.mask)
+    want = {"scan.json"} | {f"{s.name}{suffix}" for s in scans for suffix in (
+        ".npz", ".ply", *mat5_paths("").keys())}
+    assert {p.name for p in (tmp_path / "s").iterdir()} == want  # no temporary files left
+    assert sorted(os.listdir(tmp_path)) == ["s"]
 
 
 def test_save_scans_first_error_in_order_and_nothing_written(tmp_path):

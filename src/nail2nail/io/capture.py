@@ -124,10 +124,15 @@ class Capture:
             if size is not None:
                 shape = (int(size[1]), int(size[0]))
                 said = f"camera {name}'s size in {self.path / MANIFEST} is"
+                if _header_shape(files[0]) != shape:  # the stack is not made of a bad size
+                    first = _read_values(files[0], bit_depth)  # raises if unreadable
             else:
                 first = _read_values(files[0], bit_depth)
                 shape = first.shape
                 said = f"camera {name}'s first frame is"
+            if first is not None and first.shape != shape:
+                raise ValueError(f"{files[0]}: frame is {first.shape[1]} x {first.shape[0]} px "
+                                 f"(W x H), but {said} {shape[1]} x {shape[0]}")
             dtype = (np.uint8 if bit_depth == 8 else np.dtype("<u2")) if raw else np.float32
             stack = np.empty((len(files), *shape), dtype=dtype)
             scale = np.float32(2**bit_depth - 1)
@@ -239,6 +244,15 @@ def _read_values(path: Path, bit_depth: int, *, out: np.ndarray | None = None) -
     if image is out:
         return np.right_shift(out, np.uint16(shift), out=out)
     return image >> np.uint16(shift)
+
+
+def _header_shape(path: Path) -> tuple[int, int] | None:
+    """``(H, W)`` of an image file from its header alone; ``None`` if it cannot be opened."""
+    try:
+        with Image.open(path) as im:
+            return im.size[1], im.size[0]
+    except Exception:
+        return None
 
 
 _DIRECT_MODES = {np.dtype(np.uint8): "L", np.dtype("<u2"): "I;16"}

@@ -164,7 +164,7 @@ def _unpack(data: dict, key: str, mask: np.ndarray, path: Path) -> np.ndarray:
     tail = (3,) if key == "xyz" else ()
     if (values is None or fill is None or values.dtype.kind != "f"
             or values.itemsize not in (2, 4, 8) or fill.dtype != values.dtype
-            or values.shape[1:] != tail or fill.shape != tail):
+            or values.ndim != 1 + len(tail) or values.shape[1:] != tail or fill.shape != tail):
         got = "nothing" if values is None else f"{values.dtype} {values.shape}"
         has = "no fill" if fill is None else f"fill {fill.dtype} {fill.shape}"
         want = "(n, 3)" if tail else "(n,)"
