@@ -201,7 +201,8 @@ def _feather_kernel(valid, feather_px):  # pragma: no cover - compiled
     row pass takes the least ``dc² + column²`` over ``|dc| ≤ reach``. Below `reach` the
     nearest invalid pixel lies in that window with an uncapped column distance, so the result is
     the exact distance (as ``scipy.ndimage.distance_transform_edt``); from `reach` on it is at
-    least `reach` and the ramp is 1 either way.
+    least `reach` and the ramp is 1 either way. Pixels whose window holds no column closer than
+    `reach` to an invalid pixel skip the row pass.
     """
     h, w = valid.shape
     reach = int(np.ceil(feather_px + 0.5))
@@ -220,9 +221,23 @@ def _feather_kernel(valid, feather_px):  # pragma: no cover - compiled
             below[c] = min(below[c] + 1, cap) if valid[r, c] else 0
             column[r, c] = min(column[r, c], below[c])
     out = np.zeros((h, w))
+    left = np.empty(w, np.int64)
     for r in range(h):
+        # a pixel farther than `reach` from every column closer than `reach` to an invalid
+        # pixel (and from the image edge) has none of them in its window: the ramp is 1
+        last = -1
         for c in range(w):
+            if column[r, c] < reach:
+                last = c
+            left[c] = c - last
+        last = w
+        for c in range(w - 1, -1, -1):
+            if column[r, c] < reach:
+                last = c
             if not valid[r, c]:
+                continue
+            if left[c] > reach and last - c > reach:
+                out[r, c] = 1.0
                 continue
             best = cap * cap
             for dc in range(-reach, reach + 1):
@@ -363,11 +378,11 @@ def _confirm_kernel(trust, index, parent_rc, xyz_parent, xyz_child, surface_mm):
             trust[i] = np.inf
 
 
-# -- a uniform grid of cells over each camera's points: fixed-radius and nearest searches ------
-# Cells are cubes of `size` mm from `origin`, clamped to `shape` along the axes `axes` (a cell
-# index is monotone in the coordinate, so clamping loses no neighbour). The points are sorted
-# by (group, column, cell along the column): a column is the line of cells along the last axis,
-# so a query reads a few contiguous runs, each found by a binary search.
+# -- a uniform grid of columns over each camera's points: fixed-radius and nearest searches ----
+# Columns are squares of `size` mm from `origin` across the first two of `axes`, clamped to
+# `shape` (a cell index is monotone in the coordinate, so clamping loses no neighbour), running
+# along the third. The points are sorted by (group, column, coordinate along the column), so a
+# query reads a few contiguous runs, each found by a binary search.
 @numba.njit(**_JIT)
 def _cell(x, origin, size, n):
     """Cell index along one axis, clamped to ``[0, n)``."""
@@ -377,13 +392,14 @@ def _cell(x, origin, size, n):
 @numba.njit(**_JIT)
 def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - compiled
     """Sort each group's points (``points[group_start[g]:group_start[g + 1]]``) by column and
-    cell, with cells of `size` from the points' lowest corner and at most `max_cells` along
-    each axis of ``axes`` (the points' extents, longest first; the columns run along the last).
+    coordinate along it, with columns of `size` from the points' lowest corner, at most
+    `max_cells` across along ``axes[0]`` and ``axes[1]`` (the points' extents, longest first;
+    the columns run along ``axes[2]``).
 
-    Returns ``(column_start, sorted_cell, sorted_points, sorted_index, origin, shape, axes)``:
-    column ``t = (g × shape[0] + a) × shape[1] + b`` holds the sorted points
-    ``column_start[t]:column_start[t + 1]``, `sorted_cell` their cell along ``axes[2]``
-    (ascending in a column) and `sorted_index` their row in `points`.
+    Returns ``(column_start, sorted_points, sorted_index, origin, shape, axes)``: column
+    ``t = (g × shape[0] + a) × shape[1] + b`` holds the sorted points
+    ``column_start[t]:column_start[t + 1]`` (ascending along ``axes[2]``), `sorted_index` their
+    rows in `points`.
     """
     n = points.shape[0]
     n_groups = group_start.size - 1
@@ -401,7 +417,6 @@ def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - com
     n_columns = n_groups * shape[0] * shape[1]
     column = np.empty(n, np.int32)
     column_start = np.zeros(n_columns + 1, np.int64)
-    sorted_cell = np.empty(n, np.int32)
     sorted_points = np.empty((n, 3), points.dtype)
     sorted_index = np.empty(n, np.int32)
     for g in range(n_groups):
@@ -417,56 +432,55 @@ def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - com
         p = cursor[column[i]]
         cursor[column[i]] += 1
         sorted_index[p] = i
-        sorted_cell[p] = _cell(points[i, axes[2]], low[axes[2]], size, shape[2])
         for d in range(3):
             sorted_points[p, d] = points[i, d]
-    for t in range(n_columns):  # then by cell within a column: insertion (runs are sorted)
+    along = axes[2]
+    for t in range(n_columns):  # then along a column: insertion (a pixel row's run is sorted)
         for p in range(column_start[t] + 1, column_start[t + 1]):
-            key = sorted_cell[p]
-            if sorted_cell[p - 1] <= key:
+            key = sorted_points[p, along]
+            if sorted_points[p - 1, along] <= key:
                 continue
             index = sorted_index[p]
             x0, x1, x2 = sorted_points[p, 0], sorted_points[p, 1], sorted_points[p, 2]
             m = p
-            while m > column_start[t] and sorted_cell[m - 1] > key:
-                sorted_cell[m] = sorted_cell[m - 1]
+            while m > column_start[t] and sorted_points[m - 1, along] > key:
                 sorted_index[m] = sorted_index[m - 1]
                 for d in range(3):
                     sorted_points[m, d] = sorted_points[m - 1, d]
                 m -= 1
-            sorted_cell[m] = key
             sorted_index[m] = index
             sorted_points[m, 0], sorted_points[m, 1], sorted_points[m, 2] = x0, x1, x2
-    return column_start, sorted_cell, sorted_points, sorted_index, low, shape, axes
+    return column_start, sorted_points, sorted_index, low, shape, axes
 
 
 @numba.njit(**_JIT)
-def _cell_range(x, radius, origin, size, n):
-    """Cells along one axis that a ball of `radius` around `x` may reach."""
-    reach = radius * (1.0 + 1e-9) + 1e-12  # keeps every point whose rounded distance is below
-    return _cell(x - reach, origin, size, n), _cell(x + reach, origin, size, n)
+def _reach(radius):
+    """`radius` widened far above the rounding of a squared distance: the search bound that
+    keeps every point whose computed distance is below `radius`."""
+    return radius * (1.0 + 1e-9) + 1e-12
 
 
 @numba.njit(**_JIT)
-def _run(column_start, sorted_cell, column, lo, hi):
-    """The sorted points of `column` with a cell in ``[lo, hi]``: ``(first, stop)``."""
+def _run(column_start, sorted_points, along, column, lo, hi):
+    """The sorted points of `column` with a coordinate `along` in ``[lo, hi]``:
+    ``(first, stop)``."""
     first, stop = column_start[column], column_start[column + 1]
-    while first < stop:  # binary search of the first cell ≥ lo
+    while first < stop:  # binary search of the first coordinate ≥ lo
         half = (first + stop) // 2
-        if sorted_cell[half] < lo:
+        if sorted_points[half, along] < lo:
             first = half + 1
         else:
             stop = half
     stop = first
     end = column_start[column + 1]
-    while stop < end and sorted_cell[stop] <= hi:
+    while stop < end and sorted_points[stop, along] <= hi:
         stop += 1
     return first, stop
 
 
 @numba.njit(**_JIT)
-def _dedupe_kernel(column_start, sorted_cell, sorted_points, sorted_index, origin, size, shape,
-                   axes, searched, sorted_keep, keep, query, query_start,
+def _dedupe_kernel(column_start, sorted_points, sorted_index, origin, size, shape, axes,
+                   searched, sorted_keep, keep, query, query_start,
                    radius):  # pragma: no cover - compiled
     """Drop from `keep` each point of `query` (``keep[query_start + k]``) that lies closer than
     `radius` to a point of a `searched` group kept in `sorted_keep`; return how many."""
@@ -476,9 +490,12 @@ def _dedupe_kernel(column_start, sorted_cell, sorted_points, sorted_index, origi
         if not keep[query_start + k]:
             continue
         q0, q1, q2 = np.float64(query[k, 0]), np.float64(query[k, 1]), np.float64(query[k, 2])
-        a_lo, a_hi = _cell_range(query[k, axes[0]], radius, origin[axes[0]], size, shape[0])
-        b_lo, b_hi = _cell_range(query[k, axes[1]], radius, origin[axes[1]], size, shape[1])
-        z_lo, z_hi = _cell_range(query[k, axes[2]], radius, origin[axes[2]], size, shape[2])
+        reach = _reach(radius)
+        x, y, z = query[k, axes[0]], query[k, axes[1]], np.float64(query[k, axes[2]])
+        a_lo = _cell(x - reach, origin[axes[0]], size, shape[0])
+        a_hi = _cell(x + reach, origin[axes[0]], size, shape[0])
+        b_lo = _cell(y - reach, origin[axes[1]], size, shape[1])
+        b_hi = _cell(y + reach, origin[axes[1]], size, shape[1])
         near = False
         for g in range(searched.size):
             if not searched[g] or near:
@@ -487,8 +504,8 @@ def _dedupe_kernel(column_start, sorted_cell, sorted_points, sorted_index, origi
                 for b in range(b_lo, b_hi + 1):
                     if near:
                         break
-                    first, stop = _run(column_start, sorted_cell,
-                                       (g * shape[0] + a) * shape[1] + b, z_lo, z_hi)
+                    first, stop = _run(column_start, sorted_points, axes[2],
+                                       (g * shape[0] + a) * shape[1] + b, z - reach, z + reach)
                     for p in range(first, stop):
                         if not sorted_keep[p]:
                             continue
@@ -545,8 +562,8 @@ def _smallest_eigen(a00, a01, a02, a11, a12, a22):
 
 
 @numba.njit(**_JIT)
-def _off_surface_kernel(column_start, sorted_cell, sorted_points, sorted_index, origin, size,
-                        shape, axes, trust, own_group, query, score, radius,
+def _off_surface_kernel(column_start, sorted_points, sorted_index, origin, size, shape, axes,
+                         trust, own_group, query, score, radius,
                         surface_mm):  # pragma: no cover - compiled
     """For each query point: off the plane of its 8 nearest points of the other groups within
     `radius` (at least 3, sorted by distance) by more than `surface_mm`, where those are planar
@@ -561,17 +578,20 @@ def _off_surface_kernel(column_start, sorted_cell, sorted_points, sorted_index, 
     n_groups = (column_start.size - 1) // (shape[0] * shape[1])
     for q in range(query.shape[0]):
         q0, q1, q2 = query[q, 0], query[q, 1], query[q, 2]
-        a_lo, a_hi = _cell_range(query[q, axes[0]], radius, origin[axes[0]], size, shape[0])
-        b_lo, b_hi = _cell_range(query[q, axes[1]], radius, origin[axes[1]], size, shape[1])
-        z_lo, z_hi = _cell_range(query[q, axes[2]], radius, origin[axes[2]], size, shape[2])
+        reach = _reach(radius)
+        x, y, z = query[q, axes[0]], query[q, axes[1]], np.float64(query[q, axes[2]])
+        a_lo = _cell(x - reach, origin[axes[0]], size, shape[0])
+        a_hi = _cell(x + reach, origin[axes[0]], size, shape[0])
+        b_lo = _cell(y - reach, origin[axes[1]], size, shape[1])
+        b_hi = _cell(y + reach, origin[axes[1]], size, shape[1])
         found = 0
         for g in range(n_groups):
             if g == own_group:
                 continue
             for a in range(a_lo, a_hi + 1):
                 for b in range(b_lo, b_hi + 1):
-                    first, stop = _run(column_start, sorted_cell,
-                                       (g * shape[0] + a) * shape[1] + b, z_lo, z_hi)
+                    first, stop = _run(column_start, sorted_points, axes[2],
+                                       (g * shape[0] + a) * shape[1] + b, z - reach, z + reach)
                     for p in range(first, stop):
                         d0 = q0 - np.float64(sorted_points[p, 0])
                         d1 = q1 - np.float64(sorted_points[p, 1])
@@ -825,9 +845,9 @@ def _grid(points: np.ndarray, group_start: np.ndarray, size: float) -> tuple:
     columns (points beyond fall in the border cells, which only slows the search); they run
     along the shortest extent, so they cross a finger's surface (and hold points) only where it
     faces that axis: a column is short."""
-    column_start, cell, sorted_points, index, origin, shape, axes = _grid_build(
+    column_start, sorted_points, index, origin, shape, axes = _grid_build(
         points, group_start, size, np.array([512, 512, 1 << 20]))
-    return column_start, cell, sorted_points, index, origin, size, shape, axes
+    return column_start, sorted_points, index, origin, size, shape, axes
 
 
 # -- public functions --------------------------------------------------------------------------
@@ -1296,7 +1316,7 @@ def fuse_scans(
             i = priority[k]
             searched = np.zeros(n, dtype=bool)
             searched[priority[:k]] = True
-            sorted_keep = np.take(keep_all, grid[3])
+            sorted_keep = np.take(keep_all, grid[2])
             removed[scans[i].name] = int(_dedupe_kernel(
                 *grid, searched, sorted_keep, keep_all, points[start[i]:start[i + 1]],
                 int(start[i]), float(dedupe_mm)))
