@@ -456,7 +456,8 @@ class RayTable:
         Its OpenCV ``(k1, k2, p1, p2, k3)``.
     pixel_offsets : (2, H, W) float32 or None
         Lens-undistorted minus actual pixel centres ``(dx, dy)`` of a pinhole camera with
-        lens distortion, px (read-only, shared between tables of the same camera model).
+        lens distortion, px (shared between the tables of one camera model: not to be
+        changed).
     lens_iterations : int
         Fixed-point iterations inverting the projector's lens distortion
         (:meth:`~nail2nail.camera_models.Pinhole.undistort`).
@@ -522,7 +523,6 @@ def _pixel_offsets(camera, shape: tuple[int, int]) -> np.ndarray:
         rows = np.arange(a, min(a + step, height), dtype=float)
         grid = np.stack(np.broadcast_arrays(columns[None, :], rows[:, None]), axis=-1)
         offsets[:, a:a + len(rows)] = np.moveaxis(undistorted_pixels(camera, grid) - grid, -1, 0)
-    offsets.flags.writeable = False
     _OFFSETS[key] = offsets
     while len(_OFFSETS) > _OFFSETS_KEPT:
         del _OFFSETS[next(iter(_OFFSETS))]
