@@ -663,7 +663,8 @@ class _ProjectorGrid:
             reach = 2 * (-(-_GRID_RINGS // 2)) + 1
             inner = scipy.ndimage.minimum_filter(occupied, size=reach, mode="constant", cval=0)
             members = np.flatnonzero(~inner.ravel()[self.cell_of])
-            tree = scipy.spatial.cKDTree(np.stack([self.x[members], self.y[members]], axis=-1))
+            tree = scipy.spatial.cKDTree(np.stack([self.x[members], self.y[members]], axis=-1),
+                                         balanced_tree=False, compact_nodes=False)
             self._tree = (tree, members)
         return self._tree
 
@@ -1278,16 +1279,18 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     for code, name in enumerate(REJECT_REASONS):
         dropped[name] = int(np.count_nonzero(reason == code))
 
-    def subset(sel, **extra):
+    def subset(index, **extra):
+        # the pairs' own arrays when all are taken (no copy), else the rows of `index`
+        arrays = pairs if index.size == n else {
+            k: np.take(v, index, axis=0) for k, v in pairs.items()}
         return Correspondence(
             parent_name=str(parent.name), child_name=str(child.name),
             parent_shape=tuple(parent_valid.shape), child_shape=tuple(child_valid.shape),
-            **{k: v[sel] for k, v in pairs.items()}, n_sampled=int(n_sampled), stride=stride,
-            **extra)
+            **arrays, n_sampled=int(n_sampled), stride=stride, **extra)
 
     rejected = None
     if tests:
-        bad = reason >= 0
+        bad = np.flatnonzero(reason >= 0)
         rejected = subset(bad, reason=np.asarray(REJECT_REASONS)[reason[bad]],
                           dropped={k: dropped[k] for k in REJECT_REASONS})
-    return subset(reason < 0, dropped=dropped, rejected=rejected)
+    return subset(np.flatnonzero(reason < 0), dropped=dropped, rejected=rejected)
