@@ -558,3 +558,16 @@ def test_mapping_file_reads_back(noisy, tmp_path):
         np.testing.assert_array_equal(f["parent_rc"], m.parent_rc)
         np.testing.assert_array_equal(f["xyz_child"], m.xyz_child.astype(np.float32))
         assert f["rejected_reason"].tolist() == m.rejected.reason.tolist()
+
+
+def test_threads_do_not_change_the_result(noisy, monkeypatch):
+    import nail2nail.merge.correspondence as mc
+
+    monkeypatch.setattr(mc, "_THREAD_MIN_ITEMS", 50)  # split even these small scans
+    serial = correspond(noisy[0], noisy[1], workers=1)
+    for workers in (-1, 3):
+        m = correspond(noisy[0], noisy[1], workers=workers)
+        np.testing.assert_array_equal(m.parent_rc, serial.parent_rc)
+        np.testing.assert_array_equal(m.child_rc, serial.child_rc)
+        np.testing.assert_array_equal(m.xyz_child, serial.xyz_child)
+        assert m.dropped == serial.dropped

@@ -32,6 +32,8 @@ across calls in a :class:`CorrespondenceCache`: matching one scan several times,
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numba
@@ -630,13 +632,14 @@ class _ProjectorGrid:
         qx, qy : (N,) float64
             Projector coordinates, finite.
         workers : int
-            Threads for the k-d tree of the undecided queries (``-1``: all cores).
+            Threads (``-1``: all cores).
         """
         qx = np.ascontiguousarray(qx, dtype=np.float64)
         qy = np.ascontiguousarray(qy, dtype=np.float64)
-        best, d2, done = _grid_nearest(qx, qy, self.sx, self.sy, self.sindex, self.start,
-                                       self.x0, self.y0, self.cell, self.nx, self.ny,
-                                       _GRID_RINGS)
+        best, d2, done = _in_threads(
+            lambda a, b: _grid_nearest(qx[a:b], qy[a:b], self.sx, self.sy, self.sindex,
+                                       self.start, self.x0, self.y0, self.cell, self.nx,
+                                       self.ny, _GRID_RINGS), qx.size, workers)
         todo = np.flatnonzero(~done)
         if todo.size:
             tree, members = self._boundary_tree()
@@ -667,6 +670,23 @@ class _ProjectorGrid:
                                          balanced_tree=False, compact_nodes=False)
             self._tree = (tree, members)
         return self._tree
+
+
+_THREAD_MIN_ITEMS = 65536  # fewer items: one thread (starting threads costs more)
+
+
+def _in_threads(kernel, n: int, workers: int) -> tuple:
+    """``kernel(start, stop)`` over ``[0, n)`` in contiguous chunks, one per thread, and its
+    output arrays concatenated: the one-call result for a kernel that treats every item alone
+    (the compiled kernels release the GIL). `workers`: threads, ``-1`` all cores."""
+    threads = (os.cpu_count() or 1) if workers == -1 else max(int(workers), 1)
+    threads = min(threads, n // _THREAD_MIN_ITEMS)
+    if threads <= 1:
+        return kernel(0, n)
+    bounds = np.linspace(0, n, threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(threads) as pool:
+        parts = list(pool.map(kernel, bounds[:-1], bounds[1:]))
+    return tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True))
 
 
 def _pixel_spacing(scan: Scan, valid: np.ndarray) -> float:
@@ -1098,7 +1118,8 @@ def correspond(
         a k-d tree built for the call (:func:`nearest_kdtree`), or the appendix's exhaustive
         search (:func:`nearest_bruteforce`, for small inputs only).
     workers : int
-        Threads for the k-d tree query (``-1``: all cores).
+        Threads for the nearest-neighbour search and the refinement (``-1``: all cores); the
+        results do not depend on it.
     max_view_angle_deg : float or None
         Largest viewing angle (between the normal and the ray to the camera) of a kept pair in
         either camera, degrees.
@@ -1218,10 +1239,10 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
     target_xp, target_yp = target_xp[keep], target_yp[keep]
     if refine:
-        sub_r, sub_c, residual, xyz_child = _refine_kernel(
-            _float_image(child.xp), _float_image(child.yp), _float_image(child.xyz),
-            target_xp, target_yp, nr, nc, _NEWTON_STEPS, _MAX_SHIFT_PX,
-        )
+        images = _float_image(child.xp), _float_image(child.yp), _float_image(child.xyz)
+        sub_r, sub_c, residual, xyz_child = _in_threads(
+            lambda a, b: _refine_kernel(*images, target_xp[a:b], target_yp[a:b], nr[a:b],
+                                        nc[a:b], _NEWTON_STEPS, _MAX_SHIFT_PX), nr.size, workers)
         finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
     else:
         sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
