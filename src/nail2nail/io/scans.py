@@ -47,7 +47,7 @@ def save_scan_npz(path: str | os.PathLike, scan: Scan, *, compress: bool | int =
     compress : bool or int
         zlib level for every array (:func:`nail2nail.io._atomic.write_npz`); by default
         (``False``) only the pixel bits are compressed (level 1), the float values are stored:
-        zlib shrinks them by some 20 % at some 0.5 s a camera (``bench/io.py``).
+        zlib shrinks them by some 20 % in some 20 times the time (``bench/io.py``).
     """
     mask = np.asarray(scan.mask)
     arrays = {"layout": np.array(SCAN_NPZ_LAYOUT), "name": np.array(scan.name)}
