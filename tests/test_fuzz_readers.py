@@ -49,7 +49,7 @@ from nail2nail.io.mat5 import MAT5_SUFFIXES, mat5_paths, read_mat5, write_mat5
 from nail2nail.io.ply import PlyData, read_ply, write_ply
 from nail2nail.io.points import REQUIRED_COLUMNS, PointsTable, read_points, thesis_table
 from nail2nail.io.prints import read_print_image, write_print_image
-from nail2nail.io.scans import load_scans, save_scans
+from nail2nail.io.scans import load_scan_npz, load_scans, save_scans
 from nail2nail.patterns import Frequency, PatternSet
 from nail2nail.reconstruction import Scan
 from nail2nail.simulation.rig import Rig, default_rig, load_rig, save_rig
@@ -699,8 +699,9 @@ def fuzz_scan_json(o: Originals, root: Path, draw) -> str | None:
 def fuzz_npz(o: Originals, root: Path, draw) -> str | None:
     data = draw(mutated_bytes(o.scan_npz) | odd_npz())
     path = _write(root / "x.npz", data)
-    return check_reader(lambda: read_npz(path, required=("xyz",), what="scan file"), root,
-                        valid_npz)
+    # the generic reader, then the scan reader itself (both layouts: whole arrays, packed)
+    return (check_reader(lambda: read_npz(path, what="scan file"), root, valid_npz)
+            or check_reader(lambda: load_scan_npz(path), root, valid_scan))
 
 
 def fuzz_mat5(o: Originals, root: Path, draw) -> str | None:
