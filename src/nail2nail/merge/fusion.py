@@ -1250,7 +1250,7 @@ def fuse_scans(
     for s, v, f in zip(scans, valid, feathers, strict=True):
         cos = quality[id(s)][0] if id(s) in quality else v.astype(np.float64)
         scores.append(_score_kernel(v, np.ascontiguousarray(cos, dtype=np.float64), f))
-    del feathers
+    del feathers, normals0  # what is held from here on is freed as soon as it is done with
     clock("weights")
 
     corr: dict[tuple[int, int], Correspondence] = {}
@@ -1264,6 +1264,7 @@ def fuse_scans(
                     min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                     outlier_mad=outlier_mad, outlier_block_px=32, quality=quality,
                     cache=cache)
+    del quality, cache
     clock("correspond")
 
     # the valid pixels of all cameras, numbered camera by camera in row-major order: `keep`
@@ -1361,7 +1362,8 @@ def fuse_scans(
                                       float(surface_mm))
             keeps[i][lone[off]] = False
             off_surface[scans[i].name] = int(np.count_nonzero(off))
-    del grid
+        del trust
+    del grid, scores
     clock("off_surface")
 
     # normals from every valid pixel (fused where owned), so ownership edges keep them
