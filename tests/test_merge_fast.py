@@ -571,3 +571,26 @@ def test_threads_do_not_change_the_result(noisy, monkeypatch):
         np.testing.assert_array_equal(m.child_rc, serial.child_rc)
         np.testing.assert_array_equal(m.xyz_child, serial.xyz_child)
         assert m.dropped == serial.dropped
+
+
+def test_write_merge_figure_failure_raises_and_writes_nothing(noisy, tmp_path, monkeypatch):
+    # figures are drawn on a thread beside the merge: a failure there still fails the merge
+    import nail2nail.merge.figures as figures
+    from nail2nail.merge.report import write_merge
+
+    def failing(*args, **kwargs):
+        raise OSError("histogram: disk full")
+
+    monkeypatch.setattr(figures, "plot_merge_histogram", failing)
+    with pytest.raises(OSError, match="disk full"):
+        write_merge(noisy, tmp_path / "out", stride=3, super_scan=False)
+    assert not (tmp_path / "out").exists()
+    monkeypatch.undo()
+    summary = write_merge(noisy, tmp_path / "out", stride=3, super_scan=True)
+    assert list(summary["merge"]["0-1"]["files"]) == ["mapping", "heatmap", "histogram",
+                                                      "points3d", "marked"]
+    assert list(summary["super_scan"]["files"]) == ["ply", "mat5", "render_front", "render_side"]
+    assert summary["outputs"][:5] == list(summary["merge"]["0-1"]["files"].values())
+    assert summary["outputs"][-3:-1] == [summary["super_scan"]["files"][k]
+                                         for k in ("render_front", "render_side")]
+    assert all(Path(p).exists() for p in summary["outputs"])

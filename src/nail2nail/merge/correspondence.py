@@ -602,8 +602,8 @@ class _ProjectorGrid:
         self.rows, self.cols = np.nonzero(valid)
         if self.rows.size == 0:
             raise ValueError(f"child {scan.name!r}: no valid pixels")
-        x = np.asarray(scan.xp, dtype=np.float64)[self.rows, self.cols]
-        y = np.asarray(scan.yp, dtype=np.float64)[self.rows, self.cols]
+        x = np.asarray(scan.xp)[self.rows, self.cols].astype(np.float64)
+        y = np.asarray(scan.yp)[self.rows, self.cols].astype(np.float64)
         self.x, self.y = x, y
         self.x0, self.y0 = float(x.min()), float(y.min())
         span_x, span_y = float(x.max()) - self.x0, float(y.max()) - self.y0
@@ -692,8 +692,8 @@ def _in_threads(kernel, n: int, workers: int) -> tuple:
 def _pixel_spacing(scan: Scan, valid: np.ndarray) -> float:
     """Typical distance of neighbouring valid pixels in projector space, panel px (geometric
     mean of the median steps along rows and columns; on every fourth row and column)."""
-    xp = np.asarray(scan.xp, dtype=np.float64)[::4, ::4]
-    yp = np.asarray(scan.yp, dtype=np.float64)[::4, ::4]
+    xp = np.asarray(scan.xp)[::4, ::4].astype(np.float64)
+    yp = np.asarray(scan.yp)[::4, ::4].astype(np.float64)
     ok = valid[::4, ::4]
     steps = []
     for axis in (0, 1):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -180,22 +181,36 @@ def _check_kept(corr, stats: dict | None = None) -> None:
     if kept < MIN_KEPT_FRACTION * found:
         warnings.warn(f"merge {pair}: keeps {kept} of {found} corresponding points found "
                       f"({100 * kept / found:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
-                      UserWarning, stacklevel=3)
+                      UserWarning, stacklevel=4)
 
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
                  super_scan, progress) -> dict:
-    """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary."""
-    if figures:  # matplotlib only when figures are drawn
-        from .figures import (
-            plot_correspondence_images,
-            plot_correspondences_3d,
-            plot_merge_heatmap,
-            plot_merge_histogram,
-            render_points,
-        )
-    outputs: list[str] = []
-    summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": outputs}
+    """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
+
+    The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
+    correspondence and fusion kernels mostly run without it, so drawing overlaps them.
+    """
+    drawing = ThreadPoolExecutor(1, thread_name_prefix="merge-figures") if figures else None
+    try:
+        summary = _merge_files(scans, out, pairs=pairs, stride=stride,
+                               max_residual_px=max_residual_px, border_px=border_px,
+                               super_scan=super_scan, progress=progress, drawing=drawing)
+    except BaseException:
+        if drawing is not None:
+            drawing.shutdown(wait=True, cancel_futures=True)
+        raise
+    if drawing is not None:
+        drawing.shutdown(wait=True)
+    return summary
+
+
+def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
+                 progress, drawing) -> dict:
+    """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
+    summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
+    drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
+    mat5: list[Path] = []
     cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
     for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
         corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
@@ -203,40 +218,69 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         key = f"{i}-{j}"
         stats = corr.statistics()
         _check_kept(corr, stats)
-        files = {"mapping": _save_mapping(out / f"merge_{key}_mapping.npz", corr)}
-        if figures:
-            files["heatmap"] = plot_merge_heatmap(corr, out / f"merge_{key}_heatmap.png",
-                                                  background=scans[i].albedo)
-            files["histogram"] = plot_merge_histogram(
-                corr.distance_mm, out / f"merge_{key}_histogram.png",
-                title=f"{corr.parent_name} ↔ {corr.child_name}: merge error")
-            every = max(20 // stride, 1) * stride
-            files["points3d"] = plot_correspondences_3d(corr, out / f"merge_{key}_points3d.png",
-                                                        every=every)
-            files["marked"] = plot_correspondence_images(
-                corr, scans[i].albedo, scans[j].albedo, out / f"merge_{key}_marked.png",
-                every=every)
-        files = {k: str(v) for k, v in files.items()}
-        outputs.extend(files.values())
+        files = {"mapping": str(_save_mapping(out / f"merge_{key}_mapping.npz", corr))}
+        if drawing is not None:
+            drawn.append((files, drawing.submit(
+                _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
         summary["merge"][key] = {**stats, "files": files}
         del corr
     del cache  # its images are not needed by the fusion: freed before it
     if super_scan:
         sup = fuse_scans(scans, max_residual_px=max_residual_px)
-        files = {"ply": write_super_ply(out / "super.ply", sup)}
-        mat5 = write_super_mat5(out / "super", sup)
-        files["mat5"] = out / "super"
-        outputs.extend(str(p) for p in mat5)
-        if figures:
+        if drawing is not None:
+            renders = {}
             for view, (elev, azim) in RENDER_VIEWS.items():
-                files[f"render_{view}"] = render_points(
-                    sup.vertices, out / f"super_{view}.png", normals=sup.vertex_normals,
-                    colors=sup.colors, elev=elev, azim=azim,
-                    title=f"super scan ({view}): {sup.n_vertices} points")
-        files = {k: str(v) for k, v in files.items()}
-        outputs.extend(v for k, v in files.items() if k != "mat5")
+                renders[f"render_{view}"] = drawing.submit(
+                    _render, sup.vertices, out / f"super_{view}.png", sup.vertex_normals,
+                    sup.colors, elev, azim, f"super scan ({view}): {sup.n_vertices} points")
+        files = {"ply": str(write_super_ply(out / "super.ply", sup))}
+        mat5 = write_super_mat5(out / "super", sup)
+        files["mat5"] = str(out / "super")
         summary["super_scan"] = {**sup.summary(), "files": files}
+        if drawing is not None:
+            drawn.append((files, renders))
+        del sup
+    for files, figures in drawn:  # wait for the figures, in order; a failure raises here
+        if isinstance(figures, dict):
+            files.update({k: str(f.result()) for k, f in figures.items()})
+        else:
+            files.update({k: str(v) for k, v in figures.result().items()})
+    outputs = summary["outputs"]
+    for m in summary["merge"].values():
+        outputs.extend(m["files"].values())
+    if summary["super_scan"] is not None:
+        outputs.extend(str(p) for p in mat5)
+        outputs.extend(v for k, v in summary["super_scan"]["files"].items() if k != "mat5")
     outputs.append(str(out / "merge.json"))
     return summary
 
 
+def _pair_figures(corr, parent_albedo, child_albedo, out: Path, key: str, stride: int) -> dict:
+    """The four figures of one camera pair: ``{heatmap, histogram, points3d, marked}`` paths."""
+    from .figures import (  # matplotlib only when figures are drawn
+        plot_correspondence_images,
+        plot_correspondences_3d,
+        plot_merge_heatmap,
+        plot_merge_histogram,
+    )
+
+    every = max(20 // stride, 1) * stride
+    return {
+        "heatmap": plot_merge_heatmap(corr, out / f"merge_{key}_heatmap.png",
+                                      background=parent_albedo),
+        "histogram": plot_merge_histogram(
+            corr.distance_mm, out / f"merge_{key}_histogram.png",
+            title=f"{corr.parent_name} ↔ {corr.child_name}: merge error"),
+        "points3d": plot_correspondences_3d(corr, out / f"merge_{key}_points3d.png",
+                                            every=every),
+        "marked": plot_correspondence_images(corr, parent_albedo, child_albedo,
+                                             out / f"merge_{key}_marked.png", every=every),
+    }
+
+
+def _render(vertices, path: Path, normals, colors, elev, azim, title) -> Path:
+    """:func:`nail2nail.merge.figures.render_points` of the super scan."""
+    from .figures import render_points
+
+    return render_points(vertices, path, normals=normals, colors=colors, elev=elev, azim=azim,
+                         title=title)
