@@ -195,7 +195,8 @@ def plot_merge_histogram(
     ax.set_xlabel("merge error (µm)")
     ax.set_ylabel("pairs")
     ax.set_title(title or f"{d.size} pairs, {100 * stats['frac_below_0_05']:.1f} % below 0.05 mm")
-    fig.tight_layout()
+    # what tight_layout gives with counts of up to six digits, without its cost
+    fig.subplots_adjust(left=0.15, right=0.975, bottom=0.146, top=0.907)
     return _save(fig, path)
 
 
@@ -279,19 +280,61 @@ def plot_correspondence_images(
     """
     corr = _check_corr(corr)
     sel = _every(corr, every)
-    fig = Figure(figsize=(10, 6.5))
+    from PIL import Image, ImageDraw
+
+    # matplotlib's layout of this figure (two image axes side by side, titled, without axis
+    # lines, as tight_layout places them), drawn directly: a quarter of the time
+    width, height = _MARKED_SIZE
+    left, right, bottom, top, wspace = _MARKED_BOX
+    box_w = (right - left) * width / (2 + wspace)
+    box_h = (top - bottom) * height
+    canvas = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(canvas)
+    font = _title_font()
+    dots = []
     for k, (img, pts, colour, name) in enumerate((
-        (parent_image, corr.parent_rc[sel], "r", corr.parent_name),
-        (child_image, corr.child_rc[sel], "b", corr.child_name),
+        (parent_image, corr.parent_rc[sel], (255, 0, 0), corr.parent_name),
+        (child_image, corr.child_rc[sel], (0, 0, 255), corr.child_name),
     )):
-        ax = fig.add_subplot(1, 2, k + 1)
-        _show_grey(fig, ax, img)
-        ax.scatter(pts[:, 1], pts[:, 0], s=6, c=colour)
-        ax.set_title(f"{name}: {sel.size} corresponding points")
-        ax.set_axis_off()
-    # what tight_layout gives for two images without axes, without its cost
-    fig.subplots_adjust(left=0.015, right=0.985, bottom=0.023, top=0.977, wspace=0.031)
-    return _save(fig, path)
+        grey = _grey(img)
+        h, w = grey.shape
+        scale = min(box_w / w, box_h / h)  # aspect equal, centred in the axes' box
+        x0 = left * width + k * box_w * (1 + wspace) + (box_w - w * scale) / 2
+        y0 = (1 - top) * height + (box_h - h * scale) / 2
+        size = (max(round(w * scale), 1), max(round(h * scale), 1))
+        f = max(1, int(min(h / size[1], w / size[0])))
+        level = np.clip(_block_mean(grey, f) * 256, 0, 255).astype(np.uint8)  # the grey map
+        canvas.paste(Image.fromarray(level).resize(size, Image.Resampling.BILINEAR).convert(
+            "RGB"), (round(x0), round(y0)))
+        dots.append((x0 + (pts[:, 1] + 0.5) * scale, y0 + (pts[:, 0] + 0.5) * scale, colour))
+        draw.text((x0 + w * scale / 2, y0 - 8), f"{name}: {sel.size} corresponding points",
+                  fill=(0, 0, 0), font=font, anchor="md")
+    image = np.array(canvas)
+    for x, y, colour in dots:  # as matplotlib's markers of s=6 with their edge: 4 px across
+        _draw_dots(image, x, y, 2.1, colour)
+    return _write_png(image, path)
+
+
+def _draw_dots(image: np.ndarray, x, y, radius: float, colour) -> None:
+    """Antialiased discs of `radius` px centred on ``(x, y)`` (px, pixel centres at integers)
+    painted over `image` ``(H, W, 3)`` uint8 in place, in one `colour`."""
+    reach = int(np.ceil(radius + 1))
+    off = np.arange(-reach, reach + 1)
+    ix = np.round(x).astype(np.int64)[:, None, None] + off[None, None, :]
+    iy = np.round(y).astype(np.int64)[:, None, None] + off[None, :, None]
+    cover = np.clip(radius + 0.5 - np.hypot(ix - np.asarray(x)[:, None, None],
+                                             iy - np.asarray(y)[:, None, None]), 0.0, 1.0)
+    inside = (ix >= 0) & (ix < image.shape[1]) & (iy >= 0) & (iy < image.shape[0])
+    alpha = np.zeros(image.shape[:2])
+    np.maximum.at(alpha, (np.broadcast_to(iy, cover.shape)[inside],
+                          np.broadcast_to(ix, cover.shape)[inside]), cover[inside])
+    hit = np.nonzero(alpha)
+    blend = alpha[hit][:, None]
+    image[hit] = np.round(image[hit] * (1 - blend) + np.asarray(colour, float) * blend)
+
+
+_MARKED_SIZE = (1000, 650)  # px, as the 10 × 6.5 in figure at 100 dpi
+_MARKED_BOX = (0.015, 0.985, 0.023, 0.977, 0.031)  # left, right, bottom, top, wspace
 
 
 def render_points(

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -191,7 +192,10 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
     correspondence and fusion kernels mostly run without it, so drawing overlaps them.
     """
-    drawing = ThreadPoolExecutor(1, thread_name_prefix="merge-figures") if figures else None
+    drawing = None
+    if figures:
+        drawing = ThreadPoolExecutor(1, thread_name_prefix="merge-figures")
+        drawing.submit(importlib.import_module, f"{__package__}.figures")  # matplotlib: ~0.5 s
     try:
         summary = _merge_files(scans, out, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
