@@ -820,25 +820,32 @@ def _check_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check_
             for c in range(width):
                 column[c] |= row[c]
         for c in range(width):
-            near[c] = 0
-        for dc in range(-erode, erode + 1):
-            for c in range(max(0, -dc), min(width, width - dc)):
-                near[c] |= column[c + dc]
+            near[c] = column[c]
+        for s in range(1, min(erode, width - 1) + 1):  # Chebyshev: the columns s to each side
+            for c in range(width - s):
+                near[c] |= column[c + s]
+            for c in range(width - s):
+                near[c + s] |= column[c]
         for c in range(width):
             flags[c] |= np.uint8(32) if (flags[c] == 0) & (near[c] != 0) else np.uint8(0)
     if check_gradient and 0 < e < height - 1:
         g2 = max_gradient * max_gradient
         above = reason_ring[(e - 1) % ring]
         below = reason_ring[(e + 1) % ring]
+        ok = column  # STEEP where the pixel and its four neighbours are valid
+        for c in range(1, width - 1):
+            valid = (here[c] | here[c - 1] | here[c + 1] | above[c] | below[c]) == 0
+            ok[c] = np.uint8(64) if valid else np.uint8(0)
         for d in range(n_dirs):
             ua = u_ring[(e - 1) % ring, d]
             uc = u_ring[slot, d]
             ub = u_ring[(e + 1) % ring, d]
             for c in range(1, width - 1):
-                ok = (here[c] | here[c - 1] | here[c + 1] | above[c] | below[c]) == 0
                 gx = (uc[c + 1] - uc[c - 1]) * half
                 gy = (ub[c] - ua[c]) * half
-                flags[c] |= np.uint8(64) if ok & (gx * gx + gy * gy > g2) else np.uint8(0)
+                near[c] = ok[c] if gx * gx + gy * gy > g2 else np.uint8(0)
+            for c in range(1, width - 1):
+                flags[c] |= near[c]
 
 
 @numba.njit(fastmath=_FAST, error_model="numpy")
@@ -883,36 +890,29 @@ def _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check
         else:
             _ray_points(ux, uy, 1.0, ox, np.float64(e), oy, ray_f, ray_i[0], ray_i[1] != 0,
                         x_out, y_out, z_out)
+    if tri_mode > 0:  # no point: NO_POINT (three loops: each vectorises)
+        for c in range(width):
+            finite = np.isfinite(x_out[c]) & np.isfinite(y_out[c]) & np.isfinite(z_out[c])
+            f = flags[c]
+            flags[c] = f | (np.uint8(128) if (f == 0) & ~finite else np.uint8(0))
+        xyz = out_xyz[e]
+        for c in range(width):
+            valid = flags[c] == 0
+            xyz[c, 0] = np.float32(x_out[c]) if valid else nan
+            xyz[c, 1] = np.float32(y_out[c]) if valid else nan
+            xyz[c, 2] = np.float32(z_out[c]) if valid else nan
     reason = out_reason[e]
     mask = out_mask[e]
     intensity = out_int[e]
     two = np.float32(2.0)
     one = np.float32(1.0)
     zero = np.float32(0.0)
-    if tri_mode > 0:
-        xyz = out_xyz[e]
-        for c in range(width):
-            x = x_out[c]
-            y = y_out[c]
-            z = z_out[c]
-            finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-            f = flags[c]
-            f |= np.uint8(128) if (f == 0) & ~finite else np.uint8(0)
-            valid = f == 0
-            xyz[c, 0] = np.float32(x) if valid else nan
-            xyz[c, 1] = np.float32(y) if valid else nan
-            xyz[c, 2] = np.float32(z) if valid else nan
-            flags[c] = f
-            reason[c] = f
-            mask[c] = valid
-            intensity[c] = min(two * mod_row[c], one) if valid else zero
-    else:
-        for c in range(width):
-            f = flags[c]
-            valid = f == 0
-            reason[c] = f
-            mask[c] = valid
-            intensity[c] = min(two * mod_row[c], one) if valid else zero
+    for c in range(width):
+        f = flags[c]
+        valid = f == 0
+        reason[c] = f
+        mask[c] = valid
+        intensity[c] = min(two * mod_row[c], one) if valid else zero
     for d in range(u_ring.shape[1]):
         src = u_ring[slot, d]
         dst = out_u[d, e]
