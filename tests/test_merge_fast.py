@@ -450,6 +450,8 @@ def test_cache_is_reused_and_gives_the_uncached_results(holed):
     _assert_matches_reference(correspond(holed[0], moved, cache=cache),
                               reference_correspond(holed[0], moved))
     assert len(cache) == 4
+    assert cache.valid_mask(holed[1]) is cache._entry(holed[1]).valid
+    assert np.array_equal(cache.valid_mask(holed[1]), valid_mask(holed[1]))
     cache.clear()
     assert len(cache) == 0
     with pytest.raises(TypeError, match="cache: expected a CorrespondenceCache"):
