@@ -349,6 +349,21 @@ def test_write_merge_rejects_bad_pairs(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_write_merge_without_data_files(noisy, tmp_path):
+    """data=False: merge.json (and figures) only, with the same figures as a full merge."""
+    from nail2nail.merge.report import write_merge
+
+    full = write_merge(noisy, tmp_path / "full", stride=3, figures=False)
+    lean = write_merge(noisy, tmp_path / "lean", stride=3, figures=False, data=False)
+    assert sorted(p.name for p in (tmp_path / "lean").iterdir()) == ["merge.json"]
+    assert lean["outputs"] == [str(tmp_path / "lean" / "merge.json")]
+    for key, stats in full["merge"].items():
+        assert lean["merge"][key]["files"] == {}
+        assert lean["merge"][key]["distance_mm"] == stats["distance_mm"]
+    assert lean["super_scan"]["vertices"] == full["super_scan"]["vertices"]
+    assert lean["super_scan"]["files"] == {}
+
+
 # -- issue 9: rejection of unreliable pairs --------------------------------------------------
 def _corrupt_edge(scan, *, band_px=3, offset_mm=0.2):
     """`scan` with the points within `band_px` of its mask edge pushed off the surface."""

@@ -91,6 +91,7 @@ def write_merge(
     border_px: int = 2,
     figures: bool = True,
     super_scan: bool = True,
+    data: bool = True,
     progress: bool = False,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
@@ -120,6 +121,10 @@ def write_merge(
         Write the PNG figures.
     super_scan : bool
         Fuse all scans into the super scan and write it.
+    data : bool
+        Write the data files: the mapping files and the super scan's PLY and mat5. Without
+        them, ``merge.json`` and the figures only (a comparison run that keeps its numbers
+        and pictures, not megabytes of points).
     progress : bool
         Progress bar over the pairs (stderr).
 
@@ -148,7 +153,8 @@ def write_merge(
     with atomic_directory(out, marker="merge.json") as tmp:
         summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
-                               figures=figures, super_scan=super_scan, progress=progress)
+                               figures=figures, super_scan=super_scan, data=data,
+                               progress=progress)
         summary = _relocate(summary, str(tmp), str(out))
         write_json(tmp / "merge.json", summary)
     return summary
@@ -186,7 +192,7 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
-                 super_scan, progress) -> dict:
+                 super_scan, data, progress) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -199,7 +205,8 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     try:
         summary = _merge_files(scans, out, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
-                               super_scan=super_scan, progress=progress, drawing=drawing)
+                               super_scan=super_scan, data=data, progress=progress,
+                               drawing=drawing)
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -210,7 +217,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
-                 progress, drawing) -> dict:
+                 data, progress, drawing) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
@@ -222,7 +229,8 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         key = f"{i}-{j}"
         stats = corr.statistics()
         _check_kept(corr, stats)
-        files = {"mapping": str(_save_mapping(out / f"merge_{key}_mapping.npz", corr))}
+        files = ({"mapping": str(_save_mapping(out / f"merge_{key}_mapping.npz", corr))}
+                 if data else {})
         if drawing is not None:
             drawn.append((files, drawing.submit(
                 _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
@@ -237,9 +245,11 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                 renders[f"render_{view}"] = drawing.submit(
                     _render, sup.vertices, out / f"super_{view}.png", sup.vertex_normals,
                     sup.colors, elev, azim, f"super scan ({view}): {sup.n_vertices} points")
-        files = {"ply": str(write_super_ply(out / "super.ply", sup))}
-        mat5 = write_super_mat5(out / "super", sup)
-        files["mat5"] = str(out / "super")
+        files = {}
+        if data:
+            files["ply"] = str(write_super_ply(out / "super.ply", sup))
+            mat5 = write_super_mat5(out / "super", sup)
+            files["mat5"] = str(out / "super")
         summary["super_scan"] = {**sup.summary(), "files": files}
         if drawing is not None:
             drawn.append((files, renders))
