@@ -39,6 +39,7 @@ from .correspondence import (
     CorrespondenceCache,
     _check_scan,
     _correspond,
+    _view_cosine,
     grid_normals,
     valid_mask,
     view_cosine,
@@ -1208,7 +1209,7 @@ def fuse_scans(
     n = len(scans)
     # each scan's masks, view cosine and search grid, once for all its pairs
     cache = CorrespondenceCache()
-    valid = [cache._entry(s).valid for s in scans]
+    valid = [cache.valid_mask(s) for s in scans]
     for s, v in zip(scans, valid, strict=True):
         if not v.any():
             raise ValueError(f"scans: {s.name!r} has no valid pixels")
@@ -1244,8 +1245,9 @@ def fuse_scans(
     feathers = [_feather(v, feather_px) for v in valid]
     weights = [_view_weights(s, v, nm, f, use_modulation=True, smooth_px=0.0)
                for s, v, nm, f in zip(scans, valid, normals0, feathers, strict=True)]
-    quality = {id(s): [view_cosine(s, normals=nm, smooth_px=2.0), None]
-               for s, nm in zip(scans, normals0, strict=True) if s.camera_center is not None}
+    quality = {id(s): [_view_cosine(s, v, normals=nm, smooth_px=2.0), None]
+               for s, v, nm in zip(scans, valid, normals0, strict=True)
+               if s.camera_center is not None}
     scores = []  # view_weights(use_modulation=False, smooth_px=2) from the cached cosine
     for s, v, f in zip(scans, valid, feathers, strict=True):
         cos = quality[id(s)][0] if id(s) in quality else v.astype(np.float64)
