@@ -13,10 +13,13 @@ Steps, each written under ``out``:
    patterns with the estimated distortion compensated in the model ("model_dlt"), and the
    joint calibration with one shared projector whose distortion is modelled, the marks'
    projected discs modelled on the cylinder, refined on the target's surface ("best").
-5. ``scans/`` and ``merge/``: per configuration and object, the per-camera scans (mat5, PLY)
-   and the merge error of camera pairs in projector space (thesis chapter four).
-6. Super scans (PLY, super mat5, renders) of the target in every configuration and of the
-   finger in the best one.
+5. ``merge/``: per configuration and object, the merge error of camera pairs in projector
+   space (thesis chapter four: ``merge.json`` and figures); ``scans/best/finger`` holds the
+   best configuration's finger scans (.npz, PLY) and its merge directory the data files
+   (mapping files, super scan PLY and super mat5). The other configurations are compared by
+   their numbers and figures, not written point by point (the output stays a few hundred MB).
+6. Super scans (renders) of the target in every configuration and of the finger in the best
+   one.
 7. ``print/``: the finger of the best configuration unrolled into a rolled-equivalent print
    (:mod:`nail2nail.unroll`, default method; PNG, WSQ, binarised, mask, metadata), and every
    unrolling method compared with the virtual finger's true skin coordinates (geometric
@@ -161,7 +164,6 @@ def run_demo(
     from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
-    from .io.mat5 import mat5_paths
     from .io.scans import save_scans
     from .merge.report import write_merge
     from .patterns import default_pattern_set, make_patterns
@@ -238,20 +240,18 @@ def run_demo(
             src = f"{obj}_lut" if config == "thesis_lut" else obj
             step(f"scan and merge {obj} ({config})")
             scans = scan_capture(read_capture(captures[src], load=False), calibs[config])
-            scan_dir = out / "scans" / config / obj
-            # the legacy mat5 set and PLY for the best configuration; .npz for every one
-            manifest = save_scans(
-                scan_dir,
-                scans,
-                mat5=config == "best",
-                ply=config == "best",
-                extra={"capture": captures[src], "calibration": calib_paths[config]},
-            )
-            outputs.append(str(scan_dir / "scan.json"))
-            for cam in manifest["cameras"]:
-                outputs += [str(scan_dir / cam[k]) for k in ("npz", "ply") if k in cam]
-                if "mat5" in cam:
-                    outputs += [str(p) for p in mat5_paths(scan_dir / cam["mat5"]).values()]
+            # the data files (scans as .npz and PLY; mapping files, super scan PLY and mat5)
+            # of the result, the best configuration's finger; of the comparisons their
+            # numbers and figures (merge.json, PNG): a few hundred MB in all, not gigabytes
+            keep = (config, obj) == ("best", "finger")
+            if keep:
+                scan_dir = out / "scans" / config / obj
+                manifest = save_scans(
+                    scan_dir, scans, mat5=False, ply=True,
+                    extra={"capture": captures[src], "calibration": calib_paths[config]})
+                outputs.append(str(scan_dir / "scan.json"))
+                for cam in manifest["cameras"]:
+                    outputs += [str(scan_dir / cam[k]) for k in ("npz", "ply") if k in cam]
             # super scans of the target in every configuration (the thesis's Figures 26 and
             # 27), of the finger in the best one
             build_super = super_scan and (obj == "target" or config == "best")
@@ -261,6 +261,7 @@ def run_demo(
                 pairs=[(0, 1), (1, 2)],
                 figures=figures,
                 super_scan=build_super,
+                data=keep,
             )
             merges[(config, obj)] = summary
             if (config, obj) == ("best", "finger"):
