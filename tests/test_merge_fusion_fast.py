@@ -33,6 +33,7 @@ from nail2nail.merge.fusion import (
     fuse_scans,
     grid_mesh,
     spikes,
+    super_mat5_scan,
     view_weights,
 )
 
@@ -246,6 +247,26 @@ def _fuse_reference(scans, corr, *, feather_px=8.0, spike_mm=0.05, surface_mm=0.
     return out
 
 
+def _super_mat5_reference(scans, gap_px):
+    height = max(s.shape[0] for s in scans)
+    width = sum(s.shape[1] for s in scans) + gap_px * (len(scans) - 1)
+    xyz = np.full((height, width, 3), np.nan, dtype=np.float32)
+    planes = {k: np.full((height, width), np.nan, np.float32) for k in ("xp", "yp")}
+    planes |= {k: np.zeros((height, width), np.float32)
+               for k in ("albedo", "intensity", "modulation")}
+    mask = np.zeros((height, width), dtype=bool)
+    col = 0
+    for s in scans:
+        h, w = s.shape
+        block = (slice(0, h), slice(col, col + w))
+        xyz[block] = s.xyz
+        mask[block] = s.mask
+        for k in planes:
+            planes[k][block] = getattr(s, k)
+        col += w + gap_px
+    return {"xyz": xyz, "mask": mask, **planes}
+
+
 # -- fixtures ----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scans():
@@ -383,6 +404,19 @@ def test_grid_searches_match_kdtree():
     got = _off_surface_kernel(*grid, trust, 0, query, score, 0.09, 0.02)
     assert expected.sum() > 10
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("gap_px", [0, 1, 3])
+def test_super_mat5_matches_numpy(gap_px):
+    # cameras of different sizes: the shorter ones padded below
+    scans = [synthetic_scans(size=size, seed=k)[k] for k, size in
+             enumerate([(40, 50), (48, 60), (32, 36)])]
+    sup = fuse_scans(scans)
+    grid = super_mat5_scan(sup, gap_px=gap_px)
+    for key, expected in _super_mat5_reference(sup.scans, gap_px).items():
+        got = getattr(grid, key)
+        assert got.dtype == expected.dtype, key
+        np.testing.assert_array_equal(got, expected, err_msg=key)
 
 
 # -- the whole fusion --------------------------------------------------------------------------

@@ -1451,21 +1451,23 @@ def super_mat5_scan(superscan: SuperScan, *, gap_px: int = 1, name: str = "super
     scans = superscan.scans
     height = max(s.shape[0] for s in scans)
     width = sum(s.shape[1] for s in scans) + gap_px * (len(scans) - 1)
-    xyz = np.full((height, width, 3), np.nan, dtype=np.float32)
-    planes = {k: np.full((height, width), np.nan, np.float32) for k in ("xp", "yp")}
-    planes |= {k: np.zeros((height, width), np.float32)
-               for k in ("albedo", "intensity", "modulation")}
+    # every element written once: the blocks copied, the rest filled (NaN; 0 for the images)
+    fill = {"xyz": np.nan, "xp": np.nan, "yp": np.nan, "albedo": 0, "intensity": 0,
+            "modulation": 0}
+    grids = {k: np.empty((height, width, 3) if k == "xyz" else (height, width), np.float32)
+             for k in fill}
     mask = np.zeros((height, width), dtype=bool)
     col = 0
     for s in scans:
         h, w = s.shape
-        block = (slice(0, h), slice(col, col + w))
-        xyz[block] = s.xyz
-        mask[block] = s.mask
-        for k in planes:
-            planes[k][block] = getattr(s, k)
+        mask[:h, col:col + w] = s.mask
+        for k, grid in grids.items():
+            grid[:h, col:col + w] = getattr(s, k)
+            grid[h:, col:col + w] = fill[k]  # below a shorter camera
+            grid[:, col + w:col + w + gap_px] = fill[k]  # the gap after it
         col += w + gap_px
-    return Scan(name=name, xyz=xyz, mask=mask, camera_center=None, **planes)
+    xyz = grids.pop("xyz")
+    return Scan(name=name, xyz=xyz, mask=mask, camera_center=None, **grids)
 
 
 def write_super_mat5(
