@@ -3,19 +3,24 @@
 A full default capture is 3 cameras x 24 frames of 1280 x 1024 (portrait) 8-bit images. The
 frames come from the virtual scanner (finger scene, projector distortion off) when it is
 available, else from an analytic synthetic scene (``--source synthetic``). For every camera the
-fused numba kernel (:func:`nail2nail.phase.decode_fast`) decodes the 24 frames, unwraps the
-1/8/64-period phases in x and y and triangulates ``yp`` through the per-pixel rational table of
-:func:`nail2nail.reconstruction.triangulation_table` (precomputed once per calibration, like the
-look-up table of Liu et al., Opt. Express 18 (2010) 5229). Throughput counts every camera pixel
-processed (Mpoints/s); the valid share is printed too.
+fused numba kernel (:func:`nail2nail.phase.decode_fast`) reads the 24 frames as stored, unwraps
+the 1/8/64-period phases in x and y, runs the neighbourhood checks and triangulates what
+``nail2nail scan`` triangulates: both projector coordinates in least squares on the camera rays,
+float64 (:func:`nail2nail.reconstruction.ray_table`, once per calibration) -- ``ours``. Also
+timed: decoding alone, and ``yp`` through the per-pixel rational table of
+:func:`nail2nail.reconstruction.triangulation_table` (the look-up table of Liu et al., Opt.
+Express 18 (2010) 5229). Throughput counts every camera pixel processed (Mpoints/s); the valid
+share is printed too, and the fast path's deviations from the NumPy reference on camera 0
+(decoded coordinates; points against the float64 reference triangulation of the same
+coordinates).
 
 In the same run the PyPI package ``fringes`` (2.1.0, ``pip install -e .[bench]``) decodes the same
 frames with the same frequency/step structure (its temporal unwrapping; no triangulation); the
-ratio of the two decoding times is printed.
+ratios of its decoding time to ours are printed.
 
 Usage::
 
-    .venv/bin/python bench/decode.py                # simulator frames, 5 repeats, fringes too
+    .venv/bin/python bench/decode.py                # simulator frames, 7 repeats, fringes too
     .venv/bin/python bench/decode.py --source synthetic --no-fringes --json
 """
 
@@ -31,6 +36,7 @@ import numpy as np
 
 from nail2nail.patterns import default_pattern_set, frame_table, make_patterns
 from nail2nail.phase import decode, decode_fast, planar_table
+from nail2nail.reconstruction import ray_table, reconstruct_image, triangulation_table
 
 SHAPE = (1280, 1024)  # camera (H, W)
 
@@ -87,17 +93,21 @@ def simulator_capture(pattern_set, seed=0):
     return frames, matrices, truth
 
 
-def time_ours(frames, pattern_set, tables, repeat, **options):
-    outs = [decode_fast(f, pattern_set, table=t, **options)
-            for f, t in zip(frames, tables, strict=True)]
-    times, cpu = [], []
+def time_ours(frames, pattern_set, variants, repeat, **options):
+    """Best times of each variant (name -> tables per camera), interleaved repeat by repeat so
+    that a busy machine slows them alike: ``{name: (outputs, wall times, cpu times)}``."""
+    outs = {name: [decode_fast(f, pattern_set, table=t, **options)
+                   for f, t in zip(frames, tables, strict=True)]
+            for name, tables in variants.items()}
+    times = {name: ([], []) for name in variants}
     for _ in range(repeat):
-        t0, c0 = time.perf_counter(), time.process_time()
-        for f, t, o in zip(frames, tables, outs, strict=True):
-            decode_fast(f, pattern_set, table=t, out=o, **options)
-        times.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return outs, times, cpu
+        for name, tables in variants.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            for f, t, o in zip(frames, tables, outs[name], strict=True):
+                decode_fast(f, pattern_set, table=t, out=o, **options)
+            times[name][0].append(time.perf_counter() - t0)
+            times[name][1].append(time.process_time() - c0)
+    return {name: (outs[name], *times[name]) for name in variants}
 
 
 def time_fringes(frames, pattern_set, n_cameras):
@@ -131,8 +141,6 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
 
-    from nail2nail.reconstruction import triangulation_table
-
     ps = default_pattern_set()
     t0 = time.perf_counter()
     source = args.source
@@ -147,34 +155,41 @@ def main(argv=None) -> int:
     if source == "synthetic":
         frames, matrices, truth = synthetic_capture(ps)
     t_frames = time.perf_counter() - t0
-    tables = [planar_table(triangulation_table(mc, mp, frames[0].shape[1:], axis="y"))
-              for mc, mp in matrices]
+    shape = frames[0].shape[1:]
+    rays = [ray_table(mc, mp, shape) for mc, mp in matrices]  # what scan triangulates
+    tables = [planar_table(triangulation_table(mc, mp, shape, axis="y")) for mc, mp in matrices]
     n_points = sum(f.shape[1] * f.shape[2] for f in frames)
 
     options = {"max_gradient": args.max_gradient}
-    outs, times, cpu = time_ours(frames, ps, tables, args.repeat, **options)
-    _, times_decode_only, _ = time_ours(frames, ps, [None] * len(frames), args.repeat, **options)
-    best, best_dec = min(times), min(times_decode_only)
+    timed = time_ours(frames, ps, {"rays": rays, "decode": [None] * len(frames),
+                                   "table": tables}, args.repeat, **options)
+    outs, times, cpu = timed["rays"]
+    best, best_dec, best_tab = (min(timed[k][1]) for k in ("rays", "decode", "table"))
     valid = int(sum(o.mask.sum() for o in outs))
 
     # fast path against the NumPy reference (camera 0)
     ref = decode(frames[0], ps, **options)
-    same_mask = float(np.mean(ref.mask == outs[0].mask))
-    both = ref.mask & outs[0].mask
-    max_dev = float(max(np.abs(ref.xp - outs[0].xp)[both].max(),
-                        np.abs(ref.yp - outs[0].yp)[both].max()))
+    fast = outs[0]
+    both = ref.mask & fast.mask
+    max_dev = float(max(np.abs(ref.xp - fast.xp)[both].max(),
+                        np.abs(ref.yp - fast.yp)[both].max()))
+    points = reconstruct_image(*matrices[0], fast.xp, fast.yp)  # float64 reference, same input
     result = {
         "source": source, "cameras": len(frames), "frames_per_camera": ps.n_frames,
-        "camera_shape": list(frames[0].shape[1:]), "threads": _threads(),
+        "camera_shape": list(shape), "threads": _threads(),
         "cpu_count": os.cpu_count(), "frames_seconds": round(t_frames, 1),
         "ours_seconds_best": best, "ours_seconds_median": float(np.median(times)),
         "ours_mpoints_per_s": n_points / best / 1e6,
         "ours_cpu_seconds_best": min(cpu),
         "ours_decode_only_seconds_best": best_dec,
         "ours_decode_only_mpoints_per_s": n_points / best_dec / 1e6,
+        "ours_table_yp_seconds_best": best_tab,
+        "ours_table_yp_mpoints_per_s": n_points / best_tab / 1e6,
         "valid_fraction": valid / n_points,
-        "fast_vs_reference_mask_agreement": same_mask,
+        "fast_vs_reference_mask_differences": int(np.count_nonzero(ref.mask != fast.mask)),
         "fast_vs_reference_max_px": max_dev,
+        "fast_vs_reference_triangulation_max_mm": float(
+            np.abs(fast.xyz[fast.mask] - points[fast.mask]).max()),
     }
     if truth is not None:
         errs = []

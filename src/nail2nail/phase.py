@@ -727,9 +727,9 @@ def _ideal_panel(px, py, ray_f, ray_i, xd, yd, ideal_x, ideal_y):  # pragma: no 
 
 
 @numba.njit(fastmath=_FAST, error_model="numpy")
-def _ray_points(px, py, x_step, xo, y0, yo, ray_f, use, has_dist, x_out, y_out,
+def _ray_points(px, py, x0, x_step, xo, y0, yo, ray_f, use, has_dist, x_out, y_out,
                 z_out):  # pragma: no cover - compiled
-    """World points (float64, mm) on the rays of the camera pixels ``(x_step i + xo[i],
+    """World points (float64, mm) on the rays of the camera pixels ``(x0 + x_step i + xo[i],
     y0 + yo[i])`` from the panel coordinates ``px, py`` (ideal ones, or with the radial
     distortion model `has_dist` removed here, :func:`~nail2nail.distortion.ideal_from_panel`).
 
@@ -758,7 +758,7 @@ def _ray_points(px, py, x_step, xo, y0, yo, ray_f, use, has_dist, x_out, y_out,
         f = 1.0 + k * (du * du + dv * dv)
         u = cx + du * f if has_dist else u
         v = cy + dv * f if has_dist else v
-        x = x_step * i + np.float64(xo[i])
+        x = x0 + x_step * i + np.float64(xo[i])
         y = y0 + np.float64(yo[i])
         # projector coordinate p of row k of the projector matrix (P | p4): its plane's
         # residual at C + t d is (a t - b) / |r| with r = P_k - p P_2, a = q_k - p q_2 for
@@ -787,11 +787,11 @@ def _ray_points_flat(xc, yc, px, py, ray_f, ray_i):  # pragma: no cover - compil
     if ray_i[2]:
         ideal = np.empty((2, n))
         _ideal_panel(px, py, ray_f, ray_i, out[0], out[1], ideal[0], ideal[1])
-        _ray_points(ideal[0], ideal[1], 0.0, xc, 0.0, yc, ray_f, ray_i[0], False, out[0],
+        _ray_points(ideal[0], ideal[1], 0.0, 0.0, xc, 0.0, yc, ray_f, ray_i[0], False, out[0],
                     out[1], out[2])
     else:
-        _ray_points(px, py, 0.0, xc, 0.0, yc, ray_f, ray_i[0], ray_i[1] != 0, out[0], out[1],
-                    out[2])
+        _ray_points(px, py, 0.0, 0.0, xc, 0.0, yc, ray_f, ray_i[0], ray_i[1] != 0, out[0],
+                    out[1], out[2])
     return out.T.copy()
 
 
@@ -865,33 +865,42 @@ def _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check
     _check_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check_gradient, flags,
                near, column)
     x_out, y_out, z_out = f64[0], f64[1], f64[2]
-    if tri_mode == 1:
+    lo = width  # triangulated: the columns from the row's first valid pixel to its last
+    hi = 0
+    if tri_mode > 0:
+        for c in range(width):
+            valid = flags[c] == 0
+            lo = min(lo, c) if valid else lo
+            hi = max(hi, c + 1) if valid else hi
+    if tri_mode == 1 and lo < hi:
         one = np.float32(1.0)
         up = u_ring[slot, table_dir]
         n0, n1, n2, n3, n4, n5 = num[0, e], num[1, e], num[2, e], num[3, e], num[4, e], num[5, e]
         d0, d1 = den[0, e], den[1, e]
-        for c in range(width):
+        for c in range(lo, hi):
             p = up[c]
             inv = one / (d0[c] + d1[c] * p)
             x_out[c] = (n0[c] + n1[c] * p) * inv
             y_out[c] = (n2[c] + n3[c] * p) * inv
             z_out[c] = (n4[c] + n5[c] * p) * inv
-    elif tri_mode == 2:
+    elif tri_mode == 2 and lo < hi:
         ix, iy = ray_i[4], ray_i[5]
         # a direction the pattern set lacks: the reference's NaN image
-        ux = u_ring[slot, ix] if ix >= 0 else nan_row
-        uy = u_ring[slot, iy] if iy >= 0 else nan_row
-        ox = offsets[0, e] if ray_i[6] else zero_row  # lens-undistorted pixel centres
-        oy = offsets[1, e] if ray_i[6] else zero_row
+        ux = u_ring[slot, ix, lo:hi] if ix >= 0 else nan_row[lo:hi]
+        uy = u_ring[slot, iy, lo:hi] if iy >= 0 else nan_row[lo:hi]
+        ox = offsets[0, e, lo:hi] if ray_i[6] else zero_row[lo:hi]  # lens-undistorted centres
+        oy = offsets[1, e, lo:hi] if ray_i[6] else zero_row[lo:hi]
+        xs, ys, zs = x_out[lo:hi], y_out[lo:hi], z_out[lo:hi]
         if ray_i[2]:  # projector lens: ideal coordinates first
-            _ideal_panel(ux, uy, ray_f, ray_i, f64[3], f64[4], f64[5], f64[6])
-            _ray_points(f64[5], f64[6], 1.0, ox, np.float64(e), oy, ray_f, ray_i[0], False,
-                        x_out, y_out, z_out)
+            _ideal_panel(ux, uy, ray_f, ray_i, f64[3, lo:hi], f64[4, lo:hi], f64[5, lo:hi],
+                         f64[6, lo:hi])
+            _ray_points(f64[5, lo:hi], f64[6, lo:hi], np.float64(lo), 1.0, ox, np.float64(e), oy,
+                        ray_f, ray_i[0], False, xs, ys, zs)
         else:
-            _ray_points(ux, uy, 1.0, ox, np.float64(e), oy, ray_f, ray_i[0], ray_i[1] != 0,
-                        x_out, y_out, z_out)
-    if tri_mode > 0:  # no point: NO_POINT (three loops: each vectorises)
-        for c in range(width):
+            _ray_points(ux, uy, np.float64(lo), 1.0, ox, np.float64(e), oy, ray_f, ray_i[0],
+                        ray_i[1] != 0, xs, ys, zs)
+    if tri_mode > 0:  # no point: NO_POINT (separate loops: each vectorises)
+        for c in range(lo, hi):
             finite = np.isfinite(x_out[c]) & np.isfinite(y_out[c]) & np.isfinite(z_out[c])
             f = flags[c]
             flags[c] = f | (np.uint8(128) if (f == 0) & ~finite else np.uint8(0))
