@@ -514,9 +514,6 @@ _CACHE = cache_enabled()
 # as the reference's do, so thresholds fall on the same pixels).
 _FAST = {"nsz", "contract"}
 
-#: Frames summed per pass over a row (a group's last block is padded with zero weights).
-_BLOCK = 3
-
 
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _atan2_0_2pi(y, x):  # pragma: no cover - compiled

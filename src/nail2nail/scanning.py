@@ -105,9 +105,12 @@ def scan_frames(
     triangulates (:func:`~nail2nail.reconstruction.reconstruct_image`) in bands of rows of
     about :data:`BAND_PIXELS` pixels, each with the rows around it that the neighbourhood
     checks read (``erode`` rows, one for ``max_gradient``): the result is the one of the whole
-    image, with the temporaries of a band in memory. The two agree within float32 rounding:
+    image, with the temporaries of a band in memory. The two agree within float32 rounding
+    (``tests/test_scan_fast.py``): the mask but for pixels within rounding of a threshold,
     ``xp``, ``yp`` within 1e-4 px (one float32 step, 1.2e-4 px, beyond 1024 px), ``xyz`` within
-    1e-4 mm, the mask but for pixels within rounding of a threshold.
+    1e-4 mm of the reference triangulation of the same coordinates (with ``use="xp"`` and
+    column planes that nearly contain the camera rays, the one-step difference of ``xp`` moves
+    a point by up to 0.02 mm, as float32 rounding moves the reference's own points).
 
     Parameters
     ----------
