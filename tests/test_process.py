@@ -53,6 +53,7 @@ def test_outputs_and_stage_times(processed):
     assert (out / "print" / "print.png").exists() and (out / "print" / "print.wsq").exists()
     assert not list(out.glob("merge/*.png")), "figures are off by default"
     assert not list(out.glob("scans/*.ply")), "per-camera PLY only with --ply"
+    assert not list(out.glob("**/*.by")), "mat5 only with --mat5"
     # every path the summary names is under OUT, not the temporary directory it was written in
     files = summary["print"]["files"]
     assert all((out / "print" / name).exists() for name in files.values())
@@ -82,8 +83,9 @@ def test_json_and_options(capture, tmp_path, capsys):
     finger, calib = capture
     out = tmp_path / "job"
     assert main(["process", str(finger), "--calib", str(calib), "--out", str(out), "--json",
-                 "--no-unroll", "--pairs", "0-2"]) == 0
+                 "--no-unroll", "--pairs", "0-2", "--mat5"]) == 0
     summary = json.loads(capsys.readouterr().out)
+    assert (out / "merge" / "superZ.by").exists() and (out / "scans" / "cam0Z.by").exists()
     assert list(summary["merge"]) == ["0-2"]
     assert "print" not in summary and "unroll" not in summary["seconds"]
     assert not (out / "print").exists()

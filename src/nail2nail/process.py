@@ -111,8 +111,12 @@ def process_capture(
         (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …``.
     figures : bool
         Write the merge figures (off by default: the job's own output is the data).
-    mat5, ply : bool
-        Also write each camera's legacy mat5 set / PLY point cloud into ``OUT/scans``.
+    mat5 : bool
+        Also write the legacy mat5 sets: each camera's into ``OUT/scans``, the super mat5 into
+        ``OUT/merge`` (about 95 MB each for three 1280 × 1024 cameras).
+    ply : bool
+        Also write each camera's PLY point cloud into ``OUT/scans`` (the super scan's
+        ``OUT/merge/super.ply`` is always written).
     unroll : bool
         Unroll the finger into the rolled-equivalent print (``OUT/print``).
     method, ppi, tip_direction, length_mm, wsq
@@ -196,7 +200,7 @@ def process_capture(
         say("merge and fuse the super scan")
         with times("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
-                                 super_scan=True)
+                                 super_scan=True, mat5=mat5)
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()

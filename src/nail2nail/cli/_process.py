@@ -36,7 +36,8 @@ def add_parser(sub) -> None:
     p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
                    help="write the merge figures (default: off, the data only)")
     p.add_argument("--mat5", action="store_true",
-                   help="also write each camera's legacy mat5 set into OUT/scans")
+                   help="also write the legacy mat5 sets: each camera's into OUT/scans, the "
+                   "super mat5 into OUT/merge")
     p.add_argument("--ply", action="store_true",
                    help="also write each camera's PLY point cloud into OUT/scans")
     p.add_argument("--unroll", action=argparse.BooleanOptionalAction, default=True,

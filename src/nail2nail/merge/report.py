@@ -92,6 +92,7 @@ def write_merge(
     figures: bool = True,
     super_scan: bool = True,
     data: bool = True,
+    mat5: bool = True,
     progress: bool = False,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
@@ -125,6 +126,9 @@ def write_merge(
         Write the data files: the mapping files and the super scan's PLY and mat5. Without
         them, ``merge.json`` and the figures only (a comparison run that keeps its numbers
         and pictures, not megabytes of points).
+    mat5 : bool
+        With `data`, also write the super mat5 (the legacy grid files: about 95 MB for three
+        1280 × 1024 cameras; the PLY holds the same points in a third of that).
     progress : bool
         Progress bar over the pairs (stderr).
 
@@ -154,7 +158,7 @@ def write_merge(
         summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
-                               progress=progress)
+                               mat5=mat5, progress=progress)
         summary = _relocate(summary, str(tmp), str(out))
         write_json(tmp / "merge.json", summary)
     return summary
@@ -192,7 +196,7 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
-                 super_scan, data, progress) -> dict:
+                 super_scan, data, mat5, progress) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -205,8 +209,8 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     try:
         summary = _merge_files(scans, out, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
-                               super_scan=super_scan, data=data, progress=progress,
-                               drawing=drawing)
+                               super_scan=super_scan, data=data, mat5=mat5,
+                               progress=progress, drawing=drawing)
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -217,11 +221,11 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
-                 data, progress, drawing) -> dict:
+                 data, mat5, progress, drawing) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
-    mat5: list[Path] = []
+    mat5_files: list[Path] = []
     cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
     for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
         corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
@@ -248,8 +252,9 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         files = {}
         if data:
             files["ply"] = str(write_super_ply(out / "super.ply", sup))
-            mat5 = write_super_mat5(out / "super", sup)
-            files["mat5"] = str(out / "super")
+            if mat5:
+                mat5_files = write_super_mat5(out / "super", sup)
+                files["mat5"] = str(out / "super")
         summary["super_scan"] = {**sup.summary(), "files": files}
         if drawing is not None:
             drawn.append((files, renders))
@@ -263,7 +268,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     for m in summary["merge"].values():
         outputs.extend(m["files"].values())
     if summary["super_scan"] is not None:
-        outputs.extend(str(p) for p in mat5)
+        outputs.extend(str(p) for p in mat5_files)
         outputs.extend(v for k, v in summary["super_scan"]["files"].items() if k != "mat5")
     outputs.append(str(out / "merge.json"))
     return summary
