@@ -410,7 +410,8 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
     progress : bool
         Show a progress bar labelled `desc`.
     **decode_options
-        Passed to :func:`nail2nail.phase.decode`.
+        Passed to :func:`nail2nail.phase.decode`; ``method`` is ``"numba"`` (the fused kernel
+        the scan runs) unless given.
 
     Yields
     ------
@@ -428,9 +429,13 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
 
     if capture.pattern_set is None:
         raise ValueError(f"{capture.path}: the manifest names no pattern set")
+    options = {"method": "numba", **decode_options}
     for name in tqdm(capture.camera_names, desc=desc, unit="camera", disable=not progress):
-        decoded = decode(capture.load_frames(name), capture.pattern_set, **decode_options)
-        capture.frames.pop(name, None)  # release the frames before the next camera
+        if name in capture.frames:  # cached as floats in [0, 1]
+            decoded = decode(capture.frames.pop(name), capture.pattern_set, **options)
+        else:  # the frames' integer values, not cached: a quarter of the floats' memory
+            decoded = decode(capture.load_frames(name, raw=True), capture.pattern_set,
+                             full_scale=2**capture.bit_depth - 1, **options)
         yield name, decoded
 
 
