@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -251,14 +252,16 @@ def _write_capture(out: Path, sim: SimulatedCapture, rig: Rig, *, seed, pattern_
                    write_truth) -> dict:
     bits = rig.photometry.bit_depth
     cameras = []
+    jobs = []
     for name, frames in sim.frames.items():
-        files = []
-        for k, frame in enumerate(frames):
-            rel = f"{name}/{k:03d}.png"
-            write_frame(out / rel, frame)
-            files.append(rel)
+        files = [f"{name}/{k:03d}.png" for k in range(len(frames))]
+        jobs += [(out / rel, frame) for rel, frame in zip(files, frames, strict=True)]
         h, w = frames.shape[1:]
         cameras.append({"name": name, "size": [int(w), int(h)], "frames": files})
+    # PNG encoding (zlib) releases the GIL: the frames are written on every core
+    with ThreadPoolExecutor(min(os.cpu_count() or 1, 8)) as pool:
+        for done in pool.map(lambda job: write_frame(*job), jobs):
+            del done
     n_frames = len(next(iter(sim.frames.values())))
     manifest = {
         "created_by": "nail2nail simulate",
