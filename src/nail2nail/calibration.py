@@ -491,7 +491,7 @@ def calibrate_rig_joint(
     from scipy.optimize import least_squares
 
     from .camera_models import dlt_from_pinhole, pinhole_from_dlt
-    from .reconstruction import reconstruct_points_lsq
+    from .reconstruction import reconstruct_points_ray
 
     if not observations:
         raise ValueError("observations: need at least one camera")
@@ -552,12 +552,13 @@ def calibrate_rig_joint(
             res.append(np.nan_to_num(res_p).ravel())
             if with_surface and surface is not None and obs.surface_xy_camera is not None:
                 ideal_s = ideal_from_panel(obs.surface_xy_projector, proj.K[:2, 2], rho)
-                xyz = reconstruct_points_lsq(
+                # on the camera ray (pixel centres are exact): reconstruct_points_lsq with
+                # the camera equations' weight taken to infinity, compiled
+                xyz = reconstruct_points_ray(
                     dlt_from_pinhole(cam),
                     dlt_from_pinhole(proj),
                     *obs.surface_xy_camera.T,
                     *ideal_s.T,
-                    camera_weight=1e3,
                 )
                 res.append(surface_weight * np.nan_to_num(surface(xyz), nan=0.0))
         return np.concatenate(res)
