@@ -39,34 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-
-def _median_time(fn, repeats: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
-
-
-def _reset_peak() -> bool:
-    """Reset this process's peak RSS (Linux ``clear_refs``); ``False`` where not possible."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-        return True
-    except OSError:
-        return False
-
-
-def _status_mb(key: str) -> float | None:
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith(f"{key}:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return None
+from _measure import median_time, reset_peak, status_mb
 
 
 def _finger_scans(scale: float, seed: int):
@@ -87,12 +60,12 @@ def _peak_child(scan_dir: Path) -> None:
     from nail2nail.merge.fusion import fuse_scans
 
     scans = load_scans(scan_dir)
-    before = _status_mb("VmRSS")
-    if not _reset_peak() or before is None:
+    before = status_mb("VmRSS")
+    if not reset_peak() or before is None:
         print(json.dumps(None))
         return
     fuse_scans(scans)
-    print(json.dumps({"before": before, "peak": _status_mb("VmHWM")}))
+    print(json.dumps({"before": before, "peak": status_mb("VmHWM")}))
 
 
 def _peak(scans, scan_dir: Path | None) -> dict | None:
@@ -148,7 +121,7 @@ def main() -> None:
             steps.setdefault(step, []).append(seconds)
         return out
 
-    t_fuse, sup = _median_time(fuse, args.repeats)
+    t_fuse, sup = median_time(fuse, args.repeats)
     step = {k: statistics.median(v) for k, v in steps.items()}
     matching = step["correspond"]
     print(f"super scan: {sup.n_vertices} vertices, {sup.faces.shape[0]} faces")
@@ -159,10 +132,10 @@ def main() -> None:
         print(f"  {name:<14} {1e3 * seconds:8.1f} ms")
 
     with tempfile.TemporaryDirectory(prefix="nail2nail-bench-") as tmp:
-        t_ply, path = _median_time(lambda: write_super_ply(Path(tmp) / "super.ply", sup),
+        t_ply, path = median_time(lambda: write_super_ply(Path(tmp) / "super.ply", sup),
                                    args.repeats)
         ply_mb = path.stat().st_size / 2**20
-        t_mat5, files = _median_time(lambda: write_super_mat5(Path(tmp) / "super", sup),
+        t_mat5, files = median_time(lambda: write_super_mat5(Path(tmp) / "super", sup),
                                      args.repeats)
         mat5_mb = sum(f.stat().st_size for f in files) / 2**20
     print(f"write_super_ply:             {t_ply:7.3f} s ({ply_mb:.0f} MB, "
@@ -196,7 +169,7 @@ def _peers(scans, sup, step: dict) -> None:
         for p in points[1:]:
             tree.query(p, distance_upper_bound=dedupe_mm)
 
-    t_tree, _ = _median_time(kdtree, 3)
+    t_tree, _ = median_time(kdtree, 3)
     print(f"peer cKDTree duplicate search (build {points[0].shape[0]}, query "
           f"{sum(p.shape[0] for p in points[1:])}): {1e3 * t_tree:.0f} ms; ours (grid + dedupe) "
           f"{1e3 * ours:.0f} ms = {ours / t_tree:.2f} x")
@@ -208,13 +181,13 @@ def _peers(scans, sup, step: dict) -> None:
         return
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
         sup.vertices.astype(np.float64)))
-    t_normals, _ = _median_time(
+    t_normals, _ = median_time(
         lambda: cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(8)), 3)
     print(f"peer open3d estimate_normals (8 nearest, {sup.n_vertices} points): "
           f"{1e3 * t_normals:.0f} ms; ours (normals) {1e3 * step['normals']:.0f} ms = "
           f"{step['normals'] / t_normals:.2f} x")
     every = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(points)))
-    t_voxel, _ = _median_time(lambda: every.voxel_down_sample(dedupe_mm), 3)
+    t_voxel, _ = median_time(lambda: every.voxel_down_sample(dedupe_mm), 3)
     print(f"peer open3d voxel_down_sample ({dedupe_mm * 1e3:.0f} µm, "
           f"{sum(p.shape[0] for p in points)} points): {1e3 * t_voxel:.0f} ms; ours (grid + "
           f"dedupe) {1e3 * ours:.0f} ms = {ours / t_voxel:.2f} x")

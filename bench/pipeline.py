@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _measure import reset_peak, status_mb
 
 MERGE_STAGES = ("scan", "write_scans", "merge")  # the job up to the super scan
 UNROLL_STAGES = ("unroll", "write_print")
@@ -61,25 +62,6 @@ def read_ours(capture_dir) -> float:
     return time.perf_counter() - start
 
 
-def _reset_peak() -> bool:
-    """Reset this process's peak RSS (Linux ``clear_refs``); ``False`` where not possible."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-        return True
-    except OSError:
-        return False
-
-
-def _peak_mb() -> float | None:
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return None
-
-
 def stage_peaks(capture_dir, calib, out) -> dict:
     """Peak RSS (MB) of each stage, each stage run alone after a reset of the peak."""
     from nail2nail.io.calibration import load_calibration
@@ -90,26 +72,26 @@ def stage_peaks(capture_dir, calib, out) -> dict:
     from nail2nail.scanning import scan_capture
     from nail2nail.unroll import unroll_scans
 
-    if not _reset_peak():
+    if not reset_peak():
         return {}
     calibration = load_calibration(calib)
     peaks = {}
-    _reset_peak()
-    base = _peak_mb()
+    reset_peak()
+    base = status_mb()
     scans = scan_capture(read_capture(capture_dir, load=False), calibration)
-    peaks["scan"] = _peak_mb()
-    _reset_peak()
+    peaks["scan"] = status_mb()
+    reset_peak()
     save_scans(out / "scans", scans, mat5=False, ply=False)
-    peaks["write_scans"] = _peak_mb()
-    _reset_peak()
+    peaks["write_scans"] = status_mb()
+    reset_peak()
     write_merge(scans, out / "merge", figures=False)
-    peaks["merge"] = _peak_mb()
-    _reset_peak()
+    peaks["merge"] = status_mb()
+    reset_peak()
     rolled = unroll_scans(scans)
-    peaks["unroll"] = _peak_mb()
-    _reset_peak()
+    peaks["unroll"] = status_mb()
+    reset_peak()
     write_rolled_print(out / "print", rolled)
-    peaks["write_print"] = _peak_mb()
+    peaks["write_print"] = status_mb()
     return {"baseline_mb": round(base, 1),
             **{k: round(v, 1) for k, v in peaks.items() if v is not None}}
 

@@ -9,7 +9,7 @@ from pathlib import Path
 if __name__ == "__main__":
     here = Path(__file__).resolve().parent
     for script in sorted(here.glob("*.py")):
-        if script.name == "run_all.py":
+        if script.name == "run_all.py" or script.name.startswith("_"):
             continue
         print(f"=== {script.name}", flush=True)
         sys.argv = [str(script)]
