@@ -148,8 +148,10 @@ def main(argv=None) -> int:
         for i in range(args.repeats):
             plain.append(read_plain(files))
             ours.append(read_ours(capture_dir))
-            jobs.append(process_capture(read_capture(capture_dir, load=False), calibration,
-                                        tmp / f"job{i % 2}", figures=False)["seconds"])
+            summary = process_capture(read_capture(capture_dir, load=False), calibration,
+                                      tmp / f"job{i % 2}", figures=False)
+            jobs.append({**summary["seconds"], **{f"scan: {k}": v
+                                                  for k, v in summary["scan_seconds"].items()}})
         peaks = stage_peaks(capture_dir, calib, tmp / "peaks")
         shape = capture.frame_shape(capture.camera_names[0])
 
@@ -157,7 +159,10 @@ def main(argv=None) -> int:
     t_read = med(plain)
     stages = {k: med(j[k] for j in jobs) for k in jobs[0] if k != "total"}
     t_merge_job = med(sum(j[k] for k in MERGE_STAGES) for j in jobs)
+    parts = [k for k in stages if k.startswith("scan: ")]  # within the scan, not stages
     t_job = med(j["total"] for j in jobs)
+    stages = {k: stages[k] for k in [*[s for s in stages if s not in parts][:1], *parts,
+                                     *[s for s in stages if s not in parts][1:]]}
     result = {
         "capture": str(capture_dir), "cameras": len(capture.camera_names),
         "frames": len(files), "camera_shape": list(shape), "repeats": args.repeats,

@@ -48,6 +48,9 @@ def test_outputs_and_stage_times(processed):
     assert summary["seconds"]["total"] == pytest.approx(
         sum(summary["seconds"][s] for s in STAGES), abs=0.01)
     assert summary["peak_rss_mb"] is None or summary["peak_rss_mb"] > 50
+    parts = summary["scan_seconds"]
+    assert set(parts) == {"read_frames", "decode"} and all(v > 0 for v in parts.values())
+    assert sum(parts.values()) <= summary["seconds"]["scan"] + 0.002
     assert (out / "scans" / "scan.json").exists()
     assert (out / "merge" / "merge.json").exists() and (out / "merge" / "super.ply").exists()
     assert (out / "print" / "print.png").exists() and (out / "print" / "print.wsq").exists()

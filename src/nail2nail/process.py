@@ -132,10 +132,11 @@ def process_capture(
     -------
     dict
         The content of ``OUT/process.json``: ``{"capture", "calibration", "out", "options",
-        "seconds": {stage: s, …, "total"}, "peak_rss_mb", "cameras": {name: valid pixels},
-        "merge": {pair: statistics}, "super_scan", "print"}``. Stages: ``scan`` (reading the
-        frames, decoding, triangulating), ``write_scans``, ``merge`` (correspondence, super
-        scan and their files), ``unroll``, ``write_print``.
+        "seconds": {stage: s, …, "total"}, "scan_seconds": {"read_frames", "decode"},
+        "peak_rss_mb", "cameras": {name: valid pixels}, "merge": {pair: statistics},
+        "super_scan", "print"}``. Stages: ``scan`` (reading the frames, decoding,
+        triangulating; ``scan_seconds`` splits it), ``write_scans``, ``merge``
+        (correspondence, super scan and their files), ``unroll``, ``write_print``.
 
     Raises
     ------
@@ -173,10 +174,11 @@ def process_capture(
         capture = read_capture(capture, load=False)
 
     say("scan")
+    scan_parts: dict[str, float] = {}
     with times("scan"):
         scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
                              min_modulation=min_modulation, allow_mirrored=allow_mirrored,
-                             calibration_name=calibration_name)
+                             calibration_name=calibration_name, timings=scan_parts)
     if len(scans) < 2:
         raise ValueError(f"{capture.path}: need at least two cameras to merge, got "
                          f"{len(scans)}")
@@ -219,6 +221,7 @@ def process_capture(
             summary["print"] = {k: meta[k] for k in ("method", "shape", "ppi", "print_size_mm",
                                                        "print_area_mm2", "files") if k in meta}
         summary["seconds"] = times.rounded()
+        summary["scan_seconds"] = {k: round(v, 3) for k, v in scan_parts.items()}
         summary["peak_rss_mb"] = _round(peak_rss_mb())
         summary = _relocate(summary, str(tmp), str(out))
         write_json(tmp / "process.json", summary)

@@ -12,6 +12,7 @@ float32 rounding (``tests/test_scan_fast.py``).
 
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
@@ -304,6 +305,7 @@ def scan_capture(
     allow_mirrored: bool = False,
     calibration_name: str = "calibration",
     method: str = "numba",
+    timings: dict | None = None,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -343,6 +345,10 @@ def scan_capture(
         How errors name the calibration (its file).
     method : {"numba", "numpy"}
         The fused kernel, or the NumPy reference (:func:`scan_frames`).
+    timings : dict, optional
+        Receives the seconds spent reading frames (``"read_frames"``: PNG decoding and the
+        size checks) and decoding and triangulating them (``"decode"``), added to what it
+        holds.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -361,6 +367,8 @@ def scan_capture(
 
     _check_method(method)
     _check_use(use)
+    clock = {"read_frames": 0.0, "decode": 0.0}
+    start = time.perf_counter()
     names = capture.camera_names
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
@@ -372,32 +380,41 @@ def scan_capture(
                 f"{calibration_name}: camera {name!r} was calibrated for {cam.size[0]} x "
                 f"{cam.size[1]} px images, but {capture.path} has {size[0]} x {size[1]} px "
                 "frames: use a calibration made with this capture's cameras")
+    clock["read_frames"] += time.perf_counter() - start
     scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
-                                  method=method, decode_options=decode_options))
+                                  method=method, decode_options=decode_options, clock=clock))
         kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
                 f"{capture.path}: camera {name!r} keeps {kept} of {lit} lit pixels "
                 f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
                 UserWarning, stacklevel=2)
+    if timings is not None:
+        for key, seconds in clock.items():
+            timings[key] = timings.get(key, 0.0) + seconds
     return scans
 
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
-                 decode_options) -> Scan:
+                 decode_options, clock: dict) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
     as they are."""
+    start = time.perf_counter()
     cached = name in capture.frames
     frames = _check_frames(capture.frames[name] if cached else capture.load_frames(name, raw=True),
                            capture.pattern_set)
+    read = time.perf_counter()
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
-    return _scan(frames, capture.pattern_set, calibration.camera(name),
+    scan = _scan(frames, capture.pattern_set, calibration.camera(name),
                  projector_distortion=calibration.projector_distortion, use=use, method=method,
                  decode_options=options, bit_depth=None if cached else capture.bit_depth)
+    clock["read_frames"] += read - start
+    clock["decode"] += time.perf_counter() - read
+    return scan
 
 
 def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **decode_options):
