@@ -30,6 +30,7 @@ from nail2nail.merge.correspondence import (
     _correspond,
     _eroded,
     _grid_nearest,
+    _grid_nearest_pixels,
     _refine_kernel,
     _relative_modulation,
     _without_jumps,
@@ -42,7 +43,7 @@ from nail2nail.merge.correspondence import (
     valid_mask,
     view_cosine,
 )
-from nail2nail.merge.statistics import local_outliers
+from nail2nail.merge.statistics import _middle, local_outliers
 from nail2nail.reconstruction import Scan
 
 SIZE = (96, 120)  # (width, height), as tests/test_merge.py
@@ -204,6 +205,35 @@ def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border
     for code, name in enumerate(REJECT_REASONS):
         dropped[name] = int(np.count_nonzero(reason == code))
     return pairs, reason, dropped, n_sampled
+
+
+def reference_local_outliers(rows, cols, distance_mm, *, block_px=32, floor_mm=0.025,
+                             k_mad=4.0):
+    """local_outliers before issue 11's follow-up: block medians from one argsort by a
+    (block, value) key, twice."""
+    d = np.asarray(distance_mm, dtype=np.float64)
+    rows, cols = np.asarray(rows, np.intp), np.asarray(cols, np.intp)
+    if d.size == 0:
+        return np.zeros(0, dtype=bool)
+
+    def block_median(values, block):
+        order = np.argsort(block * 4096.0 + np.clip(values, 0.0, 4000.0))
+        counts = np.bincount(block, minlength=n_blocks)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        sv = values[order]
+        lo = np.clip(starts + (counts - 1) // 2, 0, values.size - 1)
+        hi = np.clip(starts + counts // 2, 0, values.size - 1)
+        return 0.5 * (sv[lo] + sv[hi]), counts
+
+    n_cols = int(cols.max()) // block_px + 1
+    block = (rows // block_px) * n_cols + cols // block_px
+    n_blocks = int(block.max()) + 1
+    median, counts = block_median(d, block)
+    mad, _ = block_median(np.abs(d - median[block]), block)
+    few = counts < 8
+    g_median = np.median(d)
+    median[few], mad[few] = g_median, np.median(np.abs(d - g_median))
+    return d - median[block] > np.maximum(floor_mm, k_mad * mad[block])
 
 
 def reference_render(points, *, normals=None, colors=None, elev=0.0, azim=0.0,
@@ -390,6 +420,139 @@ def test_nearest_grid_on_degenerate_coordinates():
     for x, y in zip(b, g, strict=True):
         np.testing.assert_array_equal(x, y)
     assert CorrespondenceCache()._entry(wide).grid.start.size <= 1.5 * (4 * 400 + 1024) + 2
+
+
+def test_bounded_grid_search_is_the_brute_force_where_done(holed):
+    # the fused search (previous query's nearest as a bound, skipped cells and empty rings):
+    # where it proves a query done, the brute force's pixel and distance; elsewhere the edge
+    # k-d tree settles it, as nearest_grid
+    rng = np.random.default_rng(7)
+    angle, radius = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(30, 60, 3000) ** 1.1
+    annulus = _cloud_scan(400 + radius * np.cos(angle), 300 + radius * np.sin(angle))
+    xx, yy = np.meshgrid(np.arange(20.0), np.arange(15.0))
+    lattice = _cloud_scan(xx.ravel(), yy.ravel())
+    queries = [
+        _cloud_scan(np.concatenate([rng.uniform(250, 550, 1500), [400.0, 1e4, -3e3, 400.4]]),
+                    np.concatenate([rng.uniform(150, 450, 1500), [300.0, 2e3, 9.0, 300.1]]),
+                    "parent"),
+        _cloud_scan(np.array([3.5, 3.5, 10.5, 0.5, 7.0, 7.0]),
+                    np.array([2.5, 2.5, 7.5, 13.5, 4.0, 4.0]), "parent"),  # ties
+    ]
+    cases = [(queries[0], annulus), (queries[1], lattice)]
+    cases += [(holed[i], holed[j]) for i, j in ((0, 1), (1, 2), (2, 0))]
+    for parent, child in cases:
+        rows, cols = np.nonzero(valid_mask(parent))
+        grid = CorrespondenceCache()._entry(child).grid
+        n = rows.size
+        best, d2, done = np.empty(n, np.int64), np.empty(n), np.empty(n, bool)
+        _grid_nearest_pixels(parent.xp, parent.yp, rows, cols, grid.sx, grid.sy, grid.sindex,
+                             grid.start, grid.x0, grid.y0, grid.cell, grid.nx, grid.ny,
+                             _GRID_RINGS, grid.empty, best, d2, done)
+        br, bc, bd2 = nearest_bruteforce(parent, child, rows, cols)
+        np.testing.assert_array_equal(grid.rows[best[done]], br[done])
+        np.testing.assert_array_equal(grid.cols[best[done]], bc[done])
+        np.testing.assert_array_equal(d2[done], bd2[done])
+        index, dist2 = grid.nearest_pixels(parent.xp, parent.yp, rows, cols)
+        np.testing.assert_array_equal(grid.rows[index], br)
+        np.testing.assert_array_equal(grid.cols[index], bc)
+        np.testing.assert_array_equal(dist2, bd2)
+    assert done.sum() > 100
+
+
+def exact_local_outliers(rows, cols, d, *, block_px, floor_mm, k_mad):
+    """local_outliers by its definition: np.median per block."""
+    n_cols = int(cols.max()) // block_px + 1
+    block = (rows // block_px) * n_cols + cols // block_px
+    g = np.median(d)
+    g_mad = np.median(np.abs(d - g))
+    out = np.zeros(d.size, bool)
+    for b in np.unique(block):
+        at = block == b
+        m, mad = g, g_mad
+        if at.sum() >= 8:
+            m = np.median(d[at])
+            mad = np.median(np.abs(d[at] - m))
+        out[at] = d[at] - m > np.maximum(floor_mm, k_mad * mad)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_local_outliers_are_the_argsort_implementation(seed):
+    # continuous distances: the former argsort's results; rounded ones (many ties, which its
+    # (block, value) key may order apart by 1e-9 mm): the per-block median by definition
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 20000))
+    rows, cols = rng.integers(0, 300, n), rng.integers(0, 400, n)
+    d = rng.gamma(2.0, 0.005, n)
+    d[rng.random(n) < 0.01] *= 20.0
+    reference = reference_local_outliers
+    if seed % 2:
+        d, reference = np.round(d, 3), exact_local_outliers
+    for block_px in (8, 32, 100):
+        for floor_mm, k_mad in ((0.025, 4.0), (0.0, 2.0)):
+            np.testing.assert_array_equal(
+                local_outliers(rows, cols, d, block_px=block_px, floor_mm=floor_mm, k_mad=k_mad),
+                reference(rows, cols, d, block_px=block_px, floor_mm=floor_mm, k_mad=k_mad))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 7, 8, 9, 100, 1001])
+def test_middle_is_numpy_median(n):
+    rng = np.random.default_rng(n)
+    for values in (rng.random(n), rng.integers(0, 3, n).astype(float), np.full(n, 0.5)):
+        assert _middle(values.copy()) == np.median(values)
+    with_nan = rng.random(n)
+    with_nan[0] = np.nan
+    assert np.isnan(_middle(with_nan))
+
+
+def test_fused_pairs_distance_is_numpy_norm(holed, monkeypatch):
+    # the outlier test gets the world distances from the fused kernel: np.linalg.norm's values
+    import nail2nail.merge.correspondence as mc
+
+    seen = []
+
+    def spy(rows, cols, distance, **kwargs):
+        seen.append(distance)
+        return local_outliers(rows, cols, distance, **kwargs)
+
+    monkeypatch.setattr(mc, "local_outliers", spy)
+    m = correspond(holed[0], holed[1], max_view_angle_deg=None, min_relative_modulation=None)
+    both = m.all_pairs()  # kept, then rejected: back to the parent's row-major order
+    order = np.lexsort(both.parent_rc.T[::-1])
+    norm = np.linalg.norm(both.xyz_parent - both.xyz_child, axis=-1)[order]
+    assert m.rejected.n_pairs > 0
+    np.testing.assert_array_equal(seen[0], norm)
+
+
+@pytest.mark.parametrize("border_px", [1, 2, 3])
+def test_erosion_is_scipy_binary_erosion(holed, border_px):
+    rng = np.random.default_rng(border_px)
+    masks = [s.mask for s in holed] + [rng.random((40, 57)) < 0.9, np.ones((6, 5), bool),
+                                      np.ones((1, 9), bool)]
+    for mask in masks:
+        expected = scipy.ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool),
+                                                iterations=border_px, border_value=0)
+        np.testing.assert_array_equal(_eroded(mask, border_px), expected)
+
+
+def test_valid_mask_and_relative_modulation_are_the_numpy_ones(holed):
+    for s in holed:
+        xyz = s.xyz.copy()
+        xyz[3, 4, 2] = np.inf
+        mod = s.modulation.copy()
+        r, c = np.nonzero(s.mask)
+        mod[r[:5], c[:5]] = np.nan
+        mod[r[7], c[7]] = np.inf
+        scan = replace(s, xyz=xyz, modulation=mod)
+        valid = valid_mask(scan)
+        np.testing.assert_array_equal(
+            valid, scan.mask & np.isfinite(xyz).all(-1) & np.isfinite(s.xp) & np.isfinite(s.yp))
+        m = np.nan_to_num(np.asarray(mod, dtype=np.float64))
+        median = float(np.median(m[valid]))
+        with np.errstate(over="ignore"):
+            expected = np.where(valid, m / median, 0.0)
+        assert _same(_relative_modulation(scan, valid), expected)
+        assert not _relative_modulation(scan, np.zeros_like(valid)).any()
 
 
 # -- the whole correspondence ----------------------------------------------------------------

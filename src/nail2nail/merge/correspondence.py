@@ -45,7 +45,7 @@ from .._interpolate import bilinear
 from .._numba_cache import cache_enabled
 from .._validation import as_int
 from ..reconstruction import Scan
-from .statistics import local_outliers, merge_statistics
+from .statistics import _middle, local_outliers, merge_statistics
 
 __all__ = [
     "DROP_REASONS",
@@ -105,12 +105,24 @@ def valid_mask(scan: Scan) -> np.ndarray:
     -------
     (H, W) bool
     """
-    return (
-        np.asarray(scan.mask, dtype=bool)
-        & np.isfinite(scan.xyz).all(axis=-1)
-        & np.isfinite(scan.xp)
-        & np.isfinite(scan.yp)
-    )
+    mask = np.ascontiguousarray(scan.mask, dtype=bool)
+    xyz, xp, yp = _float_image(scan.xyz), _float_image(scan.xp), _float_image(scan.yp)
+    if xyz.shape != (*mask.shape, 3) or xp.shape != mask.shape or yp.shape != mask.shape:
+        return mask & np.isfinite(xyz).all(axis=-1) & np.isfinite(xp) & np.isfinite(yp)
+    return _valid_kernel(mask, xyz, xp, yp)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _valid_kernel(mask, xyz, xp, yp):
+    """:func:`valid_mask` in one pass."""
+    h, w = mask.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = (mask[r, c] and np.isfinite(xp[r, c]) and np.isfinite(yp[r, c])
+                         and np.isfinite(xyz[r, c, 0]) and np.isfinite(xyz[r, c, 1])
+                         and np.isfinite(xyz[r, c, 2]))
+    return out
 
 
 def _without_jumps(scan: Scan, valid: np.ndarray, max_jump_px: float) -> np.ndarray:
@@ -157,11 +169,33 @@ def _valid_box(valid: np.ndarray, margin: int) -> tuple[slice, slice] | None:
 
 
 def _eroded(mask: np.ndarray, border_px: int) -> np.ndarray:
+    """`mask` eroded `border_px` times by the 3 × 3 square, outside the image false
+    (scipy.ndimage.binary_erosion): the pixels whose (2 `border_px` + 1)² square is in it."""
     if border_px == 0:
         return mask
-    return scipy.ndimage.binary_erosion(
-        mask, structure=np.ones((3, 3), bool), iterations=border_px, border_value=0
-    )
+    return _erosion_kernel(np.ascontiguousarray(mask, dtype=bool), int(border_px))
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _erosion_kernel(mask, radius):
+    """Pixels whose square of half-size `radius` lies in `mask` (and in the image): runs of
+    true pixels along rows, then along columns."""
+    h, w = mask.shape
+    rowwise = np.zeros((h, w), dtype=np.bool_)
+    for r in range(h):
+        run = 0  # true pixels ending at c
+        for c in range(w):
+            run = run + 1 if mask[r, c] else 0
+            if run >= 2 * radius + 1:
+                rowwise[r, c - radius] = True
+    out = np.zeros((h, w), dtype=np.bool_)
+    run_col = np.zeros(w, dtype=np.int64)
+    for r in range(h):
+        for c in range(w):
+            run_col[c] = run_col[c] + 1 if rowwise[r, c] else 0
+            if run_col[c] >= 2 * radius + 1:
+                out[r - radius, c] = True
+    return out
 
 
 def sample_pixels(mask, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -551,6 +585,7 @@ class _ScanImages:
         self.scan = scan
         self.valid = valid_mask(scan)
         self._inner: dict[tuple[float, int], np.ndarray] = {}
+        self._pixels: dict[tuple[float, int, int], tuple[int, np.ndarray, np.ndarray]] = {}
         self._grid: _ProjectorGrid | None = None
         self._cosine: np.ndarray | None = None
         self._modulation: np.ndarray | None = None
@@ -562,6 +597,23 @@ class _ScanImages:
             self._inner[key] = _eroded(_without_jumps(self.scan, self.valid, max_jump_px),
                                        border_px)
         return self._inner[key]
+
+    def inner_pixels(self, max_jump_px: float, border_px: int, stride: int):
+        """``(n_sampled, rows, cols)``: the count of valid pixels on the `stride` grid
+        (:func:`sample_pixels`) and the rows and columns (intp, row-major) of those among them
+        in :meth:`inner`."""
+        key = (float(max_jump_px), int(border_px), int(stride))
+        if key not in self._pixels:
+            inner = self.inner(max_jump_px, border_px)
+            if stride == 1:
+                n_sampled = int(np.count_nonzero(self.valid))
+            else:
+                n_sampled = int(np.count_nonzero(self.valid[::stride, ::stride]))
+                grid = np.zeros_like(inner)
+                grid[::stride, ::stride] = True
+                inner = inner & grid
+            self._pixels[key] = (n_sampled, *np.nonzero(inner))
+        return self._pixels[key]
 
     @property
     def grid(self) -> _ProjectorGrid:
@@ -628,6 +680,17 @@ class _ProjectorGrid:
         self.sx, self.sy, self.sindex = x[order], y[order], order
         self.cell_of = (gy * self.nx + gx)
         self._tree = None
+        self._empty = None
+
+    @property
+    def empty(self) -> np.ndarray:
+        """(ny, nx) int8 Chebyshev distance of each cell to an occupied cell, in cells, at most
+        ``_GRID_RINGS + 1`` (0: occupied)."""
+        if self._empty is None:
+            occupied = (np.diff(self.start) > 0).reshape(self.ny, self.nx)
+            distance = scipy.ndimage.distance_transform_cdt(~occupied, metric="chessboard")
+            self._empty = np.minimum(distance, _GRID_RINGS + 1).astype(np.int8)
+        return self._empty
 
     def nearest(self, qx, qy, *, workers: int = -1) -> tuple[np.ndarray, np.ndarray]:
         """Index (into the valid pixels, row-major) and squared distance of each query's nearest.
@@ -646,11 +709,33 @@ class _ProjectorGrid:
                                        self.start, self.x0, self.y0, self.cell, self.nx,
                                        self.ny, _GRID_RINGS), qx.size, workers)
         todo = np.flatnonzero(~done)
+        return self._settle(best, d2, todo, qx[todo], qy[todo], workers)
+
+    def nearest_pixels(self, xp, yp, rows, cols, *, workers: int = -1):
+        """:meth:`nearest` of the projector coordinates ``xp, yp`` (float32 or float64 images)
+        of the pixels ``(rows, cols)``, read in place."""
+        xp, yp = _float_image(xp), _float_image(yp)
+        n = rows.size
+        best, d2 = np.empty(n, dtype=np.int64), np.empty(n)
+        done = np.empty(n, dtype=bool)
+        _in_chunks(lambda a, b: _grid_nearest_pixels(
+            xp, yp, rows[a:b], cols[a:b], self.sx, self.sy, self.sindex, self.start, self.x0,
+            self.y0, self.cell, self.nx, self.ny, _GRID_RINGS, self.empty, best[a:b], d2[a:b],
+            done[a:b]),
+            n, workers)
+        todo = np.flatnonzero(~done)
+        qx = xp[rows[todo], cols[todo]].astype(np.float64)
+        qy = yp[rows[todo], cols[todo]].astype(np.float64)
+        return self._settle(best, d2, todo, qx, qy, workers)
+
+    def _settle(self, best, d2, todo, qx, qy, workers):
+        """`best`, `d2` with the queries `todo` (at ``qx, qy``) left undecided by the rings
+        answered from the edge k-d tree."""
         if todo.size:
             tree, members = self._boundary_tree()
-            _, j = tree.query(np.stack([qx[todo], qy[todo]], axis=-1), workers=workers)
+            _, j = tree.query(np.stack([qx, qy], axis=-1), workers=workers)
             other = members[j]
-            other_d2 = (qx[todo] - self.x[other]) ** 2 + (qy[todo] - self.y[other]) ** 2
+            other_d2 = (qx - self.x[other]) ** 2 + (qy - self.y[other]) ** 2
             b, bd2 = best[todo], d2[todo]
             take = (b < 0) | (other_d2 < bd2) | ((other_d2 == bd2) & (other < b))
             best[todo] = np.where(take, other, b)
@@ -684,14 +769,22 @@ def _in_threads(kernel, n: int, workers: int) -> tuple:
     """``kernel(start, stop)`` over ``[0, n)`` in contiguous chunks, one per thread, and its
     output arrays concatenated: the one-call result for a kernel that treats every item alone
     (the compiled kernels release the GIL). `workers`: threads, ``-1`` all cores."""
+    parts = _in_chunks(kernel, n, workers)
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True))
+
+
+def _in_chunks(kernel, n: int, workers: int) -> list:
+    """``kernel(start, stop)`` over ``[0, n)`` in contiguous chunks, one per thread: the list
+    of its return values, in the order of the chunks (one chunk for few items)."""
     threads = (os.cpu_count() or 1) if workers == -1 else max(int(workers), 1)
     threads = min(threads, n // _THREAD_MIN_ITEMS)
     if threads <= 1:
-        return kernel(0, n)
+        return [kernel(0, n)]
     bounds = np.linspace(0, n, threads + 1).astype(np.int64)
     with ThreadPoolExecutor(threads) as pool:
-        parts = list(pool.map(kernel, bounds[:-1], bounds[1:]))
-    return tuple(np.concatenate(arrays) for arrays in zip(*parts, strict=True))
+        return list(pool.map(kernel, bounds[:-1], bounds[1:]))
 
 
 def _pixel_spacing(scan: Scan, valid: np.ndarray) -> float:
@@ -738,6 +831,33 @@ def _visit_cell(cid, x, y, sx, sy, sindex, start, b, bd2):
 
 
 @numba.njit(cache=cache_enabled(), nogil=True)
+def _grid_query(x, y, sx, sy, sindex, start, x0, y0, cell, nx, ny, rings):
+    """:func:`_grid_nearest` for one query ``(x, y)``: ``(index, squared distance, done)``."""
+    limit = 2.0**40
+    fx = min(max((x - x0) / cell, -limit), limit)
+    fy = min(max((y - y0) / cell, -limit), limit)
+    ci, cj = np.floor(fx), np.floor(fy)
+    # distance from the query to the edges of its own cell, in cells
+    margin = min(fx - ci, ci + 1.0 - fx, fy - cj, cj + 1.0 - fy)
+    ci, cj = int(ci), int(cj)
+    b, bd2 = -1, np.inf
+    for k in range(rings + 1):
+        for gy in range(max(cj - k, 0), min(cj + k, ny - 1) + 1):
+            if gy == cj - k or gy == cj + k:  # top and bottom rows of the ring
+                for gx in range(max(ci - k, 0), min(ci + k, nx - 1) + 1):
+                    b, bd2 = _visit_cell(gy * nx + gx, x, y, sx, sy, sindex, start, b, bd2)
+            else:  # its left and right cells
+                if 0 <= ci - k < nx:
+                    b, bd2 = _visit_cell(gy * nx + ci - k, x, y, sx, sy, sindex, start, b, bd2)
+                if 0 <= ci + k < nx:
+                    b, bd2 = _visit_cell(gy * nx + ci + k, x, y, sx, sy, sindex, start, b, bd2)
+        reach = (k + margin) * cell
+        if b >= 0 and bd2 < reach * reach * (1.0 - 1e-9):
+            return b, bd2, True
+    return b, bd2, False
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
 def _grid_nearest(qx, qy, sx, sy, sindex, start, x0, y0, cell, nx, ny, rings):
     """Nearest point of the grid for each query, by rings of cells around the query's cell.
 
@@ -746,37 +866,95 @@ def _grid_nearest(qx, qy, sx, sy, sindex, start, x0, y0, cell, nx, ny, rings):
     cell beyond the rings searched (ties to the lower index).
     """
     n = qx.size
-    best = np.full(n, -1, dtype=np.int64)
-    best_d2 = np.full(n, np.inf)
-    done = np.zeros(n, dtype=np.bool_)
-    limit = 2.0**40
+    best = np.empty(n, dtype=np.int64)
+    best_d2 = np.empty(n)
+    done = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        x, y = qx[i], qy[i]
-        fx = min(max((x - x0) / cell, -limit), limit)
-        fy = min(max((y - y0) / cell, -limit), limit)
-        ci, cj = np.floor(fx), np.floor(fy)
-        # distance from the query to the edges of its own cell, in cells
-        margin = min(fx - ci, ci + 1.0 - fx, fy - cj, cj + 1.0 - fy)
-        ci, cj = int(ci), int(cj)
-        b, bd2 = -1, np.inf
-        for k in range(rings + 1):
-            for gy in range(max(cj - k, 0), min(cj + k, ny - 1) + 1):
-                if gy == cj - k or gy == cj + k:  # top and bottom rows of the ring
-                    for gx in range(max(ci - k, 0), min(ci + k, nx - 1) + 1):
-                        b, bd2 = _visit_cell(gy * nx + gx, x, y, sx, sy, sindex, start, b, bd2)
-                else:  # its left and right cells
-                    if 0 <= ci - k < nx:
-                        b, bd2 = _visit_cell(gy * nx + ci - k, x, y, sx, sy, sindex, start,
-                                             b, bd2)
-                    if 0 <= ci + k < nx:
-                        b, bd2 = _visit_cell(gy * nx + ci + k, x, y, sx, sy, sindex, start,
-                                             b, bd2)
-            reach = (k + margin) * cell
-            if b >= 0 and bd2 < reach * reach * (1.0 - 1e-9):
-                done[i] = True
-                break
-        best[i], best_d2[i] = b, bd2
+        best[i], best_d2[i], done[i] = _grid_query(qx[i], qy[i], sx, sy, sindex, start, x0, y0,
+                                                   cell, nx, ny, rings)
     return best, best_d2, done
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _grid_nearest_pixels(xp, yp, rows, cols, sx, sy, sindex, start, x0, y0, cell, nx, ny,
+                         rings, empty, best, best_d2, done):
+    """:func:`_grid_nearest` of the projector coordinates of the pixels ``(rows, cols)`` of the
+    images `xp`, `yp` (float32 or float64, read as float64: no gathered copies), into `best`,
+    `best_d2`, `done`; each query starts from the previous one's nearest point as a bound
+    (:func:`_grid_query_bounded`, `empty`: the cells' distance to an occupied one)."""
+    hint = -1
+    for i in range(rows.size):
+        r, c = rows[i], cols[i]
+        best[i], best_d2[i], done[i], hint = _grid_query_bounded(
+            np.float64(xp[r, c]), np.float64(yp[r, c]), sx, sy, sindex, start, x0, y0, cell,
+            nx, ny, rings, hint, empty)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _visit_cell_bounded(cid, x, y, sx, sy, sindex, start, b, bd2, bp):
+    """:func:`_visit_cell`, also keeping the best point's position `bp` in the grid's order."""
+    for p in range(start[cid], start[cid + 1]):
+        d2 = (x - sx[p]) ** 2 + (y - sy[p]) ** 2
+        if d2 < bd2 or (d2 == bd2 and sindex[p] < b):
+            b, bd2, bp = sindex[p], d2, p
+    return b, bd2, bp
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _grid_query_bounded(x, y, sx, sy, sindex, start, x0, y0, cell, nx, ny, rings, hint,
+                        empty):
+    """:func:`_grid_query` that skips what cannot hold a nearer point: ``(index, squared
+    distance, done, position of the best point in the grid's order)``.
+
+    The point at position `hint` (−1: none; the previous query's nearest, a neighbouring pixel)
+    starts as the best; a cell whose distance from the query exceeds the best distance found
+    (with a margin for rounding) is not visited, and rings nearer than `empty` (per cell: the
+    Chebyshev distance in cells to an occupied cell, at most ``rings + 1``) hold no point. A
+    query proven done has the nearest point of the grid, ties to the lower index, the result
+    of :func:`_grid_query`: no cell skipped can hold a point as near as the best.
+    """
+    limit = 2.0**40
+    fx = min(max((x - x0) / cell, -limit), limit)
+    fy = min(max((y - y0) / cell, -limit), limit)
+    ci, cj = np.floor(fx), np.floor(fy)
+    margin = min(fx - ci, ci + 1.0 - fx, fy - cj, cj + 1.0 - fy)
+    ci, cj = int(ci), int(cj)
+    b, bd2, bp = -1, np.inf, -1
+    if hint >= 0:
+        b, bd2, bp = sindex[hint], (x - sx[hint]) ** 2 + (y - sy[hint]) ** 2, hint
+    k0 = 0
+    if 0 <= ci < nx and 0 <= cj < ny:
+        k0 = empty[cj, ci]
+    inv = 1.0 / (cell * cell)
+    for k in range(k0, rings + 1):
+        for gy in range(max(cj - k, 0), min(cj + k, ny - 1) + 1):
+            # distances in cells from the query to the row and to the cells, 0 in its own
+            dy = 0.0 if gy == cj else (gy - fy if gy > cj else fy - (gy + 1))
+            if gy == cj - k or gy == cj + k:  # top and bottom rows of the ring
+                if dy * dy > bd2 * inv * (1.0 + 1e-6) + 1e-9:
+                    continue
+                for gx in range(max(ci - k, 0), min(ci + k, nx - 1) + 1):
+                    dx = 0.0 if gx == ci else (gx - fx if gx > ci else fx - (gx + 1))
+                    if dx * dx + dy * dy <= bd2 * inv * (1.0 + 1e-6) + 1e-9:
+                        b, bd2, bp = _visit_cell_bounded(gy * nx + gx, x, y, sx, sy, sindex,
+                                                         start, b, bd2, bp)
+            else:  # its left and right cells
+                if 0 <= ci - k < nx:
+                    dx = fx - (ci - k + 1)
+                    if dx * dx + dy * dy <= bd2 * inv * (1.0 + 1e-6) + 1e-9:
+                        b, bd2, bp = _visit_cell_bounded(gy * nx + ci - k, x, y, sx, sy,
+                                                         sindex, start, b, bd2, bp)
+                if 0 <= ci + k < nx:
+                    dx = ci + k - fx
+                    if dx * dx + dy * dy <= bd2 * inv * (1.0 + 1e-6) + 1e-9:
+                        b, bd2, bp = _visit_cell_bounded(gy * nx + ci + k, x, y, sx, sy,
+                                                         sindex, start, b, bd2, bp)
+        reach = (k + margin) * cell
+        if b >= 0 and bd2 < reach * reach * (1.0 - 1e-9):
+            return b, bd2, True, bp
+    # rings skipped as empty end the search with the last ring's test
+    reach = (rings + margin) * cell
+    return b, bd2, b >= 0 and bd2 < reach * reach * (1.0 - 1e-9), bp
 
 
 # -- sub-pixel refinement --------------------------------------------------------------------
@@ -854,6 +1032,69 @@ def refine_subpixel(
     return r, c, residual
 
 
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _refine_one(xp, yp, r0, c0, tx, ty, iterations, max_shift):
+    """:func:`refine_subpixel` of one pixel: ``(row, col, residual)``, ``bad`` where the
+    refinement failed (residual NaN or infinite then). Every value read as float64."""
+    f8 = np.float64
+    h, w = xp.shape
+    fx, fy = f8(xp[r0, c0]), f8(yp[r0, c0])
+    ax = 0.5 * (f8(xp[r0, c0 + 1]) - f8(xp[r0, c0 - 1]))
+    ay = 0.5 * (f8(yp[r0, c0 + 1]) - f8(yp[r0, c0 - 1]))
+    bx = 0.5 * (f8(xp[r0 + 1, c0]) - f8(xp[r0 - 1, c0]))
+    by = 0.5 * (f8(yp[r0 + 1, c0]) - f8(yp[r0 - 1, c0]))
+    r, c = float(r0), float(c0)
+    for k in range(iterations + 2):
+        if k > 0:
+            ri = min(max(int(np.floor(r)), 0), h - 2)
+            ci = min(max(int(np.floor(c)), 0), w - 2)
+            fr, fc = r - ri, c - ci
+            x00, x01 = f8(xp[ri, ci]), f8(xp[ri, ci + 1])
+            x10, x11 = f8(xp[ri + 1, ci]), f8(xp[ri + 1, ci + 1])
+            y00, y01 = f8(yp[ri, ci]), f8(yp[ri, ci + 1])
+            y10, y11 = f8(yp[ri + 1, ci]), f8(yp[ri + 1, ci + 1])
+            xt = x00 + (x01 - x00) * fc
+            xb = x10 + (x11 - x10) * fc
+            yt = y00 + (y01 - y00) * fc
+            yb = y10 + (y11 - y10) * fc
+            fx = xt + (xb - xt) * fr
+            fy = yt + (yb - yt) * fr
+            if k == iterations + 1:
+                break
+            ax = (x01 - x00) * (1 - fr) + (x11 - x10) * fr
+            ay = (y01 - y00) * (1 - fr) + (y11 - y10) * fr
+            bx = xb - xt
+            by = yb - yt
+        ex, ey = tx - fx, ty - fy
+        det = ax * by - bx * ay
+        step_c = (by * ex - bx * ey) / det
+        step_r = (ax * ey - ay * ex) / det
+        if not (np.isfinite(step_r) and np.isfinite(step_c)):
+            return r, c, np.nan, True
+        r = min(max(r + step_r, r0 - max_shift), r0 + max_shift)
+        c = min(max(c + step_c, c0 - max_shift), c0 + max_shift)
+        r = min(max(r, 0.0), h - 1.0)
+        c = min(max(c, 0.0), w - 1.0)
+    res = np.hypot(fx - tx, fy - ty)
+    return r, c, res, not np.isfinite(res)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _bilinear_xyz(xyz, r, c, out):
+    """`out` (3,) ← the bilinear interpolation of `xyz` (H, W, 3) at ``(r, c)``, float64."""
+    f8 = np.float64
+    h, w = xyz.shape[0], xyz.shape[1]
+    ri = min(max(int(np.floor(r)), 0), h - 2)
+    ci = min(max(int(np.floor(c)), 0), w - 2)
+    fr, fc = r - ri, c - ci
+    for j in range(3):
+        p00, p01 = f8(xyz[ri, ci, j]), f8(xyz[ri, ci + 1, j])
+        p10, p11 = f8(xyz[ri + 1, ci, j]), f8(xyz[ri + 1, ci + 1, j])
+        top = p00 + (p01 - p00) * fc
+        bottom = p10 + (p11 - p10) * fc
+        out[j] = top + (bottom - top) * fr
+
+
 # cache on disk unless no directory at all can hold numba's cache (nail2nail._numba_cache)
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, max_shift):
@@ -862,73 +1103,75 @@ def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, ma
     `xp`, `yp`, `xyz` may be float32 or float64: every value is read as float64, so float32
     images give the results of their float64 copies without the copies.
     """
-    f8 = np.float64
     n = rows.size
-    h, w = xp.shape
     out_r = np.empty(n)
     out_c = np.empty(n)
     out_res = np.empty(n)
     out_xyz = np.empty((n, 3))
     for i in range(n):
-        r0, c0 = rows[i], cols[i]
-        tx, ty = target_xp[i], target_yp[i]
-        fx, fy = f8(xp[r0, c0]), f8(yp[r0, c0])
-        ax = 0.5 * (f8(xp[r0, c0 + 1]) - f8(xp[r0, c0 - 1]))
-        ay = 0.5 * (f8(yp[r0, c0 + 1]) - f8(yp[r0, c0 - 1]))
-        bx = 0.5 * (f8(xp[r0 + 1, c0]) - f8(xp[r0 - 1, c0]))
-        by = 0.5 * (f8(yp[r0 + 1, c0]) - f8(yp[r0 - 1, c0]))
-        r, c = float(r0), float(c0)
-        bad = False
-        for k in range(iterations + 2):
-            if k > 0:
-                ri = min(max(int(np.floor(r)), 0), h - 2)
-                ci = min(max(int(np.floor(c)), 0), w - 2)
-                fr, fc = r - ri, c - ci
-                x00, x01 = f8(xp[ri, ci]), f8(xp[ri, ci + 1])
-                x10, x11 = f8(xp[ri + 1, ci]), f8(xp[ri + 1, ci + 1])
-                y00, y01 = f8(yp[ri, ci]), f8(yp[ri, ci + 1])
-                y10, y11 = f8(yp[ri + 1, ci]), f8(yp[ri + 1, ci + 1])
-                xt = x00 + (x01 - x00) * fc
-                xb = x10 + (x11 - x10) * fc
-                yt = y00 + (y01 - y00) * fc
-                yb = y10 + (y11 - y10) * fc
-                fx = xt + (xb - xt) * fr
-                fy = yt + (yb - yt) * fr
-                if k == iterations + 1:
-                    break
-                ax = (x01 - x00) * (1 - fr) + (x11 - x10) * fr
-                ay = (y01 - y00) * (1 - fr) + (y11 - y10) * fr
-                bx = xb - xt
-                by = yb - yt
-            ex, ey = tx - fx, ty - fy
-            det = ax * by - bx * ay
-            step_c = (by * ex - bx * ey) / det
-            step_r = (ax * ey - ay * ex) / det
-            if not (np.isfinite(step_r) and np.isfinite(step_c)):
-                bad = True
-                break
-            r = min(max(r + step_r, r0 - max_shift), r0 + max_shift)
-            c = min(max(c + step_c, c0 - max_shift), c0 + max_shift)
-            r = min(max(r, 0.0), h - 1.0)
-            c = min(max(c, 0.0), w - 1.0)
-        res = np.hypot(fx - tx, fy - ty)
-        if bad or not np.isfinite(res):
+        r, c, res, bad = _refine_one(xp, yp, rows[i], cols[i], target_xp[i], target_yp[i],
+                                     iterations, max_shift)
+        if bad:
             out_r[i] = np.nan
             out_c[i] = np.nan
             out_res[i] = np.nan
             out_xyz[i] = np.nan
             continue
         out_r[i], out_c[i], out_res[i] = r, c, res
-        ri = min(max(int(np.floor(r)), 0), h - 2)
-        ci = min(max(int(np.floor(c)), 0), w - 2)
-        fr, fc = r - ri, c - ci
-        for j in range(3):
-            p00, p01 = f8(xyz[ri, ci, j]), f8(xyz[ri, ci + 1, j])
-            p10, p11 = f8(xyz[ri + 1, ci, j]), f8(xyz[ri + 1, ci + 1, j])
-            top = p00 + (p01 - p00) * fc
-            bottom = p10 + (p11 - p10) * fc
-            out_xyz[i, j] = top + (bottom - top) * fr
+        _bilinear_xyz(xyz, r, c, out_xyz[i])
     return out_r, out_c, out_res, out_xyz
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxyz, iterations,
+                  max_shift, max_residual, parent_rc, child_nearest, child_rc, xyz_parent,
+                  xyz_child, residual, distance):
+    """The pairs of :func:`correspond` after the nearest-neighbour search, in one pass.
+
+    For each parent pixel ``(rows, cols)`` and its nearest child pixel ``(nr, nc)``: dropped
+    (``child_border``) unless the child pixel is in `child_inner` and the refinement
+    (:func:`_refine_one`, target the parent's ``xp, yp``) and the interpolated child point are
+    finite, dropped (``residual``) when the residual is not within `max_residual`; else a pair.
+    The pairs go, in input order, to the first rows of the outputs (parent and child pixels,
+    sub-pixel child position, the two world points, residual, world distance, all as the
+    NumPy formulation computes them); returns their number and the two drop counts.
+    """
+    f8 = np.float64
+    border = far = 0
+    point = np.empty(3)
+    k = 0
+    for i in range(rows.size):
+        r0, c0 = nr[i], nc[i]
+        if not child_inner[r0, c0]:
+            border += 1
+            continue
+        pr, pc = rows[i], cols[i]
+        r, c, res, bad = _refine_one(cxp, cyp, r0, c0, f8(pxp[pr, pc]), f8(pyp[pr, pc]),
+                                     iterations, max_shift)
+        if bad:
+            border += 1
+            continue
+        _bilinear_xyz(cxyz, r, c, point)
+        if not (np.isfinite(point[0]) and np.isfinite(point[1]) and np.isfinite(point[2])):
+            border += 1
+            continue
+        if not res <= max_residual:
+            far += 1
+            continue
+        parent_rc[k, 0], parent_rc[k, 1] = pr, pc
+        child_nearest[k, 0], child_nearest[k, 1] = r0, c0
+        child_rc[k, 0], child_rc[k, 1] = r, c
+        residual[k] = res
+        s = 0.0
+        for j in range(3):
+            p = f8(pxyz[pr, pc, j])
+            xyz_parent[k, j] = p
+            xyz_child[k, j] = point[j]
+            d = p - point[j]
+            s = s + d * d  # np.linalg.norm's order: (d0² + d1²) + d2²
+        distance[k] = np.sqrt(s)
+        k += 1
+    return k, border, far
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
@@ -1181,9 +1424,40 @@ def correspond(
 def _relative_modulation(scan: Scan, valid: np.ndarray | None = None) -> np.ndarray:
     """Modulation over its median on the valid pixels, 0 where invalid (the quality image)."""
     valid = valid_mask(scan) if valid is None else valid
-    m = np.nan_to_num(np.asarray(scan.modulation, dtype=np.float64))
-    median = float(np.median(m[valid])) if valid.any() else 0.0
-    return np.where(valid, m / median, 0.0) if median > 0 else np.zeros_like(m)
+    return _relative_modulation_kernel(_float_image(scan.modulation),
+                                       np.ascontiguousarray(valid, dtype=bool))
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _nan_to_num(v):
+    """np.nan_to_num of a float64."""
+    if np.isnan(v):
+        return 0.0
+    if np.isinf(v):
+        return 1.7976931348623157e308 if v > 0 else -1.7976931348623157e308
+    return v
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _relative_modulation_kernel(modulation, valid):
+    """:func:`_relative_modulation`: ``m / median(m[valid])`` on the valid pixels, 0 elsewhere
+    (all 0 unless the median is positive), m the modulation in float64 with NaN as 0."""
+    h, w = valid.shape
+    values = np.empty(h * w)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                values[n] = _nan_to_num(np.float64(modulation[r, c]))
+                n += 1
+    median = _middle(values[:n]) if n else 0.0
+    out = np.zeros((h, w))
+    if median > 0:
+        for r in range(h):
+            for c in range(w):
+                if valid[r, c]:
+                    out[r, c] = _nan_to_num(np.float64(modulation[r, c])) / median
+    return out
 
 
 def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_px, refine,
@@ -1221,52 +1495,66 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     parent_valid, child_valid = parent_images.valid, child_images.valid
     if not child_valid.any():
         raise ValueError(f"child {child.name!r}: no valid pixels")
-    rows, cols = sample_pixels(parent_valid, stride=stride)
-    n_sampled = rows.size
+    # the sampled parent pixels not at the border: the inner region is within the valid one
+    n_sampled, rows, cols = parent_images.inner_pixels(max_jump_px, border_px, stride)
     dropped = dict.fromkeys(DROP_REASONS, 0)
-
-    keep = parent_images.inner(max_jump_px, border_px)[rows, cols]
-    dropped["parent_border"] = int(np.count_nonzero(~keep))
-    rows, cols = rows[keep], cols[keep]
-    target_xp = np.asarray(parent.xp)[rows, cols].astype(np.float64)
-    target_yp = np.asarray(parent.yp)[rows, cols].astype(np.float64)
+    dropped["parent_border"] = n_sampled - rows.size
 
     if method == "grid":
         grid = child_images.grid
-        index, dist2 = grid.nearest(target_xp, target_yp, workers=workers)
+        index, dist2 = grid.nearest_pixels(parent.xp, parent.yp, rows, cols, workers=workers)
         nr, nc = grid.rows[index], grid.cols[index]
     elif method == "kdtree":
         nr, nc, dist2 = nearest_kdtree(parent, child, rows, cols, workers=workers)
     else:
         nr, nc, dist2 = nearest_bruteforce(parent, child, rows, cols)
 
-    keep = child_images.inner(max_jump_px, border_px)[nr, nc]
-    rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
-    target_xp, target_yp = target_xp[keep], target_yp[keep]
-    if refine:
-        images = _float_image(child.xp), _float_image(child.yp), _float_image(child.xyz)
-        sub_r, sub_c, residual, xyz_child = _in_threads(
-            lambda a, b: _refine_kernel(*images, target_xp[a:b], target_yp[a:b], nr[a:b],
-                                        nc[a:b], _NEWTON_STEPS, _MAX_SHIFT_PX), nr.size, workers)
-        finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
+    child_inner = child_images.inner(max_jump_px, border_px)
+    if refine:  # one compiled pass: border test, refinement, residual test, world points
+        images = (child_inner, _float_image(child.xp), _float_image(child.yp),
+                  _float_image(child.xyz), _float_image(parent.xp), _float_image(parent.yp),
+                  _float_image(parent.xyz))
+        n = rows.size
+        out = {"parent_rc": np.empty((n, 2), dtype=np.intp),
+               "child_nearest": np.empty((n, 2), dtype=np.intp),
+               "child_rc": np.empty((n, 2)), "xyz_parent": np.empty((n, 3)),
+               "xyz_child": np.empty((n, 3)), "residual_px": np.empty(n),
+               "distance": np.empty(n)}
+        buffers = tuple(out.values())
+        counts = _in_chunks(
+            lambda a, b: _pairs_kernel(rows[a:b], cols[a:b], nr[a:b], nc[a:b], *images,
+                                       _NEWTON_STEPS, _MAX_SHIFT_PX, float(max_residual_px),
+                                       *(v[a:b] for v in buffers)), n, workers)
+        # the chunks' pairs, moved down to follow each other (copies only when threaded)
+        bounds = np.linspace(0, n, len(counts) + 1).astype(np.int64)
+        k = 0
+        for start, (found, _, _) in zip(bounds[:-1], counts, strict=True):
+            if start > k:
+                for v in buffers:
+                    v[k:k + found] = v[start:start + found]
+            k += found
+        pairs = {name: v[:k] for name, v in out.items()}  # views; copied by `subset` below
+        distance = pairs.pop("distance")
+        dropped["child_border"] = sum(c[1] for c in counts)
+        dropped["residual"] = sum(c[2] for c in counts)
     else:
-        sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
-        xyz_child = np.asarray(child.xyz)[nr, nc].astype(np.float64)
-        finite = np.ones(nr.size, dtype=bool)
-    dropped["child_border"] = int(np.count_nonzero(~keep) + np.count_nonzero(~finite))
-
-    with np.errstate(invalid="ignore"):
-        good = finite & (residual <= max_residual_px)
-    dropped["residual"] = int(np.count_nonzero(finite & ~good))
-    xyz_parent = np.asarray(parent.xyz)[rows[good], cols[good]].astype(np.float64)
-    pairs = {
-        "parent_rc": np.stack([rows[good], cols[good]], axis=-1),
-        "child_nearest": np.stack([nr[good], nc[good]], axis=-1),
-        "child_rc": np.stack([sub_r[good], sub_c[good]], axis=-1),
-        "xyz_parent": xyz_parent,
-        "xyz_child": xyz_child[good],
-        "residual_px": residual[good],
-    }
+        keep = child_inner[nr, nc]
+        rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
+        residual = np.sqrt(dist2)
+        dropped["child_border"] = int(np.count_nonzero(~keep))
+        good = residual <= max_residual_px
+        dropped["residual"] = int(np.count_nonzero(~good))
+        xyz_parent = np.asarray(parent.xyz)[rows[good], cols[good]].astype(np.float64)
+        xyz_child = np.asarray(child.xyz)[nr[good], nc[good]].astype(np.float64)
+        pairs = {
+            "parent_rc": np.stack([rows[good], cols[good]], axis=-1),
+            "child_nearest": np.stack([nr[good], nc[good]], axis=-1),
+            "child_rc": np.stack([nr[good], nc[good]], axis=-1).astype(np.float64),
+            "xyz_parent": xyz_parent,
+            "xyz_child": xyz_child,
+            "residual_px": residual[good],
+        }
+        distance = None
 
     # rejection of unreliable pairs, in the order of REJECT_REASONS
     n = pairs["parent_rc"].shape[0]
@@ -1298,7 +1586,8 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         reason[(reason < 0) & ~ok] = code
     if outlier_mm is not None and n:
         live = reason < 0
-        distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
+        if distance is None:
+            distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
         out = local_outliers(pr[live], pc[live], distance[live], block_px=outlier_block_px,
                              floor_mm=outlier_mm, k_mad=outlier_mad)
         reason[np.flatnonzero(live)[out]] = 2
@@ -1306,9 +1595,10 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         dropped[name] = int(np.count_nonzero(reason == code))
 
     def subset(index, **extra):
-        # the pairs' own arrays when all are taken (no copy), else the rows of `index`
-        arrays = pairs if index.size == n else {
-            k: np.take(v, index, axis=0) for k, v in pairs.items()}
+        # the pairs' arrays when all are taken (copied when views of the kernel's buffers, which
+        # hold a row for every parent pixel searched), else the rows of `index`
+        arrays = {k: v.copy() if v.base is not None else v for k, v in pairs.items()} \
+            if index.size == n else {k: np.take(v, index, axis=0) for k, v in pairs.items()}
         return Correspondence(
             parent_name=str(parent.name), child_name=str(child.name),
             parent_shape=tuple(parent_valid.shape), child_shape=tuple(child_valid.shape),

@@ -3,8 +3,10 @@ pairs whose distance stands far above their neighbours' (thesis chapter four).""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
+from .._numba_cache import cache_enabled
 from .._validation import as_int
 
 __all__ = ["local_outliers", "merge_statistics"]
@@ -99,22 +101,114 @@ def local_outliers(rows, cols, distance_mm, *, block_px: int = 32, floor_mm: flo
     if d.size == 0:
         return np.zeros(0, dtype=bool)
 
-    def block_median(values, block):
-        # one sort by (block, value); the key orders distances up to 4 m exactly enough
-        order = np.argsort(block * 4096.0 + np.clip(values, 0.0, 4000.0))
-        counts = np.bincount(block, minlength=n_blocks)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        sv = values[order]
-        lo = np.clip(starts + (counts - 1) // 2, 0, values.size - 1)
-        hi = np.clip(starts + counts // 2, 0, values.size - 1)
-        return 0.5 * (sv[lo] + sv[hi]), counts
-
     n_cols = int(cols.max()) // block_px + 1
     block = (rows // block_px) * n_cols + cols // block_px
     n_blocks = int(block.max()) + 1
-    median, counts = block_median(d, block)
-    mad, _ = block_median(np.abs(d - median[block]), block)
+    median, mad, counts = _block_median_mad(d, block, n_blocks, _MIN_BLOCK_PAIRS)
     few = counts < _MIN_BLOCK_PAIRS
-    g_median = np.median(d)
-    median[few], mad[few] = g_median, np.median(np.abs(d - g_median))
-    return d - median[block] > np.maximum(floor_mm, k_mad * mad[block])
+    if few[block].any():  # only then are the statistics of all pairs needed
+        g_median = _middle(d.copy())  # np.median's value, by selection in place
+        median[few], mad[few] = g_median, _middle(np.abs(d - g_median))
+    return _above(d, block, median, mad, float(floor_mm), float(k_mad))
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _block_median_mad(d, block, n_blocks, min_pairs):
+    """Per block (ids `block`, ``0 ≤ id < n_blocks``): the median of the values `d` and the
+    median of their absolute deviations from it (each the mean of the two middle values, an
+    odd count's middle value twice), and the count; blocks of fewer than `min_pairs` values
+    are left NaN. One counting sort by block, then each block's values sorted alone."""
+    counts = np.zeros(n_blocks, dtype=np.int64)
+    for b in block:
+        counts[b] += 1
+    start = np.zeros(n_blocks + 1, dtype=np.int64)
+    for k in range(n_blocks):
+        start[k + 1] = start[k] + counts[k]
+    fill = start[:-1].copy()
+    grouped = np.empty(d.size)
+    for i in range(d.size):
+        grouped[fill[block[i]]] = d[i]
+        fill[block[i]] += 1
+    median = np.full(n_blocks, np.nan)
+    mad = np.full(n_blocks, np.nan)
+    for k in range(n_blocks):
+        n = counts[k]
+        if n < min_pairs:
+            continue
+        values = grouped[start[k]:start[k + 1]]
+        m = _middle(values, True)
+        for i in range(n):
+            values[i] = np.abs(values[i] - m)
+        median[k] = m
+        mad[k] = _middle(values, True)
+    return median, mad, counts
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _middle(values, nan_last=False):
+    """The median of `values` (reordered in place): the mean of its two middle values in sorted
+    order, ``0.5 * (sorted[(n - 1) // 2] + sorted[n // 2])``, by selection. With NaN present:
+    NaN as np.median, or with `nan_last` the middle of the values sorted with NaN last (as
+    the former sort by a (block, value) key)."""
+    n = values.size
+    lo, hi = (n - 1) // 2, n // 2
+    for v in values:
+        if np.isnan(v):
+            if not nan_last:
+                return np.nan
+            values[:] = np.sort(values)
+            return 0.5 * (values[lo] + values[hi])
+    _select(values, lo)
+    second = values[lo]
+    if hi != lo:  # the smallest value above position lo
+        second = values[hi]
+        for i in range(hi + 1, n):
+            if values[i] < second:
+                second = values[i]
+    return 0.5 * (values[lo] + second)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _select(a, kth):
+    """Reorder `a` (no NaN) so that ``a[kth]`` is the value a sort puts there, with no larger
+    value before it and no smaller one after it (quickselect, median-of-three pivots)."""
+    left, right = 0, a.size - 1
+    while right > left:
+        mid = (left + right) // 2
+        # median of three to a[mid], then Hoare partition around its value
+        if a[mid] < a[left]:
+            a[mid], a[left] = a[left], a[mid]
+        if a[right] < a[left]:
+            a[right], a[left] = a[left], a[right]
+        if a[right] < a[mid]:
+            a[right], a[mid] = a[mid], a[right]
+        pivot = a[mid]
+        i, j = left, right
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while pivot < a[j]:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if kth <= j:
+            right = j
+        elif kth >= i:
+            left = i
+        else:
+            return
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _above(d, block, median, mad, floor_mm, k_mad):
+    """``d − median[block] > maximum(floor_mm, k_mad × mad[block])`` (NaN propagated as
+    np.maximum)."""
+    out = np.empty(d.size, dtype=np.bool_)
+    for i in range(d.size):
+        limit = k_mad * mad[block[i]]
+        if not (np.isnan(limit) or limit > floor_mm):
+            limit = floor_mm
+        out[i] = d[i] - median[block[i]] > limit
+    return out
