@@ -41,6 +41,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from .._interpolate import bilinear
+from ._kernels import axis_distance
 
 __all__ = [
     "METHODS",
@@ -99,8 +100,11 @@ class _AxisMap:
 
     def _local(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Coordinates of points along ``axis × pad``, ``pad`` and ``axis`` from `center`."""
+        return self._local_offsets(np.asarray(xyz, dtype=np.float64) - self.center)
+
+    def _local_offsets(self, d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_local` of points given as offsets ``(N, 3) float64`` from `center`."""
         a, n, e = _frame(self.axis, self.pad)
-        d = np.asarray(xyz, dtype=np.float64) - self.center
         return d @ e, d @ n, d @ a
 
     def describe(self) -> dict:
@@ -337,9 +341,8 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
 
     def residual(p):
         a, c = unpack(p)
-        d = pts - c
-        rho = np.linalg.norm(d - np.outer(d @ a, a), axis=1)
-        return rho - p[4]
+        # ρ − R, compiled (ρ = |d − (d·a) a|)
+        return axis_distance(pts - c, a, p[4])
 
     d = pts - centroid
     r0 = float(np.median(np.linalg.norm(d - np.outer(d @ a0, a0), axis=1)))

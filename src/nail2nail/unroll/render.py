@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
+from ._kernels import camera_points, rolled_map, splat, tail_percentile
+from .flatten import RolledMap
 from .ridges import masked_gaussian
 
 __all__ = ["MM_PER_INCH", "PrintGrid", "binarize", "blend_cameras", "print_grid", "to_gray"]
@@ -81,8 +83,10 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     if not ppi > 0:
         raise ValueError(f"ppi: expected a positive number, got {ppi}")
     pitch = MM_PER_INCH / ppi
-    lo = np.percentile(st_all, 0.01, axis=0) - margin_mm
-    hi = np.percentile(st_all, 99.99, axis=0) + margin_mm
+    st_all = np.asarray(st_all, dtype=np.float64)
+    # np.percentile(st_all, q, axis=0), found without sorting
+    lo = np.array([tail_percentile(st_all[:, k], 0.01) for k in range(2)]) - margin_mm
+    hi = np.array([tail_percentile(st_all[:, k], 99.99) for k in range(2)]) + margin_mm
     # snap s0, t0 to the pitch so that prints of one finger at one ppi share a lattice
     s0 = np.ceil(hi[0] / pitch) * pitch
     t0 = np.ceil(hi[1] / pitch) * pitch
@@ -91,31 +95,10 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     return PrintGrid(s0, t0, pitch, (h, w))
 
 
-def _splat(grid: PrintGrid, st, values, weights, *, count: bool = False):
-    """Bilinear splat: ``Σ w·k·v`` and ``Σ w·k`` per print pixel (k the bilinear kernel), and
-    with `count` also ``Σ k`` (the sample density)."""
-    h, w = grid.shape
-    r, c = grid.pixel(st)
-    r0, c0 = np.floor(r).astype(np.intp), np.floor(c).astype(np.intp)
-    fr, fc = (r - r0).astype(np.float32), (c - c0).astype(np.float32)
-    values = np.asarray(values, np.float32)
-    weights = np.asarray(weights, np.float32)
-    num = np.zeros(h * w, np.float64)
-    den = np.zeros(h * w, np.float64)
-    cnt = np.zeros(h * w, np.float64) if count else None
-    wv = weights * values
-    for dr, dc, k in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
-                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
-        rr, cc = r0 + dr, c0 + dc
-        ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        idx = rr[ok] * w + cc[ok]
-        kk = k[ok]
-        num += np.bincount(idx, kk * wv[ok], minlength=h * w)
-        den += np.bincount(idx, kk * weights[ok], minlength=h * w)
-        if count:
-            cnt += np.bincount(idx, kk, minlength=h * w)
-    out = (num.reshape(h, w), den.reshape(h, w))
-    return (*out, cnt.reshape(h, w)) if count else out
+def _splat(grid: PrintGrid, st, values, weights):
+    """Bilinear splat: ``Σ w·k·v``, ``Σ w·k`` and ``Σ k`` (the sample density) per print
+    pixel, k the bilinear kernel (:func:`~nail2nail.unroll._kernels.splat`)."""
+    return splat(grid, st, values, weights)
 
 
 def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
@@ -148,7 +131,7 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
     count = np.zeros((h, w))
     per_camera = []
     for st, value, weight in samples:
-        n_, d_, c_ = _splat(grid, st, value, weight, count=True)
+        n_, d_, c_ = _splat(grid, st, value, weight)
         num += n_
         count += c_
         per_camera.append(d_)
@@ -188,6 +171,10 @@ def camera_samples(scan, signal, weight, flat):
     (:func:`~nail2nail.unroll.ridges.camera_layer`); `flat` maps world points to the print
     plane.
     """
+    if isinstance(flat, RolledMap) and np.asarray(scan.xyz).dtype == np.float32:
+        # the default map, compiled (the same float64 arithmetic, sample by sample)
+        offsets, value, wt = camera_points(scan.xyz, signal, weight, flat.cylinder.center)
+        return rolled_map(flat, offsets=offsets), value, wt
     ok = (weight > 0) & np.isfinite(signal)
     xyz = np.asarray(scan.xyz[ok], dtype=np.float64)
     return flat(xyz), signal[ok], weight[ok]

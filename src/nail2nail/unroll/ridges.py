@@ -14,6 +14,7 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ..reconstruction import Scan
+from ._kernels import block_mean, surface_relief, upsample
 
 __all__ = [
     "camera_layer",
@@ -119,19 +120,24 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     squeeze = v.ndim == 2
     if squeeze:
         v = v[..., None]
-    v = np.where(m[..., None] > 0, v, 0).astype(np.float32)
     h, w = m.shape
     f = max(1, int(reduce))
-    if f > 1:
-        hp, wp = -(-h // f) * f, -(-w // f) * f
-        vp = np.zeros((hp, wp, v.shape[2]), np.float32)
-        mp = np.zeros((hp, wp), np.float32)
-        vp[:h, :w], mp[:h, :w] = v, m
-        v = vp.reshape(hp // f, f, wp // f, f, -1).mean(axis=(1, 3))
-        m = mp.reshape(hp // f, f, wp // f, f).mean(axis=(1, 3))
+    if 1 < f <= 128:
+        # block means of the masked values and of the mask (compiled; NumPy's float32 sums)
+        v, m = block_mean(v, m > 0, f)
+    else:
+        v = np.where(m[..., None] > 0, v, 0).astype(np.float32)
+        if f > 1:
+            hp, wp = -(-h // f) * f, -(-w // f) * f
+            vp = np.zeros((hp, wp, v.shape[2]), np.float32)
+            mp = np.zeros((hp, wp), np.float32)
+            vp[:h, :w], mp[:h, :w] = v, m
+            v = vp.reshape(hp // f, f, wp // f, f, -1).mean(axis=(1, 3))
+            m = mp.reshape(hp // f, f, wp // f, f).mean(axis=(1, 3))
     s = sigma_px / f
-    num = np.stack([ndi.gaussian_filter(v[..., k], s, truncate=3.0) for k in range(v.shape[2])],
-                   -1)
+    num = np.empty(v.shape, np.float32)
+    for k in range(v.shape[2]):
+        ndi.gaussian_filter(v[..., k], s, truncate=3.0, output=num[..., k])
     den = ndi.gaussian_filter(m, s, truncate=3.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(den[..., None] > 1e-3, num / den[..., None], np.nan).astype(np.float32)
@@ -145,13 +151,12 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
             else np.zeros(h, np.intp)
         c0 = np.minimum(cols.astype(np.intp), out.shape[1] - 2) if out.shape[1] > 1 \
             else np.zeros(w, np.intp)
-        fr = (rows - r0).astype(np.float32)[:, None, None]
-        fc = (cols - c0).astype(np.float32)[None, :, None]
+        fr = (rows - r0).astype(np.float32)
+        fc = (cols - c0).astype(np.float32)
         r1 = np.minimum(r0 + 1, out.shape[0] - 1)
         c1 = np.minimum(c0 + 1, out.shape[1] - 1)
-        # separable: rows first on the small grid, then columns (two full-size gathers)
-        tall = out[r0] * (1 - fr) + out[r1] * fr
-        out = tall[:, c0] * (1 - fc) + tall[:, c1] * fc
+        # separable: rows first, then columns (compiled, no full-size temporaries)
+        out = upsample(out, r0, r1, fr, c0, c1, fc)
     out = out.astype(np.float32, copy=False)
     return out[..., 0] if squeeze else out
 
@@ -197,6 +202,22 @@ def _normals(xyz) -> np.ndarray:
     return n
 
 
+def _surface_relief(smooth, xyz, camera_center):
+    """NumPy :func:`~nail2nail.unroll._kernels.surface_relief` (also for grids under 2 px)."""
+    normals = _normals(smooth)
+    if camera_center is not None:
+        view = np.asarray(camera_center, np.float32) - smooth
+        view /= _norm3(view)[..., None]
+        cos = np.einsum("...k,...k->...", normals, view)
+        # orient the normals towards the camera
+        normals *= np.where(cos < 0, -1, 1).astype(np.float32)[..., None]
+        cos = np.abs(cos)
+    else:
+        cos = np.ones(smooth.shape[:2], np.float32)
+    relief = np.einsum("...k,...k->...", np.nan_to_num(xyz - smooth), np.nan_to_num(normals))
+    return cos, relief, finite_points(smooth) & finite_points(normals)
+
+
 def _feather(valid, width_px: float, reduce: int) -> np.ndarray:
     """Ramp 0 → 1 over `width_px` from the edge of `valid` (distance on a reduced grid)."""
     if width_px <= 0:
@@ -221,6 +242,7 @@ def camera_layer(
     albedo_weight: float = 0.3,
     feather_px: float = 40.0,
     max_view_angle_deg: float = 75.0,
+    valid: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
 
@@ -251,6 +273,8 @@ def camera_layer(
         Pixels that see the smooth surface at a larger angle from its normal get no weight (at
         grazing view a camera pixel spreads over several ridges and the relief is smeared;
         merging rejects pairs beyond 70° for the same reason). Needs ``camera_center``.
+    valid : (H, W) bool, optional
+        ``scan_valid(scan)`` when the caller has it already (not checked).
 
     Returns
     -------
@@ -266,7 +290,7 @@ def camera_layer(
     ValueError
         If the scan has no valid pixels.
     """
-    valid = scan_valid(scan)
+    valid = scan_valid(scan) if valid is None else valid
     if not valid.any():
         raise ValueError(f"scan {scan.name!r}: no valid pixels")
     rows = np.flatnonzero(valid.any(axis=1))
@@ -278,27 +302,26 @@ def camera_layer(
     sigma = surface_sigma_mm / spacing
     reduce = max(1, int(sigma // 3))
     smooth = masked_gaussian(xyz, m, sigma, reduce=reduce)
-    normals = _normals(smooth)
-    if scan.camera_center is not None:
-        view = np.asarray(scan.camera_center, np.float32) - smooth
-        view /= _norm3(view)[..., None]
-        cos = np.einsum("...k,...k->...", normals, view)
-        # orient the normals towards the camera
-        normals *= np.where(cos < 0, -1, 1).astype(np.float32)[..., None]
-        cos = np.abs(cos)
+    if min(m.shape) >= 2:
+        # normals (oriented towards the camera), viewing cosine and relief in one pass
+        cos, relief, finite = surface_relief(smooth, xyz, scan.camera_center)
     else:
-        cos = np.ones(m.shape, np.float32)
-    relief = np.einsum("...k,...k->...", np.nan_to_num(xyz - smooth), np.nan_to_num(normals))
-    m = m & finite_points(smooth) & finite_points(normals)
+        cos, relief, finite = _surface_relief(smooth, xyz, scan.camera_center)
+    m = m & finite
+    albedo = None
+    if albedo_weight > 0:
+        albedo = np.asarray(scan.albedo[box], dtype=np.float32)
     if noise_sigma_mm > 0:
-        relief = masked_gaussian(relief, m, noise_sigma_mm / spacing)
+        if albedo is None:
+            relief = masked_gaussian(relief, m, noise_sigma_mm / spacing)
+        else:
+            # one pass for both (the normalising weight G(m) computed once)
+            both = masked_gaussian(np.stack([relief, albedo], -1), m, noise_sigma_mm / spacing)
+            relief, albedo = both[..., 0], both[..., 1]
     csig = contrast_sigma_mm / spacing
     creduce = max(1, int(csig // 4))
     signal = local_normalize(relief, m, csig, reduce=creduce)
-    if albedo_weight > 0:
-        albedo = np.asarray(scan.albedo[box], dtype=np.float32)
-        if noise_sigma_mm > 0:
-            albedo = masked_gaussian(albedo, m, noise_sigma_mm / spacing)
+    if albedo is not None:
         # both parts have unit local RMS: the sum is brought back to about unit RMS (the grey
         # print is normalised again on the print grid)
         signal = (signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)) \

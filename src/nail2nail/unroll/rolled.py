@@ -240,12 +240,15 @@ def unroll_scans(
         timings[name] = now - clock
         clock = now
 
-    points = []
+    points, valids = [], []
     for s in scans:
         v = scan_valid(s)
         if not v.any():
             raise ValueError(f"scans: {s.name!r} has no valid pixels")
-        points.append(np.asarray(s.xyz, dtype=np.float64)[v][::4])
+        valids.append(v)
+        # every fourth valid point (row-major), converted once they are picked
+        xyz = np.asarray(s.xyz).reshape(-1, 3)
+        points.append(xyz[np.flatnonzero(v)[::4]].astype(np.float64))
     points = np.concatenate(points)
     if pad_direction is None:
         centers = [np.asarray(s.camera_center, float) for s in scans if s.camera_center is not None]
@@ -258,7 +261,8 @@ def unroll_scans(
     flat, mesh = fit_flattening(points, method, tip_direction=tip_direction,
                                 pad_direction=pad_direction, grid_mm=grid_mm)
     lap("flatten")
-    layers = [camera_layer(s, feather_px=feather_px, **(ridge_options or {})) for s in scans]
+    layers = [camera_layer(s, feather_px=feather_px, valid=v, **(ridge_options or {}))
+              for s, v in zip(scans, valids, strict=True)]
     lap("ridges")
     samples = [camera_samples(s, sig, wt, flat) for s, (sig, wt) in zip(scans, layers, strict=True)]
     grid = print_grid(np.concatenate([st for st, _, _ in samples]), ppi=ppi)
