@@ -656,14 +656,14 @@ class _ProjectorGrid:
     """
 
     def __init__(self, scan: Scan, valid: np.ndarray):
-        self.rows, self.cols = np.nonzero(valid)
+        valid = np.ascontiguousarray(valid, dtype=bool)
+        self.rows, self.cols, x, y, box = _gather_valid(valid, _float_image(scan.xp),
+                                                        _float_image(scan.yp))
         if self.rows.size == 0:
             raise ValueError(f"child {scan.name!r}: no valid pixels")
-        x = np.asarray(scan.xp)[self.rows, self.cols].astype(np.float64)
-        y = np.asarray(scan.yp)[self.rows, self.cols].astype(np.float64)
         self.x, self.y = x, y
-        self.x0, self.y0 = float(x.min()), float(y.min())
-        span_x, span_y = float(x.max()) - self.x0, float(y.max()) - self.y0
+        self.x0, self.y0 = float(box[0]), float(box[1])
+        span_x, span_y = float(box[2]) - self.x0, float(box[3]) - self.y0
         n = x.size
         cell = _pixel_spacing(scan, valid) * np.sqrt(2.0)  # about two pixels per cell
         # at most 1.5 m + 1 cells (m = 4 n + 1024), whatever the spread of the coordinates:
@@ -674,11 +674,8 @@ class _ProjectorGrid:
         self.cell = float(cell)
         self.nx = int(span_x / cell) + 1
         self.ny = int(span_y / cell) + 1
-        gx = np.minimum(((x - self.x0) / cell).astype(np.int64), self.nx - 1)
-        gy = np.minimum(((y - self.y0) / cell).astype(np.int64), self.ny - 1)
-        self.start, order = _bucket_sort(gy * self.nx + gx, self.nx * self.ny)
-        self.sx, self.sy, self.sindex = x[order], y[order], order
-        self.cell_of = (gy * self.nx + gx)
+        self.start, self.sindex, self.sx, self.sy, self.cell_of = _grid_build(
+            x, y, self.x0, self.y0, self.cell, self.nx, self.ny)
         self._tree = None
         self._empty = None
 
@@ -802,6 +799,52 @@ def _pixel_spacing(scan: Scan, valid: np.ndarray) -> float:
         steps.append(float(np.median(d)) if d.size else np.nan)
     spacing = float(np.sqrt(steps[0] * steps[1]))
     return spacing if np.isfinite(spacing) and spacing > 0 else 0.0
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _gather_valid(valid, xp, yp):
+    """Rows and columns of the valid pixels (row-major, as np.nonzero), their ``xp``, ``yp``
+    as float64, and ``[min x, min y, max x, max y]``."""
+    h, w = valid.shape
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                n += 1
+    rows = np.empty(n, dtype=np.intp)
+    cols = np.empty(n, dtype=np.intp)
+    x = np.empty(n)
+    y = np.empty(n)
+    box = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                rows[k], cols[k] = r, c
+                x[k], y[k] = np.float64(xp[r, c]), np.float64(yp[r, c])
+                box[0] = min(box[0], x[k])
+                box[1] = min(box[1], y[k])
+                box[2] = max(box[2], x[k])
+                box[3] = max(box[3], y[k])
+                k += 1
+    return rows, cols, x, y, box
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _grid_build(x, y, x0, y0, cell, nx, ny):
+    """The cells of the points (``min(int((x − x0) / cell), nx − 1)``, row-major ids), their
+    counting sort (:func:`_bucket_sort`) and the coordinates in the cells' order."""
+    cell_of = np.empty(x.size, dtype=np.int64)
+    for i in range(x.size):
+        gx = min(np.int64((x[i] - x0) / cell), nx - 1)
+        gy = min(np.int64((y[i] - y0) / cell), ny - 1)
+        cell_of[i] = gy * nx + gx
+    start, order = _bucket_sort(cell_of, nx * ny)
+    sx = np.empty(x.size)
+    sy = np.empty(x.size)
+    for i in range(x.size):
+        sx[i], sy[i] = x[order[i]], y[order[i]]
+    return start, order, sx, sy, cell_of
 
 
 @numba.njit(cache=cache_enabled(), nogil=True)
@@ -1172,6 +1215,24 @@ def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxy
         distance[k] = np.sqrt(s)
         k += 1
     return k, border, far
+
+
+def _take_rows(v: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``np.take(v, index, axis=0)`` of a 1-D or C-contiguous 2-D array (compiled)."""
+    if v.ndim == 2 and v.flags.c_contiguous:
+        return _take_rows_kernel(v, index)
+    if v.ndim == 1:
+        return _take_rows_kernel(v.reshape(-1, 1), index).reshape(-1)
+    return np.take(v, index, axis=0)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True)
+def _take_rows_kernel(v, index):
+    out = np.empty((index.size, v.shape[1]), dtype=v.dtype)
+    for i in range(index.size):
+        for j in range(v.shape[1]):
+            out[i, j] = v[index[i], j]
+    return out
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
@@ -1597,8 +1658,10 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     def subset(index, **extra):
         # the pairs' arrays when all are taken (copied when views of the kernel's buffers, which
         # hold a row for every parent pixel searched), else the rows of `index`
-        arrays = {k: v.copy() if v.base is not None else v for k, v in pairs.items()} \
-            if index.size == n else {k: np.take(v, index, axis=0) for k, v in pairs.items()}
+        if index.size == n:
+            arrays = {k: v.copy() if v.base is not None else v for k, v in pairs.items()}
+        else:
+            arrays = {k: _take_rows(v, index) for k, v in pairs.items()}
         return Correspondence(
             parent_name=str(parent.name), child_name=str(child.name),
             parent_shape=tuple(parent_valid.shape), child_shape=tuple(child_valid.shape),
