@@ -1252,6 +1252,24 @@ def _bilinear_values(image, r, c):
     return out
 
 
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _bilinear_at_least(image, rc, threshold, ok):
+    """``ok &= value >= threshold``, value the :func:`_bilinear_values` of `image` at the rows
+    and columns ``rc`` (N, 2) (integer or float, read as float64)."""
+    h, w = image.shape
+    for i in range(rc.shape[0]):
+        r, c = np.float64(rc[i, 0]), np.float64(rc[i, 1])
+        r0 = min(max(int(np.floor(r)), 0), h - 2)
+        c0 = min(max(int(np.floor(c)), 0), w - 2)
+        fr, fc = r - r0, c - c0
+        f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
+        f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+        top = f00 + (f01 - f00) * fc
+        bottom = f10 + (f11 - f10) * fc
+        if not top + (bottom - top) * fr >= threshold:
+            ok[i] = False
+
+
 # -- the correspondence ----------------------------------------------------------------------
 @dataclass
 class Correspondence:
@@ -1621,7 +1639,6 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     n = pairs["parent_rc"].shape[0]
     reason = np.full(n, -1, dtype=np.int8)
     pr, pc = pairs["parent_rc"].T
-    cr, cc = pairs["child_rc"].T
     tests = any(v is not None for v in (max_view_angle_deg, min_relative_modulation, outlier_mm))
     if quality is None:
         quality = {}
@@ -1638,12 +1655,10 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
             continue
         threshold = np.cos(np.radians(limit)) if code == 0 else limit
         ok = np.ones(n, dtype=bool)
-        for scan, (r, c) in ((parent, (pr, pc)), (child, (cr, cc))):
+        for scan, rc in ((parent, pairs["parent_rc"]), (child, pairs["child_rc"])):
             if code == 0 and scan.camera_center is None:
                 continue
-            value = _bilinear_values(images(scan, code), r.astype(np.float64),
-                                     c.astype(np.float64))
-            ok &= value >= threshold
+            _bilinear_at_least(images(scan, code), rc, float(threshold), ok)
         reason[(reason < 0) & ~ok] = code
     if outlier_mm is not None and n:
         live = reason < 0
