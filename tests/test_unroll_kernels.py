@@ -102,6 +102,8 @@ def ref_splat(grid, st, values, weights):
 
 
 def ref_print_grid(st_all, *, ppi, margin_mm=1.0):
+    if isinstance(st_all, list):  # unroll_scans concatenated the cameras' samples
+        st_all = np.concatenate(st_all)
     pitch = render.MM_PER_INCH / ppi
     lo = np.percentile(st_all, 0.01, axis=0) - margin_mm
     hi = np.percentile(st_all, 99.99, axis=0) + margin_mm
@@ -227,8 +229,18 @@ def test_tail_percentile_matches_numpy(q):
               np.sort(rng.normal(size=40000))[::-1], rng.normal(size=7),
               np.array([1.0, np.nan, 2.0] * 1000)):
         want = np.percentile(x, q)
-        got = K.tail_percentile(x, q)
-        assert got == want or (np.isnan(got) and np.isnan(want))
+        for got in (K.tail_percentile(x, q), K.tail_percentile([x[:3], x[3:]], q)):
+            assert got == want or (np.isnan(got) and np.isnan(want))
+
+
+def test_print_grid_of_parts_matches_former():
+    rng = np.random.default_rng(7)
+    parts = [rng.normal(size=(n, 2)) * (4, 9) for n in (30000, 17, 45000)]
+    for st in (parts, np.concatenate(parts)):
+        got = render.print_grid(st, ppi=500)
+        want = ref_print_grid(np.concatenate(parts), ppi=500)
+        assert (got.s0, got.t0, got.pitch, got.shape) == (want.s0, want.t0, want.pitch,
+                                                          want.shape)
 
 
 # -- the whole unroll against the former NumPy steps -----------------------------------------
@@ -278,3 +290,12 @@ def test_unroll_matches_former_numpy_pipeline(small_finger, monkeypatch):
     a, b = new.metadata(), old.metadata()
     a.pop("timings_s"), b.pop("timings_s")
     assert a == b
+
+
+def test_row_steps_match_numpy():
+    rng = np.random.default_rng(6)
+    xyz = rng.normal(size=(40, 33, 3)).astype(np.float32)
+    valid = rng.random((40, 33)) > 0.3
+    want = ridges._norm3(np.diff(xyz, axis=1))[valid[:, 1:] & valid[:, :-1]]
+    assert same(K.row_steps(xyz, valid), want)
+    assert ridges.pixel_spacing_mm(xyz, valid) == float(np.median(want))

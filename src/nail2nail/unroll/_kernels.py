@@ -204,16 +204,23 @@ def splat(grid, st, values, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 @numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
 def _upsample(small, r0, r1, fr, gr, c0, c1, fc, gc, out):  # pragma: no cover - compiled
-    # out[i, j] = (small[r0, c0]·gr + small[r1, c0]·fr)·gc + (small[r0, c1]·gr
-    #             + small[r1, c1]·fr)·fc, float32 (g = 1 − f), rows first as in NumPy
+    # tall = small[r0]·(1 − fr) + small[r1]·fr, one output row at a time; then
+    # out[i, j] = tall[c0]·(1 − fc) + tall[c1]·fc, float32, as in NumPy
+    ws = small.shape[1]
+    nk = out.shape[2]
+    tall = np.empty((ws, nk), np.float32)
     for i in range(out.shape[0]):
         a0, a1, wr0, wr1 = r0[i], r1[i], gr[i], fr[i]
-        for j in range(out.shape[1]):
-            b0, b1, wc0, wc1 = c0[j], c1[j], gc[j], fc[j]
-            for k in range(out.shape[2]):
-                left = small[a0, b0, k] * wr0 + small[a1, b0, k] * wr1
-                right = small[a0, b1, k] * wr0 + small[a1, b1, k] * wr1
-                out[i, j, k] = left * wc0 + right * wc1
+        for b in range(ws):
+            for k in range(nk):
+                tall[b, k] = small[a0, b, k] * wr0 + small[a1, b, k] * wr1
+        if nk == 1:
+            for j in range(out.shape[1]):
+                out[i, j, 0] = tall[c0[j], 0] * gc[j] + tall[c1[j], 0] * fc[j]
+        else:
+            for j in range(out.shape[1]):
+                for k in range(nk):
+                    out[i, j, k] = tall[c0[j], k] * gc[j] + tall[c1[j], k] * fc[j]
 
 
 def upsample(small, r0, r1, fr, c0, c1, fc) -> np.ndarray:
@@ -356,35 +363,38 @@ def _pairwise(x, n):  # pragma: no cover - compiled
 
 @numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
 def _block_mean(values, valid, f, hs, ws, v_out, m_out):  # pragma: no cover - compiled
-    h, w, k = values.shape
+    h, w, nk = values.shape
     row = np.zeros(f, np.float32)
+    acc = np.zeros((ws, nk), np.float32)
+    count = np.zeros(ws, np.int64)
     inv = np.float64(f * f)
+    zero = np.float32(0.0)
     for bi in range(hs):
-        for bj in range(ws):
-            count = 0
-            for a in range(f):
-                i = bi * f + a
+        acc[:] = 0
+        count[:] = 0
+        for a in range(f):
+            i = bi * f + a
+            inside = i < h
+            for bj in range(ws):
                 for b in range(f):
                     j = bj * f + b
-                    if i < h and j < w and valid[i, j]:
-                        count += 1
-            m_out[bi, bj] = np.float32(np.float64(np.float32(count)) / inv)
-            for c in range(k):
-                acc = np.float32(0.0)
-                for a in range(f):
-                    i = bi * f + a
+                    if inside and j < w and valid[i, j]:
+                        count[bj] += 1
+                for c in range(nk):
                     for b in range(f):
                         j = bj * f + b
-                        x = values[i, j, c] if (i < h and j < w and valid[i, j]) \
-                            else np.float32(0.0)
-                        if k == 1:
+                        x = values[i, j, c] if (inside and j < w and valid[i, j]) else zero
+                        if nk == 1:
                             row[b] = x
                         else:
-                            acc += x  # the reduction runs over rows, then columns
-                    if k == 1:
-                        # one channel: each row of the block is summed pairwise, then added
-                        acc = acc + _pairwise(row, f)
-                v_out[bi, bj, c] = np.float32(np.float64(acc) / inv)
+                            acc[bj, c] += x  # several channels: over rows, then columns
+                    if nk == 1:
+                        # one channel: each block row's pairwise sum, added in turn
+                        acc[bj, c] = acc[bj, c] + _pairwise(row, f)
+        for bj in range(ws):
+            m_out[bi, bj] = np.float32(np.float64(np.float32(count[bj])) / inv)
+            for c in range(nk):
+                v_out[bi, bj, c] = np.float32(np.float64(acc[bj, c]) / inv)
 
 
 def block_mean(values, valid, f: int) -> tuple[np.ndarray, np.ndarray]:
@@ -468,13 +478,12 @@ def _sift_down(heap, i, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
-def _smallest(x, sign, k, heap):  # pragma: no cover - compiled
-    # the k smallest of sign·x (max-heap, sorted on return); False if x holds a NaN
-    n = 0
+def _smallest(x, sign, k, heap, n):  # pragma: no cover - compiled
+    # push sign·x into a max-heap of the k smallest (heap[:n] filled); new n, −1 on a NaN
     for i in range(x.shape[0]):
         v = sign * x[i]
         if np.isnan(v):
-            return False
+            return -1
         if n < k:
             heap[n] = v
             n += 1
@@ -485,8 +494,7 @@ def _smallest(x, sign, k, heap):  # pragma: no cover - compiled
         elif v < heap[0]:
             heap[0] = v
             _sift_down(heap, 0, k)
-    heap.sort()
-    return True
+    return n
 
 
 def _order_statistic_lerp(a, b, virtual, previous):
@@ -506,8 +514,8 @@ def tail_percentile(x, q: float) -> float:
 
     Parameters
     ----------
-    x : (N,) float64
-        Any stride.
+    x : (N,) float64, or a sequence of such arrays
+        Any stride; a sequence counts as the concatenation of its arrays.
     q : float
         Percentile, 0 … 100.
 
@@ -515,25 +523,65 @@ def tail_percentile(x, q: float) -> float:
     -------
     float
     """
-    x = np.asarray(x, np.float64)
-    n = len(x)
+    parts = [np.asarray(p, np.float64) for p in x] if isinstance(x, (list, tuple)) \
+        else [np.asarray(x, np.float64)]
+    n = sum(len(p) for p in parts)
     virtual = (n - 1) * np.true_divide(np.float64(q), 100)
     low = virtual < 0.5 * (n - 1)
     # ranks from the nearer end; the upper tail counts from the top (sign −1)
     rank = virtual if low else (n - 1) - virtual
-    k = int(np.floor(rank)) + 2
+    k = int(np.floor(rank)) + 2 if np.isfinite(rank) else 0
     if n < 2 or not 0 <= q <= 100 or k > max(16, n // 100):
-        return float(np.percentile(x, q))
+        return float(np.percentile(np.concatenate(parts), q))
     heap = np.empty(k)
-    if not _smallest(x, 1.0 if low else -1.0, k, heap):
-        return float(np.percentile(x, q))
+    filled = 0
+    for p in parts:
+        filled = _smallest(p, 1.0 if low else -1.0, k, heap, filled)
+        if filled < 0:
+            return float(np.percentile(np.concatenate(parts), q))
+    heap.sort()
     previous = int(np.floor(virtual))
     if virtual >= n - 1:
         return float(-heap[0])
     if low:
         a, b = heap[previous], heap[previous + 1]
     else:
-        # sorted values at previous, previous + 1 are the (n−1−previous)-th, (n−2−previous)-th
-        # largest
+        # the sorted values at previous, previous + 1: the (n−1−previous)-th and
+        # (n−2−previous)-th largest
         a, b = -heap[n - 1 - previous], -heap[n - 2 - previous]
     return float(_order_statistic_lerp(np.float64(a), np.float64(b), virtual, previous))
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _row_steps(xyz, valid, out):  # pragma: no cover - compiled
+    n = 0
+    for i in range(xyz.shape[0]):
+        for j in range(xyz.shape[1] - 1):
+            if valid[i, j + 1] and valid[i, j]:
+                d0 = xyz[i, j + 1, 0] - xyz[i, j, 0]
+                d1 = xyz[i, j + 1, 1] - xyz[i, j, 1]
+                d2 = xyz[i, j + 1, 2] - xyz[i, j, 2]
+                out[n] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                n += 1
+    return n
+
+
+def row_steps(xyz, valid) -> np.ndarray:
+    """Distances between horizontally adjacent valid points, row-major.
+
+    ``|np.diff(xyz, axis=1)|[valid[:, 1:] & valid[:, :-1]]`` in float32, without the
+    full-size differences.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float32
+    valid : (H, W) bool
+
+    Returns
+    -------
+    (N,) float32
+    """
+    xyz = np.ascontiguousarray(xyz, np.float32)
+    out = np.empty(xyz.shape[0] * max(xyz.shape[1] - 1, 0), np.float32)
+    n = _row_steps(xyz, np.ascontiguousarray(valid, np.bool_), out)
+    return out[:n]

@@ -130,8 +130,8 @@ class CylinderMap(_AxisMap):
 
     def __call__(self, xyz) -> np.ndarray:
         """Print-plane ``(s, t)`` (N, 2), mm, of world points ``(N, 3)``."""
-        theta, t, _ = self.angles(xyz)
-        return np.stack([self.radius * theta, t], axis=-1)
+        x, z, t = self._local(xyz)
+        return np.stack([self.radius * np.arctan2(x, z), t], axis=-1)
 
 
 @dataclass
@@ -288,7 +288,8 @@ def _check_points(xyz) -> np.ndarray:
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"xyz: expected shape (N, 3), got {xyz.shape}")
-    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    if not np.isfinite(xyz).all():  # (no copy when every point is finite)
+        xyz = xyz[np.isfinite(xyz).all(axis=1)]
     if len(xyz) < 100:
         raise ValueError(f"xyz: need at least 100 finite surface points to unroll, got {len(xyz)}")
     return xyz
@@ -466,7 +467,7 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     """
     pts = _check_points(xyz)
     st = cylinder(pts)
-    origin = st.min(axis=0)
+    origin = np.array([st[:, 0].min(), st[:, 1].min()])
     cr = np.floor((st - origin) / grid_mm).astype(np.int64)
     gw, gh = int(cr[:, 0].max()) + 2, int(cr[:, 1].max()) + 2
     cell = cr[:, 1] * gw + cr[:, 0]

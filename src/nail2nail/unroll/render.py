@@ -63,8 +63,8 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
 
     Parameters
     ----------
-    st_all : (N, 2) float
-        Print-plane ``(s, t)`` of every sample, mm.
+    st_all : (N, 2) float, or a list of (N_i, 2) float
+        Print-plane ``(s, t)`` of every sample, mm (a list: of every camera's samples).
     ppi : float
         Resolution, pixels per inch (``pitch = 25.4 / ppi`` mm).
     margin_mm : float
@@ -83,10 +83,13 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     if not ppi > 0:
         raise ValueError(f"ppi: expected a positive number, got {ppi}")
     pitch = MM_PER_INCH / ppi
-    st_all = np.asarray(st_all, dtype=np.float64)
-    # np.percentile(st_all, q, axis=0), found without sorting
-    lo = np.array([tail_percentile(st_all[:, k], 0.01) for k in range(2)]) - margin_mm
-    hi = np.array([tail_percentile(st_all[:, k], 99.99) for k in range(2)]) + margin_mm
+    parts = [np.asarray(p, dtype=np.float64) for p in st_all] \
+        if isinstance(st_all, (list, tuple)) else [np.asarray(st_all, dtype=np.float64)]
+    # np.percentile(st_all, q, axis=0), found without sorting (nor concatenating)
+    lo = np.array([tail_percentile([p[:, k] for p in parts], 0.01) for k in range(2)]) \
+        - margin_mm
+    hi = np.array([tail_percentile([p[:, k] for p in parts], 99.99) for k in range(2)]) \
+        + margin_mm
     # snap s0, t0 to the pitch so that prints of one finger at one ppi share a lattice
     s0 = np.ceil(hi[0] / pitch) * pitch
     t0 = np.ceil(hi[1] / pitch) * pitch

@@ -265,7 +265,7 @@ def unroll_scans(
               for s, v in zip(scans, valids, strict=True)]
     lap("ridges")
     samples = [camera_samples(s, sig, wt, flat) for s, (sig, wt) in zip(scans, layers, strict=True)]
-    grid = print_grid(np.concatenate([st for st, _, _ in samples]), ppi=ppi)
+    grid = print_grid([st for st, _, _ in samples], ppi=ppi)
     # the outline smoothed over about one ridge period (0.5 mm)
     value, mask, share = blend_cameras(grid, samples, edge_sigma_px=0.25 / grid.pitch)
     lap("blend")
