@@ -15,10 +15,19 @@ child pixel for every parent pixel, vectorised over the child) is timed on a cro
 pixels and extrapolated to the million. With ``--scan-dir`` (a directory written by
 ``nail2nail scan``, e.g. the full-resolution demo finger) every ordered pair of its cameras.
 
+With ``--merge-calls`` (and ``--scan-dir``): the eight calls of the merge step, as it makes
+them: the report's neighbouring pairs (``border_px=2``, one cache) and fusion's every ordered
+pair (``border_px=1``, one cache, the view cosine passed in ``quality``), each cache empty at
+first, so the per-scan images count; per call, best of ``--repeat``. ``--against FILE`` (a
+copy of an earlier ``nail2nail/merge/correspondence.py``, its ``.statistics`` import made
+absolute) times that implementation in the same run, interleaved call by call, and checks
+that every result is the same bit for bit.
+
 Usage::
 
     .venv/bin/python bench/correspond.py [--crop 200] [--repeat 3] [--json]
     .venv/bin/python bench/correspond.py --scan-dir SCAN_DIR [--pairs 0-1,1-2] [--json]
+    .venv/bin/python bench/correspond.py --scan-dir SCAN_DIR --merge-calls [--against FILE]
 """
 
 from __future__ import annotations
@@ -120,6 +129,73 @@ def _print_rows(rows: list[dict]) -> None:
               f"{r['kdtree_s']:7.3f} {r['kdtree_ratio']:7.1f}x {old}  {same}")
 
 
+_PAIR_ARRAYS = ("parent_rc", "child_nearest", "child_rc", "xyz_parent", "xyz_child",
+                "residual_px")
+
+
+def _identical(a, b) -> bool:
+    """Two correspondences with the same arrays (values and dtypes), counts and rejections."""
+    for x, y in ((a, b), (a.rejected, b.rejected)):
+        if (x is None) != (y is None):
+            return False
+        if x is None:
+            continue
+        for name in _PAIR_ARRAYS:
+            u, v = getattr(x, name), getattr(y, name)
+            if u.dtype != v.dtype or not np.array_equal(u, v):
+                return False
+        if x.dropped != y.dropped or x.n_sampled != y.n_sampled:
+            return False
+    reasons = [None if m.rejected is None else m.rejected.reason.tolist() for m in (a, b)]
+    return reasons[0] == reasons[1]
+
+
+def merge_calls(scans, modules, *, repeat: int) -> tuple[list[dict], bool]:
+    """The merge's eight calls of ``_correspond`` with each module, interleaved; per call the
+    best time of each (seconds) and whether all modules agree."""
+    from nail2nail.merge.correspondence import _view_cosine
+
+    n = len(scans)
+    report = [(i, i + 1) for i in range(n - 1)]
+    fusion = [(i, j) for i in range(n) for j in range(n) if i != j]
+    options = {"stride": 1, "max_residual_px": 0.5, "max_jump_px": 2.0, "refine": True,
+               "method": "grid", "workers": -1, "max_view_angle_deg": 70.0,
+               "min_relative_modulation": 1 / 3, "outlier_mm": 0.025, "outlier_mad": 4.0,
+               "outlier_block_px": 32}
+    times: dict[tuple, list[list[float]]] = {}
+    same = True
+    for _ in range(repeat + 1):  # the first round warms up (compiled kernels, page faults)
+        caches = {m: (m.CorrespondenceCache(), m.CorrespondenceCache()) for m in modules}
+        quality = {m: {id(s): [_view_cosine(s, m.valid_mask(s), smooth_px=2.0), None]
+                       for s in scans} for m in modules}
+        for stage, pairs, border in (("report", report, 2), ("fusion", fusion, 1)):
+            for i, j in pairs:
+                results = []
+                for k, m in enumerate(modules):
+                    extra = ({"cache": caches[m][0]} if stage == "report" else
+                             {"cache": caches[m][1], "quality": quality[m]})
+                    t0 = time.perf_counter()
+                    results.append(m._correspond(scans[i], scans[j], border_px=border,
+                                                 **options, **extra))
+                    times.setdefault((stage, i, j), [[] for _ in modules])[k].append(
+                        time.perf_counter() - t0)
+                same &= all(_identical(results[0], r) for r in results[1:])
+    rows = [{"call": f"{stage} {i}-{j}",
+             **{f"s_{k}": round(min(t[1:]), 4) for k, t in enumerate(ts)}}
+            for (stage, i, j), ts in times.items()]
+    return rows, same
+
+
+def _load_module(path: Path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("nail2nail.merge._bench_against", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scan-dir", type=Path, default=None,
@@ -132,8 +208,33 @@ def main(argv=None) -> int:
     parser.add_argument("--noise", type=float, default=0.05, help="decoding noise, panel px")
     parser.add_argument("--no-old", action="store_true",
                         help="skip the implementation before issue 11 (seconds per pair)")
+    parser.add_argument("--merge-calls", action="store_true",
+                        help="with --scan-dir: the merge step's eight calls (see above)")
+    parser.add_argument("--against", type=Path, default=None,
+                        help="with --merge-calls: an earlier correspondence.py to compare")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+
+    if args.merge_calls:
+        import nail2nail.merge.correspondence as current
+        from nail2nail.io.scans import load_scans
+
+        if args.scan_dir is None:
+            parser.error("--merge-calls needs --scan-dir")
+        modules = [current] + ([_load_module(args.against)] if args.against else [])
+        rows, same = merge_calls(load_scans(args.scan_dir), modules, repeat=args.repeat)
+        totals = [round(sum(r[f"s_{k}"] for r in rows), 3) for k in range(len(modules))]
+        if args.json:
+            print(json.dumps({"calls": rows, "total_s": totals, "same": same}, indent=2))
+            return 0
+        names = ["now"] + (["against"] if args.against else [])
+        print(f"{'call':>12} " + " ".join(f"{n + ' s':>10}" for n in names))
+        for r in rows:
+            print(f"{r['call']:>12} " + " ".join(f"{r[f's_{k}']:10.3f}"
+                                                  for k in range(len(modules))))
+        print(f"{'total':>12} " + " ".join(f"{t:10.3f}" for t in totals)
+              + ("" if len(modules) == 1 else f"   identical results: {same}"))
+        return 0
 
     if args.scan_dir is not None:
         from nail2nail.io.scans import load_scans
