@@ -374,11 +374,19 @@ def _view_cosine(scan: Scan, valid: np.ndarray, *, normals=None, smooth_px: floa
     center = np.asarray(scan.camera_center, dtype=np.float64).reshape(3)
     xyz = _float_image(scan.xyz)
     if normals is None:
-        normals = _normals_kernel(xyz, center, True)
-    normals = _float_image(normals)
-    if normals.shape != xyz.shape:
-        raise ValueError(f"normals: expected shape {xyz.shape}, got {normals.shape}")
-    cos = _cosine_kernel(normals, xyz, center, valid)
+        # normals on the valid pixels' box widened by one pixel: a valid pixel's normal reads
+        # its neighbours only, and the box ends where the image does (the same differences)
+        cos = np.zeros(valid.shape)
+        box = _valid_box(valid, 1)
+        if box is not None:
+            inside = np.ascontiguousarray(xyz[box])
+            cos[box] = _cosine_kernel(_normals_kernel(inside, center, True), inside, center,
+                                      np.ascontiguousarray(valid[box]))
+    else:
+        normals = _float_image(normals)
+        if normals.shape != xyz.shape:
+            raise ValueError(f"normals: expected shape {xyz.shape}, got {normals.shape}")
+        cos = _cosine_kernel(normals, xyz, center, valid)
     # smoothed over the valid pixels' box widened by the Gaussian's radius (scipy's truncate
     # 4 σ): beyond it both images are 0, so the box gives the whole image's values
     box = _valid_box(valid, int(4.0 * float(smooth_px) + 0.5)) if smooth_px > 0 else None
