@@ -79,6 +79,18 @@ def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1):
     return out[..., 0] if squeeze else out
 
 
+def ref_local_normalize(values, valid, sigma_px, *, reduce=1):
+    """``local_normalize`` as it was before the compiled steps."""
+    v = np.where(valid, values, np.nan).astype(np.float32)
+    mean = ref_masked_gaussian(v, valid, sigma_px, reduce=reduce)
+    d = v - mean
+    rms = np.sqrt(ref_masked_gaussian(d * d, valid & np.isfinite(d), sigma_px, reduce=reduce))
+    floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = d / np.maximum(rms, floor)
+    return np.where(valid, out, np.nan).astype(np.float32)
+
+
 def ref_splat(grid, st, values, weights):
     """The former ``np.bincount`` splat: ``Σ w·k·v``, ``Σ w·k``, ``Σ k``."""
     h, w = grid.shape
@@ -116,6 +128,10 @@ def ref_print_grid(st_all, *, ppi, margin_mm=1.0):
 
 def ref_axis_distance(d, axis, radius=0.0):
     return np.linalg.norm(d - np.outer(d @ axis, axis), axis=1) - radius
+
+
+def ref_scan_valid(scan):
+    return np.asarray(scan.mask, dtype=bool) & ridges.finite_points(scan.xyz)
 
 
 def same(a, b) -> bool:
@@ -165,6 +181,19 @@ def test_masked_gaussian_matches_former(reduce):
     for values in (v, v[..., 1]):
         assert same(ridges.masked_gaussian(values, m, 6.0, reduce=reduce),
                     ref_masked_gaussian(values, m, 6.0, reduce=reduce))
+
+
+@pytest.mark.parametrize("reduce", [1, 5])
+def test_local_normalize_matches_former(reduce):
+    rng = np.random.default_rng(reduce + 20)
+    v = (rng.normal(size=(80, 70)) * 0.02).astype(np.float32)
+    m = np.zeros((80, 70), bool)
+    m[5:75, 10:65] = rng.random((70, 55)) > 0.05
+    v[40, 40] = np.nan  # a NaN inside the mask
+    const = np.full((80, 70), 3.0, np.float32)
+    for values in (v, const):
+        assert same(ridges.local_normalize(values, m, 7.0, reduce=reduce),
+                    ref_local_normalize(values, m, 7.0, reduce=reduce))
 
 
 @pytest.mark.parametrize("center", [(3.0, -2.0, 60.0), None])
@@ -275,6 +304,9 @@ def test_unroll_matches_former_numpy_pipeline(small_finger, monkeypatch):
 
     with monkeypatch.context() as mp:
         mp.setattr(ridges, "masked_gaussian", counted(ref_masked_gaussian))
+        mp.setattr(ridges, "local_normalize", counted(ref_local_normalize))
+        mp.setattr(ridges, "scan_valid", counted(ref_scan_valid))
+        mp.setattr(rolled, "scan_valid", counted(ref_scan_valid))
         mp.setattr(render, "masked_gaussian", counted(ref_masked_gaussian))
         mp.setattr(ridges, "surface_relief", counted(ridges._surface_relief))
         mp.setattr(render, "splat", counted(ref_splat))
@@ -282,8 +314,8 @@ def test_unroll_matches_former_numpy_pipeline(small_finger, monkeypatch):
         mp.setattr(rolled, "print_grid", counted(ref_print_grid))
         mp.setattr(flatten, "axis_distance", counted(ref_axis_distance))
         old = unroll_scans(small_finger)
-    assert {"ref_masked_gaussian", "_surface_relief", "ref_splat", "ref_print_grid",
-            "ref_axis_distance"} <= set(calls)
+    assert {"ref_masked_gaussian", "ref_local_normalize", "ref_scan_valid", "_surface_relief",
+            "ref_splat", "ref_print_grid", "ref_axis_distance"} <= set(calls)
     assert new.mask.sum() > 10000
     for name in ("image", "mask", "binary", "ridge", "share"):
         assert same(getattr(new, name), getattr(old, name)), name
@@ -299,3 +331,15 @@ def test_row_steps_match_numpy():
     want = ridges._norm3(np.diff(xyz, axis=1))[valid[:, 1:] & valid[:, :-1]]
     assert same(K.row_steps(xyz, valid), want)
     assert ridges.pixel_spacing_mm(xyz, valid) == float(np.median(want))
+
+
+def test_valid_points_match_numpy():
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(20, 30, 3)).astype(np.float32)
+    xyz[3, 4, 1] = np.nan
+    xyz[5, 6, 2] = np.inf
+    xyz[7, 8] = 3e38  # finite coordinates whose sum overflows
+    mask = rng.random((20, 30)) > 0.1
+    with np.errstate(over="ignore"):
+        want = mask & ridges.finite_points(xyz)
+    assert same(K.valid_points(mask, xyz), want)

@@ -585,3 +585,68 @@ def row_steps(xyz, valid) -> np.ndarray:
     out = np.empty(xyz.shape[0] * max(xyz.shape[1] - 1, 0), np.float32)
     n = _row_steps(xyz, np.ascontiguousarray(valid, np.bool_), out)
     return out[:n]
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _valid_points(mask, xyz, out):  # pragma: no cover - compiled
+    for i in range(xyz.shape[0]):
+        for j in range(xyz.shape[1]):
+            out[i, j] = mask[i, j] and np.isfinite(xyz[i, j, 0] + xyz[i, j, 1] + xyz[i, j, 2])
+
+
+def valid_points(mask, xyz) -> np.ndarray:
+    """``mask & isfinite(x + y + z)`` of a grid of float32 points, in one pass.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    xyz : (H, W, 3) float32
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    out = np.empty(mask.shape, np.bool_)
+    _valid_points(np.ascontiguousarray(mask, np.bool_), np.ascontiguousarray(xyz, np.float32),
+                  out)
+    return out
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _deviation(v, mean, valid, d, dd, ok):  # pragma: no cover - compiled
+    for i in range(v.shape[0]):
+        for j in range(v.shape[1]):
+            x = v[i, j] - mean[i, j]
+            d[i, j] = x
+            dd[i, j] = x * x
+            ok[i, j] = valid[i, j] and np.isfinite(x)
+
+
+def deviation(v, mean, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``d = v − mean``, ``d²`` and ``valid & isfinite(d)`` (float32), in one pass."""
+    d = np.empty(v.shape, np.float32)
+    dd = np.empty(v.shape, np.float32)
+    ok = np.empty(v.shape, np.bool_)
+    _deviation(np.ascontiguousarray(v, np.float32), np.ascontiguousarray(mean, np.float32),
+               np.ascontiguousarray(valid, np.bool_), d, dd, ok)
+    return d, dd, ok
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _normalized(d, mean_square, valid, floor, out):  # pragma: no cover - compiled
+    nan = np.float32(np.nan)
+    for i in range(d.shape[0]):
+        for j in range(d.shape[1]):
+            if not valid[i, j]:
+                out[i, j] = nan
+                continue
+            rms = np.sqrt(mean_square[i, j])
+            out[i, j] = d[i, j] / (rms if np.isnan(rms) else max(rms, floor))
+
+
+def normalized(d, mean_square, valid, floor: float) -> np.ndarray:
+    """``where(valid, d / maximum(sqrt(mean_square), floor), nan)`` in float32, one pass."""
+    out = np.empty(d.shape, np.float32)
+    _normalized(np.ascontiguousarray(d, np.float32), np.ascontiguousarray(mean_square, np.float32),
+                np.ascontiguousarray(valid, np.bool_), np.float32(floor), out)
+    return out

@@ -14,7 +14,15 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ..reconstruction import Scan
-from ._kernels import block_mean, row_steps, surface_relief, upsample
+from ._kernels import (
+    block_mean,
+    deviation,
+    normalized,
+    row_steps,
+    surface_relief,
+    upsample,
+    valid_points,
+)
 
 __all__ = [
     "camera_layer",
@@ -63,7 +71,11 @@ def scan_valid(scan: Scan) -> np.ndarray:
     -------
     (H, W) bool
     """
-    return np.asarray(scan.mask, dtype=bool) & finite_points(scan.xyz)
+    xyz = np.asarray(scan.xyz)
+    mask = np.asarray(scan.mask, dtype=bool)
+    if xyz.dtype == np.float32 and xyz.ndim == 3 and mask.shape == xyz.shape[:2]:
+        return valid_points(mask, xyz)  # compiled, the same float32 sum
+    return mask & finite_points(xyz)
 
 
 def pixel_spacing_mm(xyz, valid) -> float:
@@ -182,15 +194,15 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
         magnitude of `values`, so a constant field gives 0, not amplified rounding noise.
     """
     v = np.where(valid, values, np.nan).astype(np.float32)
+    valid = np.asarray(valid, dtype=bool)
     mean = masked_gaussian(v, valid, sigma_px, reduce=reduce)
-    d = v - mean
-    rms = np.sqrt(masked_gaussian(d * d, valid & np.isfinite(d), sigma_px, reduce=reduce))
+    d, dd, ok = deviation(v, mean, valid)  # d = v − mean, d², valid & isfinite(d)
+    mean_square = masked_gaussian(dd, ok, sigma_px, reduce=reduce)
     # a floor relative to the values' magnitude: a constant field stays 0 instead of its
     # rounding noise being blown up to unit RMS
     floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = d / np.maximum(rms, floor)
-    return np.where(valid, out, np.nan).astype(np.float32)
+    # where(valid, d / maximum(sqrt(mean_square), floor), nan), float32
+    return normalized(d, mean_square, valid, floor)
 
 
 def _normals(xyz) -> np.ndarray:
