@@ -547,11 +547,11 @@ class CorrespondenceCache:
 
     Matching one scan several times (the merge report's camera pairs; fusion's every ordered
     pair) then computes its valid mask, its inner region (jumps and border removed), its
-    smoothed view cosine and relative modulation, and the bucket grid of its projector
-    coordinates (:func:`nearest_grid`) once. Scans are recognised by identity, and the cache
-    holds them: do not change a cached scan's arrays in place (:func:`dataclasses.replace`
-    makes a new scan). About 40 bytes per pixel of each scan (50 MB for a 1280 × 1024 camera
-    seeing the finger).
+    smoothed view cosine and relative modulation, the rows and columns of its inner pixels,
+    and the bucket grid of its projector coordinates (:func:`nearest_grid`) once. Scans are
+    recognised by identity, and the cache holds them: do not change a cached scan's arrays in
+    place (:func:`dataclasses.replace` makes a new scan). About 55 bytes per pixel of each
+    scan (70 MB for a 1280 × 1024 camera seeing the finger).
 
     Examples
     --------
