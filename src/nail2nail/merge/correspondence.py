@@ -550,8 +550,8 @@ class CorrespondenceCache:
     smoothed view cosine and relative modulation, the rows and columns of its inner pixels,
     and the bucket grid of its projector coordinates (:func:`nearest_grid`) once. Scans are
     recognised by identity, and the cache holds them: do not change a cached scan's arrays in
-    place (:func:`dataclasses.replace` makes a new scan). About 55 bytes per pixel of each
-    scan (70 MB for a 1280 × 1024 camera seeing the finger).
+    place (:func:`dataclasses.replace` makes a new scan). About 45 bytes per pixel of each
+    scan (60 MB for a 1280 × 1024 camera seeing the finger).
 
     Examples
     --------
