@@ -343,3 +343,27 @@ def test_valid_points_match_numpy():
     with np.errstate(over="ignore"):
         want = mask & ridges.finite_points(xyz)
     assert same(K.valid_points(mask, xyz), want)
+
+
+def test_layer_outputs_match_numpy():
+    rng = np.random.default_rng(9)
+    shape, box = (30, 40), (slice(4, 24), slice(6, 36))
+    modulation = rng.normal(size=(20, 30)).astype(np.float32)
+    modulation[0, :3] = [np.nan, np.inf, -0.0]
+    cos = rng.uniform(0, 1, (20, 30)).astype(np.float32)
+    cos[1, :2] = [np.nan, np.float32(np.cos(np.radians(75.0)))]
+    feather = rng.uniform(0, 1, (20, 30)).astype(np.float32)
+    valid = rng.random((20, 30)) > 0.2
+    signal = rng.normal(size=(20, 30)).astype(np.float32)
+    signal[2, 3] = np.nan
+    cos_min = np.cos(np.radians(75.0))
+    got = K.layer_outputs(modulation, cos, feather, valid, signal, cos_min, box, shape)
+    # the former NumPy code of camera_layer
+    c = np.nan_to_num(cos)
+    weight = np.clip(np.nan_to_num(modulation), 0, None) * c**2 * feather
+    weight[c < cos_min] = 0
+    out_signal = np.full(shape, np.nan, dtype=np.float32)
+    out_signal[box] = np.where(valid, signal, np.nan)
+    out_weight = np.zeros(shape, dtype=np.float32)
+    out_weight[box] = np.where(valid & np.isfinite(signal), weight, 0)
+    assert same(got[0], out_signal) and same(got[1], out_weight)

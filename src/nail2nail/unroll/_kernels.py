@@ -650,3 +650,37 @@ def normalized(d, mean_square, valid, floor: float) -> np.ndarray:
     _normalized(np.ascontiguousarray(d, np.float32), np.ascontiguousarray(mean_square, np.float32),
                 np.ascontiguousarray(valid, np.bool_), np.float32(floor), out)
     return out
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _layer_outputs(modulation, cos, feather, valid, signal, cos_min, r0, c0, out_signal,
+                   out_weight):  # pragma: no cover - compiled
+    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    for i in range(signal.shape[0]):
+        for j in range(signal.shape[1]):
+            mod = _nan_to_num32(modulation[i, j])
+            mod = mod if mod >= 0 else zero
+            c = _nan_to_num32(cos[i, j])
+            w = mod * (c * c) * feather[i, j]
+            if np.float64(c) < cos_min:
+                w = zero
+            s = signal[i, j]
+            out_signal[r0 + i, c0 + j] = s if valid[i, j] else nan
+            out_weight[r0 + i, c0 + j] = w if (valid[i, j] and np.isfinite(s)) else zero
+
+
+def layer_outputs(modulation, cos, feather, valid, signal, cos_min: float, box, shape):
+    """The ridge signal and blending weight of ``camera_layer`` on the full camera grid.
+
+    ``weight = clip(nan_to_num(modulation), 0) · nan_to_num(cos)² · feather``, 0 where the
+    cosine is below `cos_min` (compared in float64); the signal NaN off `valid`, the weight 0
+    off ``valid & isfinite(signal)``; both float32, on the `box` of a grid of `shape`.
+    """
+    out_signal = np.full(shape, np.nan, dtype=np.float32)
+    out_weight = np.zeros(shape, dtype=np.float32)
+    _layer_outputs(np.ascontiguousarray(modulation, np.float32),
+                   np.ascontiguousarray(cos, np.float32), np.ascontiguousarray(feather, np.float32),
+                   np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(signal, np.float32),
+                   np.float64(cos_min), box[0].start, box[1].start, out_signal, out_weight)
+    return out_signal, out_weight

@@ -17,6 +17,7 @@ from ..reconstruction import Scan
 from ._kernels import (
     block_mean,
     deviation,
+    layer_outputs,
     normalized,
     row_steps,
     surface_relief,
@@ -339,15 +340,11 @@ def camera_layer(
         # print is normalised again on the print grid)
         signal = (signal + albedo_weight * local_normalize(albedo, m, csig, reduce=creduce)) \
             / np.float32(np.sqrt(1 + albedo_weight**2))
-    modulation = np.clip(np.nan_to_num(np.asarray(scan.modulation[box], np.float32)), 0, None)
-    cos = np.nan_to_num(cos)
-    weight = modulation * cos**2 * _feather(m, feather_px, max(1, reduce // 2))
-    weight[cos < np.cos(np.radians(max_view_angle_deg))] = 0
-    out_signal = np.full(valid.shape, np.nan, dtype=np.float32)
-    out_signal[box] = np.where(m, signal, np.nan)
-    out_weight = np.zeros(valid.shape, dtype=np.float32)
-    out_weight[box] = np.where(m & np.isfinite(signal), weight, 0)
-    return out_signal, out_weight
+    # weight = clip(modulation, 0) · cos² · feather, 0 beyond the largest viewing angle; both
+    # outputs on the full grid (compiled, one pass over the box)
+    return layer_outputs(np.asarray(scan.modulation[box], np.float32), cos,
+                         _feather(m, feather_px, max(1, reduce // 2)), m, signal,
+                         np.cos(np.radians(max_view_angle_deg)), box, valid.shape)
 
 
 def ridge_signal(scan: Scan, **options) -> np.ndarray:
