@@ -1,11 +1,24 @@
-"""Compiled per-sample steps of the unroll (numba): the rolled map and the bilinear splat.
+"""Compiled per-pixel and per-sample steps of the unroll (numba), the print unchanged.
 
-Both repeat, sample by sample, the arithmetic of the NumPy code they replace, in the same
-precision and order: :func:`rolled_map` that of :meth:`~nail2nail.unroll.flatten.RolledMap.
-__call__` (float64; the dot products and ``atan2`` may differ from NumPy's in the last bit),
-:func:`splat` that of the former ``np.bincount`` splat (float32 kernel weights, float64 sums
-in sample order, one sum per corner of the bilinear kernel added corner by corner), so that
-the print does not change. ``tests/test_unroll_kernels.py`` checks both against NumPy.
+Each kernel repeats, element by element, the arithmetic of the NumPy code it replaced, in the
+same precision and order, so that ``unroll_scans`` gives the same print to the last bit:
+
+- ridge signal (:mod:`~nail2nail.unroll.ridges`): the valid pixels (:func:`valid_points`),
+  the pixel spacing's steps (:func:`row_steps`), ``masked_gaussian``'s block means
+  (:func:`block_mean`: NumPy's float32 summation order of ``reshape(...).mean(axis=(1, 3))``
+  included) and bilinear upsampling (:func:`upsample`), the smooth surface's normals, viewing
+  cosine and relief (:func:`surface_relief`), the local normalisation (:func:`deviation`,
+  :func:`normalized`) and the camera's outputs (:func:`layer_outputs`);
+- flattening (:mod:`~nail2nail.unroll.flatten`): the cylinder fit's residual
+  (:func:`axis_distance`) and the rolled map (:func:`rolled_map`; the dot products and
+  ``atan2`` stay NumPy's);
+- blending (:mod:`~nail2nail.unroll.render`): a camera's samples (:func:`camera_points`), the
+  print grid's percentiles (:func:`tail_percentile`) and the bilinear splat (:func:`splat`:
+  float32 kernel weights, float64 sums in sample order, one per corner of the kernel, added
+  corner by corner as the former four ``np.bincount`` were).
+
+``tests/test_unroll_kernels.py`` checks each against the former NumPy code, and the whole
+unroll against the pipeline run with the former steps.
 """
 
 from __future__ import annotations
@@ -17,7 +30,21 @@ import numpy as np
 
 from .._numba_cache import cache_enabled
 
-__all__ = ["rolled_map", "splat"]
+__all__ = [
+    "axis_distance",
+    "block_mean",
+    "camera_points",
+    "deviation",
+    "layer_outputs",
+    "normalized",
+    "rolled_map",
+    "row_steps",
+    "splat",
+    "surface_relief",
+    "tail_percentile",
+    "upsample",
+    "valid_points",
+]
 
 _CACHE = cache_enabled()
 
