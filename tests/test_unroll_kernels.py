@@ -367,3 +367,13 @@ def test_layer_outputs_match_numpy():
     out_weight = np.zeros(shape, dtype=np.float32)
     out_weight[box] = np.where(valid & np.isfinite(signal), weight, 0)
     assert same(got[0], out_signal) and same(got[1], out_weight)
+
+
+def test_ratio_matches_numpy():
+    rng = np.random.default_rng(10)
+    num = rng.normal(size=(15, 12, 2)).astype(np.float32)
+    den = rng.uniform(-0.001, 0.01, (15, 12)).astype(np.float32)
+    den[0, 0] = np.float32(1e-3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want = np.where(den[..., None] > 1e-3, num / den[..., None], np.nan).astype(np.float32)
+    assert same(K.ratio(num, den), want)

@@ -6,9 +6,10 @@ same precision and order, so that ``unroll_scans`` gives the same print to the l
 - ridge signal (:mod:`~nail2nail.unroll.ridges`): the valid pixels (:func:`valid_points`),
   the pixel spacing's steps (:func:`row_steps`), ``masked_gaussian``'s block means
   (:func:`block_mean`: NumPy's float32 summation order of ``reshape(...).mean(axis=(1, 3))``
-  included) and bilinear upsampling (:func:`upsample`), the smooth surface's normals, viewing
-  cosine and relief (:func:`surface_relief`), the local normalisation (:func:`deviation`,
-  :func:`normalized`) and the camera's outputs (:func:`layer_outputs`);
+  included), normalisation (:func:`ratio`) and bilinear upsampling (:func:`upsample`), the
+  smooth surface's normals, viewing cosine and relief (:func:`surface_relief`), the local
+  normalisation (:func:`deviation`, :func:`normalized`) and the camera's outputs
+  (:func:`layer_outputs`);
 - flattening (:mod:`~nail2nail.unroll.flatten`): the cylinder fit's residual
   (:func:`axis_distance`) and the rolled map (:func:`rolled_map`; the dot products and
   ``atan2`` stay NumPy's);
@@ -37,6 +38,7 @@ __all__ = [
     "deviation",
     "layer_outputs",
     "normalized",
+    "ratio",
     "rolled_map",
     "row_steps",
     "splat",
@@ -711,3 +713,31 @@ def layer_outputs(modulation, cos, feather, valid, signal, cos_min: float, box, 
                    np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(signal, np.float32),
                    np.float64(cos_min), box[0].start, box[1].start, out_signal, out_weight)
     return out_signal, out_weight
+
+
+@numba.njit(cache=_CACHE, nogil=True, error_model="numpy")
+def _ratio(num, den, out):  # pragma: no cover - compiled
+    nan = np.float32(np.nan)
+    least = np.float32(1e-3)
+    for i in range(num.shape[0]):
+        for j in range(num.shape[1]):
+            d = den[i, j]
+            for k in range(num.shape[2]):
+                out[i, j, k] = num[i, j, k] / d if d > least else nan
+
+
+def ratio(num, den) -> np.ndarray:
+    """``where(den > 1e-3, num / den, nan)`` in float32 (``den`` broadcast over channels).
+
+    Parameters
+    ----------
+    num : (H, W, k) float32
+    den : (H, W) float32
+
+    Returns
+    -------
+    (H, W, k) float32
+    """
+    out = np.empty(num.shape, np.float32)
+    _ratio(np.ascontiguousarray(num, np.float32), np.ascontiguousarray(den, np.float32), out)
+    return out

@@ -19,6 +19,7 @@ from ._kernels import (
     deviation,
     layer_outputs,
     normalized,
+    ratio,
     row_steps,
     surface_relief,
     upsample,
@@ -130,16 +131,17 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
         NaN where no valid pixel is near.
     """
     v = np.asarray(values, dtype=np.float32)
-    m = np.asarray(valid, dtype=np.float32)
+    valid = np.asarray(valid)
     squeeze = v.ndim == 2
     if squeeze:
         v = v[..., None]
-    h, w = m.shape
+    h, w = valid.shape
     f = max(1, int(reduce))
-    if 1 < f <= 128:
+    if 1 < f <= 128 and valid.dtype == bool:
         # block means of the masked values and of the mask (compiled; NumPy's float32 sums)
-        v, m = block_mean(v, m > 0, f)
+        v, m = block_mean(v, valid, f)
     else:
+        m = np.asarray(valid, dtype=np.float32)
         v = np.where(m[..., None] > 0, v, 0).astype(np.float32)
         if f > 1:
             hp, wp = -(-h // f) * f, -(-w // f) * f
@@ -153,8 +155,7 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     for k in range(v.shape[2]):
         ndi.gaussian_filter(v[..., k], s, truncate=3.0, output=num[..., k])
     den = ndi.gaussian_filter(m, s, truncate=3.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(den[..., None] > 1e-3, num / den[..., None], np.nan).astype(np.float32)
+    out = ratio(num, den)  # where(den > 1e-3, num / den, nan), compiled
     if f > 1:
         # block centres sit at (f − 1)/2 + f·i on the full grid
         rows = (np.arange(h, dtype=np.float32) - (f - 1) / 2) / f
