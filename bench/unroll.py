@@ -22,14 +22,7 @@ import statistics
 import tempfile
 import time
 
-
-def _median_time(fn, repeats: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), out
+from _measure import median_time
 
 
 def _median_unroll(scans, method: str, repeats: int):
@@ -90,9 +83,9 @@ def main() -> None:
         t_sim = time.perf_counter() - t
         capture = read_capture(f"{tmp}/finger")
         calib = load_calibration(f"{tmp}/finger/truth/calibration.json")
-        t_scan, scans = _median_time(lambda: scan_capture(capture, calib, progress=False),
+        t_scan, scans = median_time(lambda: scan_capture(capture, calib, progress=False),
                                      args.repeats)
-        t_fuse, _ = _median_time(lambda: fuse_scans(scans), max(1, args.repeats // 2))
+        t_fuse, _ = median_time(lambda: fuse_scans(scans), max(1, args.repeats // 2))
         rows = [(method, *_median_unroll(scans, method, args.repeats)) for method in methods]
     n_valid = sum(int(s.mask.sum()) for s in scans)
     print(f"finger at scale {args.scale}: {len(scans)} cameras, {n_valid} valid pixels; "
