@@ -51,6 +51,10 @@ def test_outputs_and_stage_times(processed):
     parts = summary["scan_seconds"]
     assert set(parts) == {"read_frames", "decode"} and all(v > 0 for v in parts.values())
     assert sum(parts.values()) <= summary["seconds"]["scan"] + 0.002
+    merge = summary["merge_seconds"]
+    assert set(merge) == {"correspond", "fuse", "write", "figures"}
+    assert merge["correspond"] > 0 and merge["fuse"] > 0
+    assert sum(merge.values()) <= summary["seconds"]["merge"] + 0.005
     assert (out / "scans" / "scan.json").exists()
     assert (out / "merge" / "merge.json").exists() and (out / "merge" / "super.ply").exists()
     assert (out / "print" / "print.png").exists() and (out / "print" / "print.wsq").exists()

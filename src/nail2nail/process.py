@@ -133,10 +133,12 @@ def process_capture(
     dict
         The content of ``OUT/process.json``: ``{"capture", "calibration", "out", "options",
         "seconds": {stage: s, …, "total"}, "scan_seconds": {"read_frames", "decode"},
+        "merge_seconds": {"correspond", "fuse", "write", "figures"},
         "peak_rss_mb", "cameras": {name: valid pixels}, "merge": {pair: statistics},
         "super_scan", "print"}``. Stages: ``scan`` (reading the frames, decoding,
         triangulating; ``scan_seconds`` splits it), ``write_scans``, ``merge``
-        (correspondence, super scan and their files), ``unroll``, ``write_print``.
+        (correspondence, super scan and their files; ``merge_seconds`` splits it),
+        ``unroll``, ``write_print``.
 
     Raises
     ------
@@ -222,6 +224,7 @@ def process_capture(
                                                        "print_area_mm2", "files") if k in meta}
         summary["seconds"] = times.rounded()
         summary["scan_seconds"] = {k: round(v, 3) for k, v in scan_parts.items()}
+        summary["merge_seconds"] = merged["seconds"]
         summary["peak_rss_mb"] = _round(peak_rss_mb())
         summary = _relocate(summary, str(tmp), str(out))
         write_json(tmp / "process.json", summary)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import time
 import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -138,9 +139,11 @@ def write_merge(
         ``{"out", "merge": {"P-C": {parent, child, stride, sampled, pairs, dropped, rejected,
         distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
         before_rejection: {pairs, distance_mm, squared_mm2}, files}}, "super_scan": {...} |
-        None, "outputs": [paths]}``. ``distance_mm`` is over the kept pairs; ``rejected``
-        counts the pairs rejected per reason (:data:`nail2nail.merge.REJECT_REASONS`) and
-        ``before_rejection`` gives the statistics of all pairs found. The super scan's
+        None, "seconds": {correspond, fuse, write, figures}, "outputs": [paths]}``
+        (``figures``: the wait for the figures drawn beside the merge). ``distance_mm`` is
+        over the kept pairs; ``rejected`` counts the pairs rejected per reason
+        (:data:`nail2nail.merge.REJECT_REASONS`) and ``before_rejection`` gives the
+        statistics of all pairs found. The super scan's
         ``rejected_pairs`` and ``points_rejected`` count what fusion left out.
     """
     scans = list(scans)
@@ -224,6 +227,15 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                  data, mat5, progress, drawing) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
+    seconds = dict.fromkeys(("correspond", "fuse", "write", "figures"), 0.0)
+    clock = time.perf_counter()
+
+    def lap(part: str) -> None:  # the wall time since the last lap goes to `part`
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[part] += now - clock
+        clock = now
+
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
     mat5_files: list[Path] = []
     cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
@@ -233,8 +245,10 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         key = f"{i}-{j}"
         stats = corr.statistics()
         _check_kept(corr, stats)
+        lap("correspond")
         files = ({"mapping": str(_save_mapping(out / f"merge_{key}_mapping.npz", corr))}
                  if data else {})
+        lap("write")
         if drawing is not None:
             drawn.append((files, drawing.submit(
                 _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
@@ -243,6 +257,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     del cache  # its images are not needed by the fusion: freed before it
     if super_scan:
         sup = fuse_scans(scans, max_residual_px=max_residual_px)
+        lap("fuse")
         if drawing is not None:
             renders = {}
             for view, (elev, azim) in RENDER_VIEWS.items():
@@ -259,11 +274,14 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         if drawing is not None:
             drawn.append((files, renders))
         del sup
+        lap("write")
     for files, figures in drawn:  # wait for the figures, in order; a failure raises here
         if isinstance(figures, dict):
             files.update({k: str(f.result()) for k, f in figures.items()})
         else:
             files.update({k: str(v) for k, v in figures.result().items()})
+    lap("figures")  # what is left of the drawing once the merge is done
+    summary["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
     outputs = summary["outputs"]
     for m in summary["merge"].values():
         outputs.extend(m["files"].values())
