@@ -20,11 +20,10 @@ from __future__ import annotations
 
 import os
 import sys
-import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 
-__all__ = ["StageTimes", "peak_rss_mb", "process_capture"]
+from ._timing import StepClock
+
+__all__ = ["peak_rss_mb", "process_capture"]
 
 
 def peak_rss_mb() -> float | None:
@@ -38,36 +37,6 @@ def peak_rss_mb() -> float | None:
         return None
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / (2**20 if sys.platform == "darwin" else 2**10)
-
-
-class StageTimes:
-    """Wall time of named stages, in the order they ran (seconds, ``time.perf_counter``).
-
-    Examples
-    --------
-    >>> times = StageTimes()
-    >>> with times("scan"):
-    ...     pass
-    >>> list(times.seconds)
-    ['scan']
-    """
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-
-    @contextmanager
-    def __call__(self, stage: str) -> Iterator[None]:
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
-
-    def rounded(self, digits: int = 3) -> dict[str, float]:
-        """The seconds per stage and their ``total``, rounded."""
-        out = {k: round(v, digits) for k, v in self.seconds.items()}
-        out["total"] = round(sum(self.seconds.values()), digits)
-        return out
 
 
 def process_capture(
@@ -163,7 +132,7 @@ def process_capture(
     if length_mm is not None and not float(length_mm) > 0:
         raise ValueError(f"length_mm: expected a positive length in mm, got {length_mm}")
     out = check_output_directory(out, marker="process.json")
-    times = StageTimes()
+    times = StepClock()
 
     def say(text: str) -> None:
         if progress:
@@ -177,7 +146,7 @@ def process_capture(
 
     say("scan")
     scan_parts: dict[str, float] = {}
-    with times("scan"):
+    with times.stage("scan"):
         scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
                              min_modulation=min_modulation, allow_mirrored=allow_mirrored,
                              calibration_name=calibration_name, timings=scan_parts)
@@ -198,11 +167,11 @@ def process_capture(
     }
     with atomic_directory(out, marker="process.json") as tmp:
         say("write the scans")
-        with times("write_scans"):
+        with times.stage("write_scans"):
             save_scans(tmp / "scans", scans, mat5=mat5, ply=ply,
                        extra={"capture": str(capture.path), "calibration": calibration_name})
         say("merge and fuse the super scan")
-        with times("merge"):
+        with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5)
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
@@ -214,11 +183,11 @@ def process_capture(
             from .unroll import unroll_scans
 
             say(f"unroll ({method})")
-            with times("unroll"):
+            with times.stage("unroll"):
                 rolled = unroll_scans(scans, method=method, ppi=ppi,
                                       tip_direction=tip_direction, length_mm=length_mm)
             del scans  # the print alone from here on
-            with times("write_print"):
+            with times.stage("write_print"):
                 meta = write_rolled_print(tmp / "print", rolled, wsq=wsq)
             summary["print"] = {k: meta[k] for k in ("method", "shape", "ppi", "print_size_mm",
                                                        "print_area_mm2", "files") if k in meta}

@@ -533,6 +533,10 @@ def ray_table(camera, projector, shape, *, projector_distortion: dict | None = N
               use: str = "xpyp") -> RayTable:
     """Precompute the triangulation of a camera's ``(H, W)`` pixels for the fused kernel.
 
+    Thesis eq. 3.12–3.14 solved on the camera ray: the two camera rows of eq. 3.12–3.13 fix
+    the ray of each pixel centre (``(x, y) = (column, row)``, px), the projector rows the
+    plane(s) it meets (:func:`reconstruct_points_ray`).
+
     Parameters
     ----------
     camera, projector : (3, 4) array or Pinhole
@@ -571,7 +575,8 @@ def ray_table(camera, projector, shape, *, projector_distortion: dict | None = N
 def reconstruct_points_ray(camera, projector, xc, yc, xp, yp, *,
                            projector_distortion: dict | None = None,
                            use: str = "xpyp") -> np.ndarray:
-    """World points on the camera rays of pixels ``(xc, yc)``: the fused kernel's triangulation.
+    """World points on the camera rays of pixels ``(xc, yc)``: the fused kernel's triangulation
+    (thesis eq. 3.12–3.14 with the camera equations exact).
 
     The point ``X = C + t d`` lies on the ray of the (lens-undistorted) camera pixel. Each
     projector coordinate ``p`` (``xp`` or ``yp``, ideal after the projector's distortion is

@@ -12,12 +12,12 @@ float32 rounding (``tests/test_scan_fast.py``).
 
 from __future__ import annotations
 
-import time
 import warnings
 
 import numpy as np
 
 from ._interpolate import bilinear
+from ._timing import StepClock
 from .camera_models import Pinhole
 from .io.calibration import CameraCalibration, RigCalibration, check_handedness
 from .io.capture import frame_intensities
@@ -367,8 +367,8 @@ def scan_capture(
 
     _check_method(method)
     _check_use(use)
-    clock = {"read_frames": 0.0, "decode": 0.0}
-    start = time.perf_counter()
+    clock = StepClock()
+    clock.seconds.update(read_frames=0.0, decode=0.0)
     names = capture.camera_names
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
@@ -380,7 +380,7 @@ def scan_capture(
                 f"{calibration_name}: camera {name!r} was calibrated for {cam.size[0]} x "
                 f"{cam.size[1]} px images, but {capture.path} has {size[0]} x {size[1]} px "
                 "frames: use a calibration made with this capture's cameras")
-    clock["read_frames"] += time.perf_counter() - start
+    clock("read_frames")
     scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
@@ -392,28 +392,27 @@ def scan_capture(
                 f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
                 UserWarning, stacklevel=2)
     if timings is not None:
-        for key, seconds in clock.items():
+        for key, seconds in clock.seconds.items():
             timings[key] = timings.get(key, 0.0) + seconds
     return scans
 
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
-                 decode_options, clock: dict) -> Scan:
+                 decode_options, clock: StepClock) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
     as they are."""
-    start = time.perf_counter()
+    clock.restart()
     cached = name in capture.frames
     frames = _check_frames(capture.frames[name] if cached else capture.load_frames(name, raw=True),
                            capture.pattern_set)
-    read = time.perf_counter()
+    clock("read_frames")
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
     scan = _scan(frames, capture.pattern_set, calibration.camera(name),
                  projector_distortion=calibration.projector_distortion, use=use, method=method,
                  decode_options=options, bit_depth=None if cached else capture.bit_depth)
-    clock["read_frames"] += read - start
-    clock["decode"] += time.perf_counter() - read
+    clock("decode")
     return scan
 
 

@@ -28,7 +28,6 @@ takes a few hundred milliseconds besides the correspondences (``bench/fusion.py`
 from __future__ import annotations
 
 import os
-import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -37,6 +36,7 @@ import numpy as np
 import scipy.ndimage
 
 from .._numba_cache import cache_enabled
+from .._timing import StepClock
 from .._validation import as_int
 from ..reconstruction import Scan
 from .correspondence import (
@@ -1105,19 +1105,6 @@ class SuperScan:
         }
 
 
-class _Clock:
-    """Adds the time since the last call to a step's total."""
-
-    def __init__(self):
-        self.times: dict[str, float] = {}
-        self.last = time.perf_counter()
-
-    def __call__(self, step: str) -> None:
-        now = time.perf_counter()
-        self.times[step] = self.times.get(step, 0.0) + now - self.last
-        self.last = now
-
-
 def fuse_scans(
     scans,
     *,
@@ -1203,7 +1190,7 @@ def fuse_scans(
     ValueError
         For no scans, a bad priority, or a scan without valid pixels.
     """
-    clock = _Clock()
+    clock = StepClock()
     scans = list(scans)
     if not scans:
         raise ValueError("scans: expected at least one Scan")
@@ -1431,7 +1418,7 @@ def fuse_scans(
         correspondences=corr, priority=priority, duplicates_removed=removed,
         points_rejected={s.name: {"spike": spikes_removed[s.name],
                                   "off_surface": off_surface[s.name]} for s in scans},
-        timings=clock.times,
+        timings=clock.seconds,
     )
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import time
 import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from .._timing import StepClock
 from .._validation import as_int
 from ..io._atomic import atomic_directory, write_npz
 from ..io._json import write_json
@@ -227,14 +227,9 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                  data, mat5, progress, drawing) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
-    seconds = dict.fromkeys(("correspond", "fuse", "write", "figures"), 0.0)
-    clock = time.perf_counter()
-
-    def lap(part: str) -> None:  # the wall time since the last lap goes to `part`
-        nonlocal clock
-        now = time.perf_counter()
-        seconds[part] += now - clock
-        clock = now
+    lap = StepClock()
+    for part in ("correspond", "fuse", "write", "figures"):  # every part, in this order
+        lap.seconds[part] = 0.0
 
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
     mat5_files: list[Path] = []
@@ -281,7 +276,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         else:
             files.update({k: str(v) for k, v in figures.result().items()})
     lap("figures")  # what is left of the drawing once the merge is done
-    summary["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
+    summary["seconds"] = {k: round(v, 3) for k, v in lap.seconds.items()}
     outputs = summary["outputs"]
     for m in summary["merge"].values():
         outputs.extend(m["files"].values())

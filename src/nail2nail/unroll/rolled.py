@@ -9,11 +9,11 @@ quality figures (:mod:`~nail2nail.unroll.quality`).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._timing import StepClock
 from ..io.rolled import ROLLED_FORMAT
 from ..reconstruction import Scan
 from .flatten import METHODS, fit_flattening, map_distortion
@@ -231,14 +231,8 @@ def unroll_scans(
         raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
     if not (isinstance(ppi, (int, float)) and 100 <= ppi <= 4000):
         raise ValueError(f"ppi: expected a number in 100..4000, got {ppi!r}")
-    timings: dict[str, float] = {}
-    clock = time.perf_counter()
-
-    def lap(name):
-        nonlocal clock
-        now = time.perf_counter()
-        timings[name] = now - clock
-        clock = now
+    lap = StepClock()
+    timings = lap.seconds
 
     points, valids = [], []
     for s in scans:
