@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import warnings
+
 import numpy as np
 import scipy.linalg
 
@@ -21,9 +23,70 @@ __all__ = [
     "dlt_from_pinhole",
     "handedness",
     "look_at",
+    "nearest_rotation",
     "pinhole_from_dlt",
     "project_dlt",
+    "projection_matrix",
 ]
+
+#: Largest ``max |R Rᵀ − I|`` of a rotation accepted as it is (float64 rounding).
+ROTATION_EXACT = 1e-9
+#: Largest ``max |R Rᵀ − I|`` of a rotation re-orthonormalised with a warning (a rotation stored
+#: as float32 is orthonormal to some 1e-7); beyond it a matrix is refused.
+ROTATION_TOLERANCE = 1e-5
+
+
+def nearest_rotation(R, name: str = "R") -> np.ndarray:
+    """`R` itself if orthonormal to float64 rounding, else the nearest orthogonal matrix.
+
+    A matrix with ``max |R Rᵀ − I| ≤`` :data:`ROTATION_TOLERANCE` (a rotation stored as
+    float32, orthonormal to about 1e-7) is replaced by the orthogonal matrix nearest to it in
+    the Frobenius norm, ``U Vᵀ`` of its SVD ``U S Vᵀ`` (its determinant keeps its sign: a
+    left-handed matrix stays left-handed, and :func:`handedness` refuses it), with a
+    ``UserWarning`` giving the deviation and how much the entries changed.
+
+    Parameters
+    ----------
+    R : (3, 3) float
+        A rotation matrix.
+    name : str
+        How messages name it.
+
+    Returns
+    -------
+    (3, 3) float64
+
+    Raises
+    ------
+    ValueError
+        If ``max |R Rᵀ − I|`` exceeds :data:`ROTATION_TOLERANCE` (the measured deviation is
+        in the message), or an entry's magnitude exceeds ``1 + ROTATION_TOLERANCE``.
+
+    Examples
+    --------
+    >>> R = nearest_rotation(np.eye(3, dtype=np.float32))
+    >>> R.dtype, bool(np.array_equal(R, np.eye(3)))
+    (dtype('float64'), True)
+    """
+    R = as_matrix(R, name, (3, 3))
+    # a rotation's entries lie in [-1, 1]: checked first, so R @ R.T cannot overflow
+    largest = float(np.max(np.abs(R)))
+    if largest > 1 + ROTATION_TOLERANCE:
+        raise ValueError(f"{name}: not a rotation matrix (an entry of magnitude {largest:.6g} "
+                         "> 1)")
+    deviation = float(np.max(np.abs(R @ R.T - np.eye(3))))
+    if deviation <= ROTATION_EXACT:
+        return R
+    if deviation > ROTATION_TOLERANCE:
+        raise ValueError(f"{name}: not a rotation matrix (max |R R^T - I| = {deviation:.3g}, "
+                         f"more than the {ROTATION_TOLERANCE:g} accepted)")
+    U, _, Vt = np.linalg.svd(R)
+    nearest = U @ Vt
+    change = float(np.max(np.abs(nearest - R)))
+    warnings.warn(f"{name}: not orthonormal to float64 precision (max |R R^T - I| = "
+                  f"{deviation:.3g}, a rotation stored as float32?); replaced by the nearest "
+                  f"rotation, entries changed by up to {change:.3g}", UserWarning, stacklevel=3)
+    return nearest
 
 
 def look_at(eye, target, up) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +136,9 @@ class Pinhole:
         Intrinsic matrix in pixels; ``(K[0, 2], K[1, 2])`` is the principal point with the
         pixel-centre convention (``(0, 0)`` is the centre of the top-left pixel).
     R : (3, 3) float
-        Rotation of ``T_cam_world``.
+        Rotation of ``T_cam_world``. One orthonormal only to float32 precision
+        (``max |R Rᵀ − I| ≤ 1e-5``) is re-orthonormalised with a ``UserWarning``
+        (:func:`nearest_rotation`); a matrix farther from a rotation is refused.
     t : (3,) float
         Translation of ``T_cam_world``, mm.
     dist : (5,) float
@@ -104,10 +169,7 @@ class Pinhole:
             raise ValueError("dist: contains NaN or infinity")
         self.dist = np.pad(dist, (0, 5 - dist.size))
         self.size = as_int_pair(self.size, "size", "(width, height) in pixels", minimum=1)
-        # a rotation's entries lie in [-1, 1]: checked first, so R @ R.T cannot overflow
-        if np.max(np.abs(self.R)) > 1 + 1e-9 or not np.allclose(self.R @ self.R.T, np.eye(3),
-                                                                 atol=1e-9):
-            raise ValueError("R: not a rotation matrix")
+        self.R = nearest_rotation(self.R, "R")
 
     # -- frames ---------------------------------------------------------------------------
     @property
@@ -211,8 +273,56 @@ def _normalized(matrix) -> np.ndarray:
     return matrix / scale if scale > 0 else matrix
 
 
+def projection_matrix(model) -> np.ndarray:
+    """The 3×4 projection matrix of a model, scaled so that ``w`` is the depth in mm.
+
+    ``P = λ K [R | t]`` (a pinhole model) or ``λ M`` (a DLT matrix) with ``λ`` chosen so that
+    the left 3-vector of the third row has unit norm and ``det P[:, :3] > 0``: then
+    ``w = P[2] · (X, 1)`` is the signed depth of ``X`` along the principal axis, mm, positive
+    in front of a camera that is not mirrored. Unlike :func:`dlt_from_pinhole` (``m34 = 1``,
+    the thesis's form) it exists for every world frame, the camera's own included (where
+    ``m34 = 0``). The internal model of every reconstruction (``reconstruction.model_matrix``);
+    ignores lens distortion.
+
+    Parameters
+    ----------
+    model : Pinhole or (3, 4) float
+        A pinhole model or a DLT matrix (any scale, either sign).
+
+    Returns
+    -------
+    (3, 4) float64
+
+    Raises
+    ------
+    ValueError
+        If the left 3×3 block is singular (no camera).
+
+    Examples
+    --------
+    >>> cam = Pinhole(K=np.diag([1000., 1000, 1]), R=np.eye(3), t=np.zeros(3))
+    >>> P = projection_matrix(cam)  # world frame = camera frame: m34 = 0
+    >>> P[2].tolist(), float(P[2] @ [1.0, 2.0, 30.0, 1.0])
+    ([0.0, 0.0, 1.0, 0.0], 30.0)
+    """
+    if isinstance(model, Pinhole):
+        M = model.K @ np.hstack([model.R, model.t[:, None]])
+    else:
+        M = as_matrix(model, "model", (3, 4))
+    M = _normalized(M)
+    det = np.linalg.det(M[:, :3])
+    norm = np.linalg.norm(M[2, :3])
+    if not (np.isfinite(det) and det != 0 and norm > 0):
+        raise ValueError("projection matrix: its left 3x3 block is singular (not a camera)")
+    return M * (np.sign(det) / norm)
+
+
 def dlt_from_pinhole(model: Pinhole) -> np.ndarray:
     """DLT matrix ``K [R | t]`` scaled to ``m34 = 1`` (thesis eq. 3.3); ignores distortion.
+
+    The thesis's form, for its tables and the DLT calibration files; it does not exist when
+    the world origin lies on the principal plane (a camera-centred world frame, ``m34 = 0``):
+    everything else uses :func:`projection_matrix`.
 
     Examples
     --------
@@ -223,12 +333,19 @@ def dlt_from_pinhole(model: Pinhole) -> np.ndarray:
     """
     M = model.K @ np.hstack([model.R, model.t[:, None]])
     if abs(M[2, 3]) < 1e-12:
-        raise ValueError("pinhole model: m34 is zero (world origin on the principal plane)")
+        raise ValueError("pinhole model: m34 is zero (world origin on the principal plane, "
+                         "e.g. a camera-centred world frame): the thesis's DLT form (m34 = 1) "
+                         "does not exist; use projection_matrix")
     return M / M[2, 3]
 
 
 def pinhole_from_dlt(matrix, *, size=(1024, 1280)) -> Pinhole:
-    """Decompose a 3×4 DLT matrix into ``K``, ``R``, ``t`` (RQ decomposition, no distortion)."""
+    """Decompose a 3×4 DLT matrix into ``K``, ``R``, ``t`` (RQ decomposition, no distortion).
+
+    Any scale and sign of the matrix: the sign is taken with ``det M[:, :3] > 0``, so that
+    ``det R = +1`` and ``K`` has a positive diagonal; ``K[2, 2] = 1``. ``R``, ``t`` are those
+    of ``T_cam_world`` (``x_cam = R x_world + t``, mm).
+    """
     M = as_matrix(matrix, "matrix", (3, 4))
     if np.linalg.det(M[:, :3]) < 0:  # M is defined up to scale: pick the sign with det(R) = +1
         M = -M

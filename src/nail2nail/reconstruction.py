@@ -299,8 +299,8 @@ def undistorted_pixels(model, xy) -> np.ndarray:
 
     A DLT matrix (3×4 array) has no distortion: `xy` is returned as float64. For a
     :class:`~nail2nail.camera_models.Pinhole` the OpenCV distortion is inverted
-    (``K · undistort(K⁻¹ x)``), so that the model's DLT matrix
-    (:func:`~nail2nail.camera_models.dlt_from_pinhole`) applies.
+    (``K · undistort(K⁻¹ x)``), so that the model's projection matrix
+    (:func:`model_matrix`) applies.
     """
     from .camera_models import Pinhole
 
@@ -313,11 +313,15 @@ def undistorted_pixels(model, xy) -> np.ndarray:
 
 
 def model_matrix(model) -> np.ndarray:
-    """The 3×4 DLT matrix of a model (a DLT matrix itself, or a pinhole's ``K [R | t]``)."""
-    from .camera_models import Pinhole, dlt_from_pinhole
+    """The 3×4 projection matrix of a model: a DLT matrix itself, or a pinhole's ``K [R | t]``
+    scaled so that ``w`` is the depth in mm
+    (:func:`~nail2nail.camera_models.projection_matrix`; any world frame, the camera's own
+    included: no ``m34 = 1`` normalisation). Every triangulation here is invariant to the
+    matrices' scale."""
+    from .camera_models import Pinhole, projection_matrix
 
     if isinstance(model, Pinhole):
-        return dlt_from_pinhole(model)
+        return projection_matrix(model)
     return as_matrix(model, "model", (3, 4))
 
 
