@@ -1,0 +1,59 @@
+"""Calibration of the cameras and the projector.
+
+Submodules
+----------
+:mod:`.dlt`
+    Least-squares (DLT) projection matrices per camera and per projector (thesis eq. 3.1–3.11),
+    the point-table calibration and the cross-check of two tables.
+:mod:`.target`
+    Joint refinement of pinhole cameras and one shared projector on the thesis's machined
+    cylinder target (:mod:`nail2nail.markers`).
+
+Every public name is re-exported here (``from nail2nail.calibration import X``); the private
+helpers that tests use are reachable as before.
+"""
+
+from .dlt import (
+    METHODS as METHODS,
+)
+from .dlt import (
+    MIN_POINTS as MIN_POINTS,
+)
+from .dlt import (
+    CalibrationReport,
+    CrossCheck,
+    calibrate_points,
+    check_calibration_points,
+    crosscheck,
+    fit_projection_matrix,
+    reprojection_errors,
+)
+from .target import (
+    JointCalibration,
+    TargetObservations,
+    calibrate_from_observations,
+    calibrate_rig_joint,
+)
+from .target import (
+    _mark_centroids as _mark_centroids,
+)
+from .target import (
+    _mark_quadrature as _mark_quadrature,
+)
+from .target import (
+    _ray_cylinder as _ray_cylinder,
+)
+
+__all__ = [
+    "CalibrationReport",
+    "CrossCheck",
+    "JointCalibration",
+    "TargetObservations",
+    "calibrate_from_observations",
+    "calibrate_points",
+    "calibrate_rig_joint",
+    "check_calibration_points",
+    "crosscheck",
+    "fit_projection_matrix",
+    "reprojection_errors",
+]
