@@ -60,6 +60,9 @@ def process_capture(
     wsq: bool = True,
     progress: bool = False,
     calibration_name: str = "calibration",
+    frame: str = "world",
+    masks=None,
+    decode_options: dict | None = None,
 ) -> dict:
     """Scan, merge, fuse and unroll one capture; write everything under `out`.
 
@@ -96,6 +99,15 @@ def process_capture(
         One line per stage on stderr.
     calibration_name : str
         How errors name the calibration (its file, when given as an object).
+    frame : str
+        Frame of the points written (``OUT/scans``, the super scan in ``OUT/merge``):
+        ``"world"`` or a camera's name (:func:`nail2nail.frames.frame_transform`); everything
+        is computed in the world frame. Recorded with ``T_frame_world`` in ``process.json``.
+    masks : mapping of str to (H, W) bool array or path-like, optional
+        User validity masks by camera (:func:`nail2nail.scanning.scan_capture`).
+    decode_options : dict, optional
+        Further decoder thresholds (``min_albedo``, ``saturation``, ``unwrap_tolerance``,
+        ``erode`` …: :func:`nail2nail.phase.decode`), recorded in ``process.json``.
 
     Returns
     -------
@@ -115,6 +127,7 @@ def process_capture(
         Bad input, naming the file (the capture, the calibration) and the problem; `out`
         holds its earlier content then.
     """
+    from .frames import frame_transform
     from .io._atomic import atomic_directory, check_output_directory
     from .io._json import write_json
     from .io.calibration import load_calibration
@@ -141,6 +154,7 @@ def process_capture(
     if isinstance(calibration, (str, os.PathLike)):
         calibration_name = str(calibration)
         calibration = load_calibration(calibration, allow_mirrored=allow_mirrored)
+    transform = frame_transform(calibration, frame)
     if isinstance(capture, (str, os.PathLike)):
         capture = read_capture(capture, load=False)
 
@@ -149,7 +163,8 @@ def process_capture(
     with times.stage("scan"):
         scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
                              min_modulation=min_modulation, allow_mirrored=allow_mirrored,
-                             calibration_name=calibration_name, timings=scan_parts)
+                             calibration_name=calibration_name, timings=scan_parts,
+                             masks=masks, **(decode_options or {}))
     if len(scans) < 2:
         raise ValueError(f"{capture.path}: need at least two cameras to merge, got "
                          f"{len(scans)}")
@@ -159,7 +174,12 @@ def process_capture(
         "capture": str(capture.path),
         "calibration": calibration_name,
         "out": str(out),
+        "frame": frame,
+        "T_frame_world": transform.tolist(),
         "options": {"use": use, "max_gradient": max_gradient, "min_modulation": min_modulation,
+                    **(decode_options or {}),
+                    "masks": {k: (str(v) if isinstance(v, (str, os.PathLike)) else "array")
+                              for k, v in (masks or {}).items()},
                     "figures": figures, "unroll": unroll,
                     **({"method": method, "ppi": ppi, "length_mm": length_mm} if unroll
                        else {})},
@@ -169,11 +189,13 @@ def process_capture(
         say("write the scans")
         with times.stage("write_scans"):
             save_scans(tmp / "scans", scans, mat5=mat5, ply=ply,
-                       extra={"capture": str(capture.path), "calibration": calibration_name})
+                       extra={"capture": str(capture.path), "calibration": calibration_name},
+                       frame=frame, transform=transform)
         say("merge and fuse the super scan")
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
-                                 super_scan=True, mat5=mat5)
+                                 super_scan=True, mat5=mat5, frame=frame,
+                                 transform=transform)
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()

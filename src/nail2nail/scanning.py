@@ -12,6 +12,7 @@ float32 rounding (``tests/test_scan_fast.py``).
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -306,6 +307,7 @@ def scan_capture(
     calibration_name: str = "calibration",
     method: str = "numba",
     timings: dict | None = None,
+    masks=None,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -349,6 +351,11 @@ def scan_capture(
         Receives the seconds spent reading frames (``"read_frames"``: PNG decoding and the
         size checks) and decoding and triangulating them (``"decode"``), added to what it
         holds.
+    masks : mapping of str to (H, W) bool array or path-like, optional
+        User-given validity masks by camera name (:mod:`nail2nail.io.masks`: an image file is
+        read, non-zero = keep): pixels outside a camera's mask are dropped from its scan after
+        decoding (the decoder's edge check does not erode from the mask's border). Cameras
+        without a mask keep every pixel the decoder accepts.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -361,15 +368,20 @@ def scan_capture(
     ------
     ValueError
         Naming the calibration, capture and camera: sizes that differ, a mirrored camera, a
-        camera with no valid pixel; an unknown `use` or `method`.
+        camera with no valid pixel; an unknown `use` or `method`; a mask of another size or
+        for an unknown camera.
     """
     from tqdm.auto import tqdm
+
+    from .io.masks import check_mask_names
 
     _check_method(method)
     _check_use(use)
     clock = StepClock()
     clock.seconds.update(read_frames=0.0, decode=0.0)
     names = capture.camera_names
+    masks = dict(masks or {})
+    check_mask_names(masks, names, "masks")
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
     for name in names:
@@ -380,11 +392,15 @@ def scan_capture(
                 f"{calibration_name}: camera {name!r} was calibrated for {cam.size[0]} x "
                 f"{cam.size[1]} px images, but {capture.path} has {size[0]} x {size[1]} px "
                 "frames: use a calibration made with this capture's cameras")
+        if name in masks:
+            masks[name] = _user_mask(masks[name], name, size[::-1])
     clock("read_frames")
     scans = []
     for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
                                   method=method, decode_options=decode_options, clock=clock))
+        if name in masks:
+            _apply_user_mask(scans[-1], masks[name])
         kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
@@ -395,6 +411,38 @@ def scan_capture(
         for key, seconds in clock.seconds.items():
             timings[key] = timings.get(key, 0.0) + seconds
     return scans
+
+
+def _user_mask(mask, name: str, shape) -> np.ndarray:
+    """A user mask (array or image file) checked against the camera's ``(H, W)``."""
+    from .io.masks import read_mask
+
+    if isinstance(mask, (str, os.PathLike)):
+        return read_mask(mask, shape=tuple(shape))
+    mask = np.asarray(mask)
+    if mask.shape != tuple(shape):
+        raise ValueError(f"masks: the mask of camera {name!r} has shape {mask.shape}, but its "
+                         f"frames are {tuple(shape)} (H, W)")
+    if mask.dtype != bool:
+        if not np.issubdtype(mask.dtype, np.number):
+            raise ValueError(f"masks: the mask of camera {name!r} must be boolean or numeric")
+        mask = mask != 0
+    return mask
+
+
+def _apply_user_mask(scan: Scan, mask: np.ndarray) -> None:
+    """Drop the pixels of `scan` outside the user's `mask`, in place."""
+    drop = scan.mask & ~mask
+    if not drop.any():
+        return
+    scan.mask &= mask
+    if not scan.mask.any():
+        raise ValueError(f"camera {scan.name!r}: the scan keeps 0 valid pixels inside the "
+                         "given mask (the mask and the decoded pixels do not overlap)")
+    scan.xyz[drop] = np.nan
+    scan.xp[drop] = np.nan
+    scan.yp[drop] = np.nan
+    scan.intensity[drop] = 0
 
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from ..io._json import dumps_json
-from ._scan import add_scan_options, max_gradient
+from ._scan import add_scan_options, decode_options, masks, max_gradient
 from ._unroll import add_unroll_options, check_unroll_options
 
 __all__ = ["add_parser", "run"]
@@ -53,14 +53,17 @@ def run(args: argparse.Namespace) -> int:
     from ..process import process_capture
 
     check_unroll_options(args)
+    options = decode_options(args)
+    min_modulation = options.pop("min_modulation")
     if args.pairs is not None:
         parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
     summary = process_capture(
         args.capture, args.calib, args.out, use=args.use, max_gradient=max_gradient(args),
-        min_modulation=args.min_modulation, allow_mirrored=args.allow_mirrored,
+        min_modulation=min_modulation, decode_options=options, masks=masks(args),
+        allow_mirrored=args.allow_mirrored,
         pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
         unroll=args.unroll, method=args.method, ppi=args.ppi, tip_direction=args.tip_direction,
-        length_mm=args.length, wsq=not args.no_wsq,
+        length_mm=args.length, wsq=not args.no_wsq, frame=args.frame,
         progress=not args.json and sys.stderr.isatty())
     if args.json:
         print(dumps_json(summary))

@@ -6,26 +6,54 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..frames import frame_transform
 from ..io._json import dumps_json
 from ..io.calibration import load_calibration
 from ..io.capture import read_capture
 from ..io.scans import save_scans
 from ..scanning import scan_capture
 
-__all__ = ["add_parser", "add_scan_options", "max_gradient", "run"]
+__all__ = ["add_parser", "add_scan_options", "decode_options", "max_gradient", "run"]
 
 
 def add_scan_options(p) -> None:
     """The scanning options of ``scan`` and ``process`` (one definition for both)."""
     p.add_argument("--use", choices=["xpyp", "yp", "xp"], default="xpyp",
                    help="projector coordinates for triangulation (default: both)")
-    p.add_argument("--min-modulation", type=float, default=0.03,
-                   help="smallest accepted fringe amplitude, fraction of full scale")
+    g = p.add_argument_group(
+        "decoder thresholds",
+        "Per-pixel validity checks of the decoder (nail2nail.phase.decode). Intensities are "
+        "fractions of the frames' full scale (255 for 8-bit, 2**bits - 1 for deeper frames), so "
+        "the same values hold at every bit depth.")
+    g.add_argument("--min-modulation", type=float, default=0.03,
+                   help="smallest accepted fringe amplitude B of the phase frequencies, fraction "
+                   "of full scale (default 0.03 = 7.7 grey levels of 8-bit amplitude; the phase "
+                   "noise is sqrt(2/N) * noise / B for N steps)")
+    g.add_argument("--min-albedo", type=float, default=0.02,
+                   help="smallest accepted mean intensity over all frames, fraction of full "
+                   "scale: darker pixels are shadow (default 0.02)")
+    g.add_argument("--saturation", type=float, default=254.5 / 255,
+                   help="a pixel is saturated when any frame reaches this fraction of full "
+                   "scale (default 254.5/255: the top grey level)")
+    g.add_argument("--unwrap-tolerance", type=float, default=0.25, metavar="PERIODS",
+                   help="largest accepted disagreement between a frequency and the coarser one "
+                   "that unwraps it, in periods of the finer fringe (default 0.25 = pi/2 rad)")
+    g.add_argument("--erode", type=int, default=1, metavar="PX",
+                   help="drop valid pixels within this many camera pixels of an invalid one "
+                   "(blur mixes their signal with the neighbour's; default 1, 0 keeps them)")
+    g.add_argument("--mask", action="append", default=[], metavar="CAMERA=IMAGE",
+                   help="a validity mask for one camera (an image of its size, non-zero = keep), "
+                   "applied after decoding; repeat for several cameras")
     p.add_argument("--max-gradient", type=float, default=2.0,
                    help="drop steep pixels (grazing view): those whose projector coordinates "
                    "change faster than this many projector px per camera px of a 1024 x 1280 "
                    "camera, scaled by sqrt(1024*1280 / (W*H)) for W x H cameras, so that it "
                    "limits the viewing obliquity at any resolution (default 2; 'inf' keeps all)")
+    p.add_argument("--frame", default="world", metavar="world|CAMERA",
+                   help="frame of the points written (scans, super scan): 'world' (the "
+                   "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
+                   "camera (a DLT camera's pose by RQ decomposition); recorded with its 4x4 "
+                   "transform T_frame_world, from which merge and unroll map the points back")
     p.add_argument("--allow-mirrored", action="store_true",
                    help="accept a calibration with a mirrored camera (a flipped image or a "
                    "left-handed pose; refused by default: its scans are mirrored)")
@@ -50,7 +78,10 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    options = decode_options(args)
+    user_masks = masks(args)
     calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
+    transform = frame_transform(calibration, args.frame)  # checked before the capture is read
     # frames are read (and checked) one camera at a time, while scanning: memory for one
     # camera's frames; the progress bar only on a terminal, so that an error read from a file
     # or pipe is its one line. Warnings (the kept fraction of a camera's lit pixels) become one
@@ -58,11 +89,11 @@ def run(args: argparse.Namespace) -> int:
     capture = read_capture(args.capture, load=False)
     scans = scan_capture(capture, calibration, use=args.use,
                          progress=not args.json and sys.stderr.isatty(),
-                         min_modulation=args.min_modulation,
                          max_gradient=max_gradient(args), allow_mirrored=args.allow_mirrored,
-                         calibration_name=str(args.calib))
+                         calibration_name=str(args.calib), masks=user_masks, **options)
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
-                          extra={"capture": str(args.capture), "calibration": str(args.calib)})
+                          extra={"capture": str(args.capture), "calibration": str(args.calib)},
+                          frame=args.frame, transform=transform)
     summary = {"out": str(args.out), "cameras": {}}
     for cam in manifest["cameras"]:
         files = {k: str(args.out / v) for k, v in cam.items() if k in ("npz", "ply")}
@@ -76,6 +107,40 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: {s['valid_pixels']} valid pixels -> {s.get('mat5', s['npz'])}")
         print(f"wrote {args.out / 'scan.json'}")
     return 0
+
+
+def decode_options(args: argparse.Namespace) -> dict:
+    """The decoder thresholds of ``add_scan_options`` as :func:`nail2nail.phase.decode` takes
+    them (``--unwrap-tolerance`` in periods becomes radians), checked."""
+    import math
+
+    for name in ("min_modulation", "min_albedo", "saturation", "unwrap_tolerance"):
+        value = getattr(args, name)
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"--{name.replace('_', '-')}: expected a finite number >= 0, "
+                             f"got {value}")
+    if not 0 < args.saturation <= 1:
+        raise ValueError(f"--saturation: expected a fraction of full scale in (0, 1], got "
+                         f"{args.saturation}")
+    if not 0 < args.unwrap_tolerance < 0.5:
+        raise ValueError(f"--unwrap-tolerance: expected periods in (0, 0.5), got "
+                         f"{args.unwrap_tolerance}")
+    if args.erode < 0:
+        raise ValueError(f"--erode: expected a number of pixels >= 0, got {args.erode}")
+    return {"min_modulation": args.min_modulation, "min_albedo": args.min_albedo,
+            "saturation": args.saturation, "unwrap_tolerance": 2 * math.pi * args.unwrap_tolerance,
+            "erode": args.erode}
+
+
+def masks(args: argparse.Namespace) -> dict[str, str]:
+    """``--mask CAMERA=IMAGE`` entries as ``{camera: path}``, the files checked to exist."""
+    from ..io.masks import parse_mask_option
+
+    out = parse_mask_option(args.mask)
+    for name, path in out.items():
+        if not Path(path).is_file():
+            raise ValueError(f"--mask: {path}: no such file (mask of camera {name!r})")
+    return out
 
 
 def max_gradient(args: argparse.Namespace) -> float | None:
