@@ -8,9 +8,8 @@ renders with and that calibrations made with OpenCV are read into. Conventions:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg

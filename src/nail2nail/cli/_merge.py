@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .._validation import as_int
 from ..io._json import dumps_json
-from ..io.scans import load_scans
+from ..io.scans import load_scans, read_scan_frame
 from ..merge.report import parse_pairs, write_merge
 
 __all__ = ["add_parser", "run"]
@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.max_residual > 0:
         raise ValueError(f"--max-residual: expected a positive number, got {args.max_residual}")
     as_int(args.border, "--border", minimum=0)
+    # scans written in a camera's frame (scan --frame) come back in the world frame, where the
+    # merge computes; the super scan is written in the scans' frame
+    frame, transform = read_scan_frame(args.scan_dir)
     scans = load_scans(args.scan_dir)
     if len(scans) < 2:
         raise ValueError(f"{args.scan_dir}: need at least two cameras to merge, got {len(scans)}")
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     summary = write_merge(
         scans, args.out, pairs=pairs, stride=args.stride, max_residual_px=args.max_residual,
         border_px=args.border, figures=args.figures, super_scan=not args.no_super,
-        progress=not args.json and sys.stderr.isatty(),
+        progress=not args.json and sys.stderr.isatty(), frame=frame, transform=transform,
     )
     summary = {"scan_dir": str(args.scan_dir), **summary}
     if args.json:

@@ -6,6 +6,10 @@ Layout (``docs/capture-format.md``)::
     SCAN_DIR/cam0.npz       every array of a :class:`~nail2nail.reconstruction.Scan`
     SCAN_DIR/cam0C.bmp …    the legacy mat5 set of the camera (C, I, X, Y, Z, XP, YP)
     SCAN_DIR/cam0.ply       binary PLY point cloud with albedo as colour
+
+The points are written in the frame named in ``scan.json`` (``"frame"``: ``"world"`` or a
+camera's name, with the 4×4 ``"T_frame_world"``; :mod:`nail2nail.frames`); :func:`load_scans`
+returns them in the world frame (or as stored, ``frame="stored"``).
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from ._atomic import atomic_directory, write_npz
 from ._json import read_json, write_json
 from ._npz import read_npz
 
-__all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "save_scan_npz", "save_scans"]
+__all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "read_scan_frame", "save_scan_npz",
+           "save_scans"]
 
 SCAN_FORMAT = "nail2nail-scan"
 _ARRAYS = ("xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")
@@ -197,9 +202,16 @@ def _pixels(array: np.ndarray, tail: tuple[int, ...]) -> np.ndarray:
 
 def save_scans(
     out_dir: str | os.PathLike, scans: list[Scan], *, mat5: bool = True, ply: bool = True,
-    extra: dict | None = None, compress: bool | int = False,
+    extra: dict | None = None, compress: bool | int = False, frame: str = "world",
+    transform=None,
 ) -> dict:
     """Write a scan directory and return its manifest (also written as ``scan.json``).
+
+    `scans` are in the world frame; with `transform` (``T_frame_world``, 4×4, from
+    :func:`nail2nail.frames.frame_transform`) their points and camera centres are written in
+    the frame named `frame` (the ``.npz``, mat5 and PLY files alike), and ``scan.json``
+    records ``"frame"`` and ``"T_frame_world"`` (the identity for the world frame), from which
+    :func:`load_scans` maps them back.
 
     The directory is written as a whole (:func:`nail2nail.io._atomic.atomic_directory`): an
     earlier scan directory there is replaced only once the new one is complete; a non-empty
@@ -210,6 +222,17 @@ def save_scans(
     for i, scan in enumerate(scans):
         as_name(scan.name, f"scans[{i}].name")
     check_unique([scan.name for scan in scans], "scans")
+    from ..frames import WORLD, _check_transform, scan_in_frame
+
+    if not isinstance(frame, str) or not frame:
+        raise ValueError(f"frame: expected 'world' or a camera name, got {frame!r}")
+    T = np.eye(4) if transform is None else _check_transform(transform)
+    if frame == WORLD and not np.array_equal(T, np.eye(4)):
+        raise ValueError("transform: the world frame's transform is the identity")
+    if frame != WORLD and transform is None:
+        raise ValueError(f"frame {frame!r}: its transform T_frame_world is needed")
+    scans = [scan_in_frame(scan, T) for scan in scans]
+    extra = {**(extra or {}), "frame": frame, "T_frame_world": T.tolist()}
     with atomic_directory(out, marker="scan.json") as tmp:
         return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra, compress=compress)
 
@@ -250,20 +273,80 @@ def _map_in_threads(task, items: list) -> list:
         return list(pool.map(task, items))  # map yields in order, cancels the rest on error
 
 
-def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
+def _read_manifest(scan_dir: Path) -> tuple[Path, dict]:
+    manifest_path = scan_dir / "scan.json"
+    if not manifest_path.is_file():
+        raise ValueError(f"{scan_dir}: not a scan directory (no scan.json)")
+    return manifest_path, check_format(read_json(manifest_path), fmt=SCAN_FORMAT,
+                                       where=str(manifest_path))
+
+
+def _manifest_frame(manifest: dict, where: str) -> tuple[str, np.ndarray]:
+    """``(frame, T_frame_world)`` of a manifest (``"world"`` and the identity when absent:
+    scan directories written before issue 12)."""
+    from ..frames import WORLD, _check_transform
+
+    frame = manifest.get("frame", WORLD)
+    if not isinstance(frame, str) or not frame:
+        raise ValueError(f"{where}: 'frame' must be 'world' or a camera name, got {frame!r}")
+    T = manifest.get("T_frame_world")
+    if T is None:
+        if frame != WORLD:
+            raise ValueError(f"{where}: the points are in frame {frame!r} but 'T_frame_world' "
+                             "is missing: they cannot be mapped to the world frame")
+        return frame, np.eye(4)
+    try:
+        T = _check_transform(np.asarray(T, dtype=float))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: 'T_frame_world' must be a rigid 4x4 transform ({exc})") \
+            from exc
+    if frame == WORLD and not np.array_equal(T, np.eye(4)):
+        raise ValueError(f"{where}: frame 'world' with a 'T_frame_world' that is not the "
+                         "identity")
+    return frame, T
+
+
+def read_scan_frame(scan_dir: str | os.PathLike) -> tuple[str, np.ndarray]:
+    """The frame a scan directory's points are written in and its ``T_frame_world`` (4×4).
+
+    ``("world", identity)`` for a directory written before frames were recorded.
+
+    Raises
+    ------
+    ValueError
+        Naming ``scan.json``: no manifest, a bad ``frame`` or ``T_frame_world`` (not a rigid
+        transform; missing for a frame other than the world).
+    """
+    manifest_path, manifest = _read_manifest(Path(scan_dir))
+    return _manifest_frame(manifest, str(manifest_path))
+
+
+def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Scan]:
     """Read every camera's scan of a scan directory, in manifest order.
+
+    Parameters
+    ----------
+    scan_dir : path-like
+    frame : {"world", "stored"}
+        ``"world"``: the points (and camera centres) mapped back to the world frame with the
+        manifest's ``T_frame_world`` (:func:`read_scan_frame`; nothing to do for scans written
+        in the world frame), which ``merge`` and ``unroll`` compute in. ``"stored"``: as
+        written.
 
     Raises
     ------
     ValueError
         Naming the file: no or bad ``scan.json`` (format, version, camera entries, names not
-        plain or not unique, an ``npz`` path leading outside `scan_dir`), or a bad ``.npz``.
+        plain or not unique, an ``npz`` path leading outside `scan_dir`, a bad ``frame`` or
+        ``T_frame_world``), or a bad ``.npz``.
     """
+    from ..frames import invert_transform, scan_in_frame
+
+    if frame not in ("world", "stored"):
+        raise ValueError(f"frame: expected 'world' or 'stored', got {frame!r}")
     scan_dir = Path(scan_dir)
-    manifest_path = scan_dir / "scan.json"
-    if not manifest_path.is_file():
-        raise ValueError(f"{scan_dir}: not a scan directory (no scan.json)")
-    manifest = check_format(read_json(manifest_path), fmt=SCAN_FORMAT, where=str(manifest_path))
+    manifest_path, manifest = _read_manifest(scan_dir)
+    _, T = _manifest_frame(manifest, str(manifest_path))
     cams = manifest.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise ValueError(f"{manifest_path}: 'cameras' must be a non-empty list")
@@ -275,4 +358,8 @@ def load_scans(scan_dir: str | os.PathLike) -> list[Scan]:
         as_name(cam["name"], f"{where}.name")
         files.append(confined_path(scan_dir, cam["npz"], f"{where}.npz"))
     check_unique([cam["name"] for cam in cams], str(manifest_path))
-    return _map_in_threads(load_scan_npz, files)
+    scans = _map_in_threads(load_scan_npz, files)
+    if frame == "stored":
+        return scans
+    world_from_frame = invert_transform(T)
+    return [scan_in_frame(scan, world_from_frame) for scan in scans]

@@ -95,6 +95,8 @@ def write_merge(
     data: bool = True,
     mat5: bool = True,
     progress: bool = False,
+    frame: str = "world",
+    transform=None,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
@@ -132,6 +134,10 @@ def write_merge(
         1280 × 1024 cameras; the PLY holds the same points in a third of that).
     progress : bool
         Progress bar over the pairs (stderr).
+    frame, transform
+        The frame the super scan's PLY and mat5 are written in, and its ``T_frame_world``
+        (:func:`nail2nail.frames.frame_transform`); everything is computed in the world frame
+        (figures included). Recorded as ``super_scan.frame`` and ``super_scan.T_frame_world``.
 
     Returns
     -------
@@ -156,12 +162,15 @@ def write_merge(
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
     border_px = as_int(border_px, "border_px", minimum=1)  # as correspond: checked up front
+    from ..frames import _check_transform
+
+    transform = np.eye(4) if transform is None else _check_transform(transform)
     out = Path(out)
     with atomic_directory(out, marker="merge.json") as tmp:
         summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
-                               mat5=mat5, progress=progress)
+                               mat5=mat5, progress=progress, frame=frame, transform=transform)
         summary = _relocate(summary, str(tmp), str(out))
         write_json(tmp / "merge.json", summary)
     return summary
@@ -199,7 +208,7 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
-                 super_scan, data, mat5, progress) -> dict:
+                 super_scan, data, mat5, progress, frame="world", transform=None) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -213,7 +222,8 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         summary = _merge_files(scans, out, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
                                super_scan=super_scan, data=data, mat5=mat5,
-                               progress=progress, drawing=drawing)
+                               progress=progress, drawing=drawing, frame=frame,
+                               transform=transform)
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -224,7 +234,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
-                 data, mat5, progress, drawing) -> dict:
+                 data, mat5, progress, drawing, frame="world", transform=None) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
     lap = StepClock()
@@ -261,11 +271,17 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                     sup.colors, elev, azim, f"super scan ({view}): {sup.n_vertices} points")
         files = {}
         if data:
-            files["ply"] = str(write_super_ply(out / "super.ply", sup))
+            from ..frames import superscan_in_frame
+
+            written = sup if transform is None else superscan_in_frame(sup, transform)
+            files["ply"] = str(write_super_ply(out / "super.ply", written))
             if mat5:
-                mat5_files = write_super_mat5(out / "super", sup)
+                mat5_files = write_super_mat5(out / "super", written)
                 files["mat5"] = str(out / "super")
-        summary["super_scan"] = {**sup.summary(), "files": files}
+            del written
+        summary["super_scan"] = {**sup.summary(), "files": files, "frame": frame,
+                                 "T_frame_world": (np.eye(4) if transform is None
+                                                   else transform).tolist()}
         if drawing is not None:
             drawn.append((files, renders))
         del sup
