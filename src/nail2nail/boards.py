@@ -1,0 +1,720 @@
+"""Planar calibration boards: geometry, printed appearance and detection in images.
+
+A :class:`Board` describes a printed planar target of one of four kinds, with the command-line
+options ``--board KIND --rows R --cols C --spacing MM [--marker MM]``:
+
+==================== ============================== ==================== ======================
+kind                 ``rows`` × ``cols`` count       ``spacing``           ``marker``
+==================== ============================== ==================== ======================
+``checkerboard``     squares (``R + C`` odd)        square side, mm      (unused)
+``charuco``          squares                        square side, mm      ArUco marker side, mm
+``circles``          circles                        centre distance, mm  circle diameter, mm
+``asymmetric-circles`` circles: rows, circles a row rows' distance, mm  circle diameter, mm
+==================== ============================== ==================== ======================
+
+OpenCV's pattern size ``(points per row, points per column)`` is ``(C − 1, R − 1)`` (the inner
+corners) for the checkerboard and ChArUco boards, ``(C, R)`` for both circle grids.
+
+**Board frame** (mm, as OpenCV's): ``x`` along the columns (to the right on the printed sheet
+held upright), ``y`` along the rows (down the sheet), ``z = x × y`` into the sheet, so the
+printed face looks towards ``−z``; every feature has ``z = 0``.
+
+- Checkerboard and ChArUco: the origin is the outer corner of the top-left square (black);
+  square ``(i, j)`` covers ``x ∈ [j s, (j + 1) s]``, ``y ∈ [i s, (i + 1) s]`` and is black when
+  ``i + j`` is even (OpenCV's ChArUco layout); inner corner ``k = i (C − 1) + j`` (``i < R − 1``,
+  ``j < C − 1``) is at ``((j + 1) s, (i + 1) s)``, which is also its ChArUco id.
+- Symmetric circles: circle ``k = i C + j`` is at ``(j s, i s)``.
+- Asymmetric circles (OpenCV's layout): circle ``k = i C + j`` is at ``((2 j + i mod 2) s, i s)``:
+  circles in a row are ``2 s`` apart, the rows ``s`` apart and shifted by ``s`` on alternate rows.
+
+Circles are **dark on white**; squares black and white. The sheet is the bounding box of the
+pattern grown by `margin` (white). The printed reflectance (:meth:`Board.albedo`) is
+`white` (0.9) on white paper and `black` (0.05) on ink.
+
+:func:`detect_board` finds a board in an image with OpenCV and labels the points with the
+indices of :meth:`Board.object_points`, unambiguously: among the labellings that OpenCV's grid
+admits (its start corner and direction), it keeps those with the printed face seen from the front
+(not mirrored) and then, for a checkerboard, the one with the black squares where the board
+has them (hence ``R + C`` odd: an even sum makes the board symmetric under a half turn). A
+symmetric circle grid (and an asymmetric one with an even number of rows) is symmetric under a
+half turn: its labelling puts the board's ``+x`` axis towards the image's right (a board upright
+within ±90° of the image's rows, as in the rig).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["BOARD_KINDS", "Board", "detect_board", "to_uint8"]
+
+BOARD_KINDS = ("checkerboard", "charuco", "circles", "asymmetric-circles")
+
+#: OpenCV ArUco dictionaries accepted for ChArUco boards
+_DICTIONARY_PREFIX = "DICT_"
+
+
+@dataclass(frozen=True)
+class Board:
+    """A printed planar calibration board (see the module docstring for the frame).
+
+    Parameters
+    ----------
+    kind : {"checkerboard", "charuco", "circles", "asymmetric-circles"}
+    rows, cols : int
+        Squares (checkerboard, ChArUco) or circles (circle grids) along ``y`` and ``x``; for the
+        asymmetric grid `cols` is the number of circles in one row.
+    spacing : float
+        Square side or circle centre distance (asymmetric: distance between rows), mm.
+    marker : float, optional
+        ChArUco marker side (default 0.7 `spacing`) or circle diameter (default 0.5 `spacing`
+        for symmetric circles, 0.7 `spacing` for asymmetric ones), mm; unused by the
+        checkerboard.
+    dictionary : str
+        OpenCV ArUco dictionary of a ChArUco board (``DICT_5X5_100``).
+    margin : float, optional
+        White border around the pattern, mm (default one `spacing`).
+    white, black : float
+        Reflectance of the paper and of the ink, in ``[0, 1]``.
+
+    Examples
+    --------
+    >>> board = Board("checkerboard", rows=7, cols=10, spacing=2.0)
+    >>> board.object_points().shape, board.pattern_size
+    ((54, 3), (9, 6))
+    >>> board.size_mm
+    (24.0, 18.0)
+    """
+
+    kind: str
+    rows: int
+    cols: int
+    spacing: float
+    marker: float | None = None
+    dictionary: str = "DICT_5X5_100"
+    margin: float | None = None
+    white: float = 0.9
+    black: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.kind not in BOARD_KINDS:
+            raise ValueError(f"board: expected a kind in {', '.join(BOARD_KINDS)}, "
+                             f"got {self.kind!r}")
+        for name in ("rows", "cols"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise TypeError(f"{name}: expected an integer, got {value!r}")
+        low = 3 if self.kind in ("checkerboard", "charuco") else 2
+        if self.rows < low or self.cols < low:
+            raise ValueError(f"rows, cols: a {self.kind} board needs at least {low} of each, "
+                             f"got {self.rows} x {self.cols}")
+        if not (isinstance(self.spacing, (int, float)) and math.isfinite(self.spacing)
+                and self.spacing > 0):
+            raise ValueError(f"spacing: expected a positive length in mm, got {self.spacing!r}")
+        if self.kind == "checkerboard" and (self.rows + self.cols) % 2 == 0:
+            raise ValueError(
+                f"rows, cols: a checkerboard of {self.rows} x {self.cols} squares looks the same "
+                "turned by 180 degrees, so its corners cannot be labelled; use an odd rows + cols "
+                f"(e.g. {self.rows} x {self.cols + 1})")
+        marker = self.marker_mm
+        limit = {"checkerboard": math.inf, "charuco": self.spacing,
+                 "circles": self.spacing, "asymmetric-circles": math.sqrt(2) * self.spacing}
+        if not (math.isfinite(marker) and 0 < marker < limit[self.kind]):
+            raise ValueError(f"marker: expected a size in (0, {limit[self.kind]:g}) mm for a "
+                             f"{self.kind} board of spacing {self.spacing:g}, got {marker!r}")
+        if self.margin is not None and not (math.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(f"margin: expected a length >= 0 mm, got {self.margin!r}")
+        if not 0 <= self.black < self.white <= 1:
+            raise ValueError(f"white, black: expected 0 <= black < white <= 1, got "
+                             f"{self.white!r}, {self.black!r}")
+        if self.kind == "charuco":
+            n_markers = (self.rows * self.cols) // 2
+            size = _dictionary_size(self.dictionary)
+            if n_markers > size:
+                raise ValueError(f"dictionary: {self.dictionary} has {size} markers, a ChArUco "
+                                 f"board of {self.rows} x {self.cols} squares needs {n_markers}")
+
+    # -- geometry ----------------------------------------------------------------------------
+    @property
+    def marker_mm(self) -> float:
+        """ChArUco marker side or circle diameter, mm (the default when `marker` is None)."""
+        if self.marker is not None:
+            return float(self.marker)
+        return {"checkerboard": 0.0, "charuco": 0.7, "circles": 0.5,
+                "asymmetric-circles": 0.7}[self.kind] * float(self.spacing) or 1.0
+
+    @property
+    def margin_mm(self) -> float:
+        """White border around the pattern, mm."""
+        return float(self.spacing if self.margin is None else self.margin)
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """OpenCV's pattern size ``(points per row, rows of points)``."""
+        if self.kind in ("checkerboard", "charuco"):
+            return self.cols - 1, self.rows - 1
+        return self.cols, self.rows
+
+    @property
+    def n_points(self) -> int:
+        """Number of detectable points (inner corners or circles)."""
+        w, h = self.pattern_size
+        return w * h
+
+    def object_points(self) -> np.ndarray:
+        """Board points ``(n_points, 3)`` float64, mm, in the board frame (``z = 0``).
+
+        Index ``k = i · w + j`` for point row ``i`` and column ``j`` (``w`` the points per row,
+        :attr:`pattern_size`); positions in the module docstring.
+        """
+        w, h = self.pattern_size
+        i, j = np.divmod(np.arange(w * h), w)
+        s = float(self.spacing)
+        if self.kind in ("checkerboard", "charuco"):
+            x, y = (j + 1) * s, (i + 1) * s
+        elif self.kind == "circles":
+            x, y = j * s, i * s
+        else:
+            x, y = (2 * j + i % 2) * s, i * s
+        return np.column_stack([x, y, np.zeros(w * h)]).astype(np.float64)
+
+    def pattern_extent(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` of the printed pattern (no margin), mm."""
+        s = float(self.spacing)
+        if self.kind in ("checkerboard", "charuco"):
+            return 0.0, self.cols * s, 0.0, self.rows * s
+        r = self.marker_mm / 2
+        pts = self.object_points()
+        return (float(pts[:, 0].min() - r), float(pts[:, 0].max() + r),
+                float(pts[:, 1].min() - r), float(pts[:, 1].max() + r))
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` of the sheet (pattern plus margin), mm."""
+        x0, x1, y0, y1 = self.pattern_extent()
+        m = self.margin_mm
+        return x0 - m, x1 + m, y0 - m, y1 + m
+
+    @property
+    def size_mm(self) -> tuple[float, float]:
+        """``(width, height)`` of the sheet (pattern plus margin), mm."""
+        x0, x1, y0, y1 = self.extent()
+        return round(x1 - x0, 9), round(y1 - y0, 9)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Centre ``(3,)`` of the sheet in the board frame, mm."""
+        x0, x1, y0, y1 = self.extent()
+        return np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (kind, counts, sizes in mm; what `from_dict` reads)."""
+        out = {"kind": self.kind, "rows": int(self.rows), "cols": int(self.cols),
+               "spacing": float(self.spacing), "marker": self.marker_mm,
+               "margin": self.margin_mm, "white": self.white, "black": self.black,
+               "pattern_size": list(self.pattern_size), "size_mm": list(self.size_mm)}
+        if self.kind == "charuco":
+            out["dictionary"] = self.dictionary
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Board:
+        """Inverse of :meth:`to_dict` (derived keys are ignored)."""
+        if not isinstance(data, dict):
+            raise ValueError(f"board: expected an object, got {type(data).__name__}")
+        keys = ("kind", "rows", "cols", "spacing", "marker", "dictionary", "margin", "white",
+                "black")
+        missing = [k for k in ("kind", "rows", "cols", "spacing") if k not in data]
+        if missing:
+            raise ValueError(f"board: missing {', '.join(missing)}")
+        options = {k: data[k] for k in keys if k in data}
+        if options.get("kind") == "checkerboard":
+            options.pop("marker", None)
+        return cls(**options)
+
+    # -- appearance ----------------------------------------------------------------------------
+    def ink(self, x, y, *, footprint: float = 0.0) -> np.ndarray:
+        """Fraction of ink (0 paper, 1 black) at board coordinates, box-filtered.
+
+        Parameters
+        ----------
+        x, y : array_like of float
+            Board coordinates, mm (broadcast together).
+        footprint : float
+            Side of the square box filter, mm (0: point samples). The checkerboard is averaged
+            exactly over the box; circles get a linear edge ramp of the box's width; a ChArUco
+            board is sampled bilinearly from a raster of at least 40 px/mm that is box-filtered
+            to the footprint.
+
+        Returns
+        -------
+        ndarray of float64, the broadcast shape of `x`, `y`, in ``[0, 1]``
+        """
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
+                                   np.asarray(y, dtype=np.float64))
+        w = float(footprint)
+        if not (math.isfinite(w) and w >= 0):
+            raise ValueError(f"footprint: expected a length >= 0 mm, got {footprint!r}")
+        if self.kind == "checkerboard":
+            return self._checker_ink(x, y, w)
+        if self.kind == "charuco":
+            return self._raster_ink(x, y, w)
+        return self._circle_ink(x, y, w)
+
+    def albedo(self, x, y, *, footprint: float = 0.0) -> np.ndarray:
+        """Reflectance of the printed board at board coordinates ``(x, y)`` mm.
+
+        ``white − (white − black) · ink`` with :meth:`ink` (same shapes and `footprint`); the
+        paper beyond the sheet is white too (the scene cuts the sheet).
+        """
+        return self.white - (self.white - self.black) * self.ink(x, y, footprint=footprint)
+
+    def image(self, px_per_mm: float) -> np.ndarray:
+        """The printed design, ``(H, W)`` uint8, 0 ink and 255 paper, of the whole sheet.
+
+        Pixel ``(col, row)`` (centres at integers) shows the board point
+        ``x = x_min + (col + ½) / px_per_mm``, ``y = y_min + (row + ½) / px_per_mm`` with
+        ``x_min, y_min`` of :meth:`extent` (so ``W = round(width · px_per_mm)``); each pixel is the
+        area average of the design over it (:meth:`ink` with ``footprint = 1 / px_per_mm``).
+        """
+        if not (isinstance(px_per_mm, (int, float)) and math.isfinite(px_per_mm)
+                and px_per_mm > 0):
+            raise ValueError(f"px_per_mm: expected a positive number, got {px_per_mm!r}")
+        x0, x1, y0, y1 = self.extent()
+        width = max(1, round((x1 - x0) * px_per_mm))
+        height = max(1, round((y1 - y0) * px_per_mm))
+        xs = x0 + (np.arange(width) + 0.5) / px_per_mm
+        ys = y0 + (np.arange(height) + 0.5) / px_per_mm
+        ink = self.ink(xs[None, :], ys[:, None], footprint=1.0 / px_per_mm)
+        return np.rint(255.0 * (1.0 - ink)).astype(np.uint8)
+
+    def pixel_from_board(self, xy_board, px_per_mm: float) -> np.ndarray:
+        """Pixel ``(x, y)`` in :meth:`image` of board points ``(..., 2)`` mm (centres at 0, 1…)."""
+        x0, _, y0, _ = self.extent()
+        xy = np.asarray(xy_board, dtype=np.float64)
+        return (xy - np.array([x0, y0])) * px_per_mm - 0.5
+
+    def _checker_ink(self, x, y, w):
+        s = float(self.spacing)
+        u = _box_average_checker(x, s, self.cols, w)
+        v = _box_average_checker(y, s, self.rows, w)
+        # black iff floor(x/s) + floor(y/s) even, inside the pattern:
+        # ink = (in(x) in(y) + q(x) q(y)) / 2 with q = ±1 inside, 0 outside (separable)
+        return np.clip(0.5 * (u[0] * v[0] + u[1] * v[1]), 0.0, 1.0)
+
+    def _circle_ink(self, x, y, w):
+        s = float(self.spacing)
+        r = self.marker_mm / 2
+        i0 = np.rint(y / s)
+        best = np.full(x.shape, np.inf)
+        for di in (-1.0, 0.0, 1.0):
+            i = np.clip(i0 + di, 0, self.rows - 1)
+            if self.kind == "circles":
+                j = np.clip(np.rint(x / s), 0, self.cols - 1)
+                cx = j * s
+            else:
+                shift = np.mod(i, 2)
+                j = np.clip(np.rint((x / s - shift) / 2), 0, self.cols - 1)
+                cx = (2 * j + shift) * s
+            best = np.minimum(best, np.hypot(x - cx, y - i * s))
+        if w == 0:
+            return (best <= r).astype(np.float64)
+        return np.clip((r - best) / w + 0.5, 0.0, 1.0)
+
+    def _raster_ink(self, x, y, w):
+        import cv2
+
+        raster, ppm = _charuco_raster(self)
+        ink = 1.0 - raster.astype(np.float32) / 255.0
+        k = 2 * round(w * ppm / 2) + 1  # odd: centred
+        if k >= 3:
+            ink = cv2.blur(ink, (k, k), borderType=cv2.BORDER_CONSTANT)
+        # raster pixel (c, r) centre at board (c + 1/2, r + 1/2) / ppm; paper beyond it
+        col = x * ppm - 0.5
+        row = y * ppm - 0.5
+        h, wd = ink.shape
+        padded = np.pad(ink, 1)
+        c0 = np.floor(col)
+        r0 = np.floor(row)
+        fc = col - c0
+        fr = row - r0
+        c0 = np.clip(c0.astype(np.intp) + 1, 0, wd)
+        r0 = np.clip(r0.astype(np.intp) + 1, 0, h)
+        fc = np.where((col < -1) | (col > wd), 0.0, fc)
+        fr = np.where((row < -1) | (row > h), 0.0, fr)
+        value = ((1 - fc) * (1 - fr) * padded[r0, c0] + fc * (1 - fr) * padded[r0, c0 + 1]
+                 + (1 - fc) * fr * padded[r0 + 1, c0] + fc * fr * padded[r0 + 1, c0 + 1])
+        outside = (col < -1) | (col > wd) | (row < -1) | (row > h)
+        return np.where(outside, 0.0, value).astype(np.float64)
+
+    # -- OpenCV objects ------------------------------------------------------------------------
+    def opencv_charuco(self):
+        """The ``cv2.aruco.CharucoBoard`` of a ChArUco board (lengths in mm)."""
+        import cv2
+
+        if self.kind != "charuco":
+            raise ValueError(f"board: a {self.kind} board has no ChArUco board")
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        return cv2.aruco.CharucoBoard((self.cols, self.rows), float(self.spacing),
+                                      float(self.marker_mm), dictionary)
+
+
+def _dictionary_size(name: str) -> int:
+    import cv2
+
+    if not (isinstance(name, str) and name.startswith(_DICTIONARY_PREFIX)
+            and hasattr(cv2.aruco, name)):
+        raise ValueError(f"dictionary: expected an OpenCV ArUco dictionary such as "
+                         f"DICT_5X5_100, got {name!r}")
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    return int(dictionary.bytesList.shape[0])
+
+
+def _box_average_checker(x, s, n, w):
+    """1-D box averages over ``[x − w/2, x + w/2]`` of ``in(x)`` and ``q(x)``.
+
+    ``in`` is 1 on ``[0, n s]`` and 0 outside, ``q`` is ``+1`` on even squares, ``−1`` on odd
+    ones, 0 outside; both through their antiderivatives (exact box filter).
+    """
+    def f_in(t):
+        return np.clip(t, 0.0, n * s)
+
+    def f_q(t):
+        t = np.clip(t, 0.0, n * s)
+        k = np.floor(t / s)
+        r = t - k * s
+        return np.where(np.mod(k, 2) == 0, r, s - r)
+
+    if w == 0:
+        inside = ((x >= 0) & (x < n * s)).astype(np.float64)
+        q = np.where(np.mod(np.floor(x / s), 2) == 0, 1.0, -1.0) * inside
+        return inside, q
+    a, b = x - w / 2, x + w / 2
+    return (f_in(b) - f_in(a)) / w, (f_q(b) - f_q(a)) / w
+
+
+_RASTERS: dict = {}
+
+
+def _charuco_raster(board: Board) -> tuple[np.ndarray, float]:
+    """``(image, px_per_mm)``: the ChArUco pattern area (no margin), cached per board."""
+    key = (board.rows, board.cols, float(board.spacing), board.marker_mm, board.dictionary)
+    if key not in _RASTERS:
+        # whole pixels per square, at least 40 px/mm and 200 px per square
+        per_square = max(200, math.ceil(40 * board.spacing))
+        cv_board = board.opencv_charuco()
+        image = cv_board.generateImage((board.cols * per_square, board.rows * per_square),
+                                       marginSize=0, borderBits=1)
+        _RASTERS.clear()
+        _RASTERS[key] = (np.ascontiguousarray(image), per_square / float(board.spacing))
+    return _RASTERS[key]
+
+
+# -- detection ------------------------------------------------------------------------------------
+def to_uint8(image) -> np.ndarray:
+    """An image of any dtype as 8-bit for OpenCV, stretched between its 0.5 and 99.5 percentiles.
+
+    Parameters
+    ----------
+    image : (H, W) array_like of float or int
+        Any bit depth or scale (float ``[0, 1]``, 16-bit left-aligned, …); NaN counts as dark.
+
+    Returns
+    -------
+    (H, W) uint8
+    """
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = img[..., :3].mean(axis=2)
+    if img.ndim != 2 or min(img.shape) < 8:
+        raise ValueError(f"image: expected a 2-D image of at least 8 x 8 px, got shape "
+                         f"{img.shape}")
+    if not (np.issubdtype(img.dtype, np.number) and not np.iscomplexobj(img)):
+        raise TypeError(f"image: expected real numbers, got {img.dtype}")
+    img = img.astype(np.float64)
+    finite = np.isfinite(img)
+    if not finite.any():
+        raise ValueError("image: no finite value")
+    lo, hi = np.percentile(img[finite], [0.5, 99.5])
+    if not hi > lo:
+        return np.zeros(img.shape, np.uint8)
+    out = np.where(finite, (img - lo) * (255.0 / (hi - lo)), 0.0)
+    return np.rint(np.clip(out, 0, 255)).astype(np.uint8)
+
+
+def detect_board(image, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
+    """Find a board in an image and label its points.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Grey image of any dtype and bit depth (:func:`to_uint8`), e.g. a capture's decoded
+        albedo (the mean of the phase frames) or a white frame.
+    board : Board
+
+    Returns
+    -------
+    (indices, xy) or None
+        ``indices (n,)`` int64 into :meth:`Board.object_points`, ascending; ``xy (n, 2)``
+        float64 image coordinates, px, pixel centres at integers (``docs/conventions.md``).
+        All points for the checkerboard and circle grids, those found for ChArUco (at least 4).
+        None when the board is not found.
+
+    Notes
+    -----
+    Checkerboard: ``cv2.findChessboardCornersSB`` (accuracy mode), falling back on
+    ``cv2.findChessboardCorners`` and ``cv2.cornerSubPix``. Circles: ``cv2.findCirclesGrid``
+    with a blob detector for dark discs of any size, then every centre refined to the centre of
+    its ellipse by a grey-level moment within the disc's homography-mapped outline (perspective
+    bias of the centroid corrected, see :func:`_refine_circles`). ChArUco:
+    ``cv2.aruco.CharucoDetector``. Labelling: module docstring.
+    """
+    if not isinstance(board, Board):
+        raise TypeError(f"board: expected a Board, got {type(board).__name__}")
+    img8 = to_uint8(image)
+    if board.kind == "charuco":
+        return _detect_charuco(img8, board)
+    if board.kind == "checkerboard":
+        xy = _find_checkerboard(img8, board)
+    else:
+        xy = _find_circles(img8, board)
+    if xy is None:
+        return None
+    indices = _label_grid(img8, board, xy)
+    if indices is None:
+        return None
+    if board.kind != "checkerboard":
+        xy = _refine_circles(img8, board, indices, xy)
+        if xy is None:
+            return None
+    order = np.argsort(indices)
+    return indices[order].astype(np.int64), xy[order]
+
+
+def _find_checkerboard(img8, board):
+    import cv2
+
+    size = board.pattern_size
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+    found, corners = cv2.findChessboardCornersSB(img8, size, flags=flags)
+    if not found:
+        found, corners = cv2.findChessboardCorners(
+            img8, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not found:
+            return None
+        xy = corners.reshape(-1, 2).astype(np.float64)
+        spacing = np.median(np.linalg.norm(np.diff(xy.reshape(size[1], size[0], 2), axis=1),
+                                           axis=-1))
+        half = int(np.clip(spacing / 4, 2, 15))
+        criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+        corners = cv2.cornerSubPix(img8, corners.astype(np.float32), (half, half), (-1, -1),
+                                   criteria)
+    return corners.reshape(-1, 2).astype(np.float64)
+
+
+def _blob_detector(img8, board):
+    import cv2
+
+    params = cv2.SimpleBlobDetector_Params()
+    params.filterByColor = True
+    params.blobColor = 0  # dark circles on white paper
+    params.minArea = 9.0
+    params.maxArea = float(img8.shape[0] * img8.shape[1]) / 4
+    params.filterByCircularity = False
+    params.filterByInertia = True
+    params.minInertiaRatio = 0.05
+    params.filterByConvexity = True
+    params.minConvexity = 0.8
+    params.minDistBetweenBlobs = 2.0
+    params.minThreshold = 20
+    params.maxThreshold = 235
+    params.thresholdStep = 10
+    return cv2.SimpleBlobDetector_create(params)
+
+
+def _find_circles(img8, board):
+    import cv2
+
+    flags = (cv2.CALIB_CB_SYMMETRIC_GRID if board.kind == "circles"
+             else cv2.CALIB_CB_ASYMMETRIC_GRID)
+    detector = _blob_detector(img8, board)
+    for extra in (0, cv2.CALIB_CB_CLUSTERING):
+        found, centers = cv2.findCirclesGrid(img8, board.pattern_size, flags=flags | extra,
+                                             blobDetector=detector)
+        if found:
+            return centers.reshape(-1, 2).astype(np.float64)
+    return None
+
+
+def _detect_charuco(img8, board):
+    import cv2
+
+    detector = cv2.aruco.CharucoDetector(board.opencv_charuco())
+    corners, ids, _, _ = detector.detectBoard(img8)
+    if corners is None or ids is None or len(ids) < 4:
+        return None
+    indices = ids.reshape(-1).astype(np.int64)
+    xy = corners.reshape(-1, 2).astype(np.float64)
+    order = np.argsort(indices)
+    indices, xy = indices[order], xy[order]
+    # refine with a window of a quarter of the local square's image (OpenCV's default is
+    # smaller and leaves about 0.06 px of noise); the markers stay outside it
+    obj = board.object_points()[indices, :2]
+    hom = _homography(obj, xy)
+    here = _apply(hom, obj)
+    step = np.minimum(
+        np.linalg.norm(_apply(hom, obj + np.array([board.spacing, 0.0])) - here, axis=1),
+        np.linalg.norm(_apply(hom, obj + np.array([0.0, board.spacing])) - here, axis=1))
+    gap = (board.spacing - board.marker_mm) / 2 / board.spacing
+    half = int(np.clip(np.median(step) * min(0.25, 0.8 * gap), 2, 20))
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+    refined = cv2.cornerSubPix(img8, xy.astype(np.float32).reshape(-1, 1, 2), (half, half),
+                               (-1, -1), criteria).reshape(-1, 2).astype(np.float64)
+    moved = np.linalg.norm(refined - xy, axis=1)
+    xy = np.where((moved < 0.5 * half)[:, None], refined, xy)
+    return indices, xy
+
+
+def _homography(src, dst):
+    """Least-squares homography ``(3, 3)`` mapping ``src (n, 2)`` to ``dst (n, 2)`` (DLT)."""
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    # normalise both point sets (Hartley)
+    def norm(p):
+        c = p.mean(axis=0)
+        s = math.sqrt(2) / max(np.sqrt(((p - c) ** 2).sum(axis=1)).mean(), 1e-12)
+        return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1.0]])
+
+    ts, td = norm(src), norm(dst)
+    ps = (np.column_stack([src, np.ones(len(src))]) @ ts.T)
+    pd = (np.column_stack([dst, np.ones(len(dst))]) @ td.T)
+    n = len(src)
+    a = np.zeros((2 * n, 9))
+    a[0::2, 0:3] = ps
+    a[0::2, 6:9] = -pd[:, 0:1] * ps
+    a[1::2, 3:6] = ps
+    a[1::2, 6:9] = -pd[:, 1:2] * ps
+    _, _, vt = np.linalg.svd(a)
+    h = vt[-1].reshape(3, 3)
+    h = np.linalg.solve(td, h @ ts)
+    return h / h[2, 2]
+
+
+def _apply(h, xy):
+    p = np.column_stack([xy, np.ones(len(xy))]) @ h.T
+    return p[:, :2] / p[:, 2:3]
+
+
+def _label_grid(img8, board, xy):
+    """Board indices ``(n,)`` of OpenCV's grid points `xy` (module docstring), or None."""
+    w, h = board.pattern_size
+    grid = np.arange(w * h).reshape(h, w)
+    obj = board.object_points()[:, :2]
+    candidates = []
+    for axes in ((), (0,), (1,), (0, 1)):
+        labels = np.flip(grid, axes).ravel() if axes else grid.ravel()
+        hom = _homography(obj[labels], xy)
+        residual = np.sqrt(np.mean(np.sum((_apply(hom, obj[labels]) - xy) ** 2, axis=1)))
+        # orientation: the Jacobian of the board -> image map at the board centre
+        c = obj.mean(axis=0)
+        p = hom @ np.array([c[0], c[1], 1.0])
+        jac = (hom[:2, :2] * p[2] - np.outer(p[:2], hom[2, :2])) / p[2] ** 2
+        if np.linalg.det(jac) > 0:
+            candidates.append((residual, labels, hom))
+    if not candidates:
+        return None
+    best = min(r for r, _, _ in candidates)
+    pitch = np.median(np.linalg.norm(np.diff(xy.reshape(h, w, 2), axis=1), axis=-1))
+    tied = [(r, lab, hom) for r, lab, hom in candidates if r <= best + 0.05 * pitch + 0.5]
+    if len(tied) == 1:
+        return tied[0][1]
+    if board.kind == "checkerboard":
+        scores = [_checker_contrast(img8, board, hom) for _, _, hom in tied]
+        return tied[int(np.argmax(scores))][1]
+    # half-turn symmetric circle grid: the board's +x towards the image's right
+    scores = []
+    for _, _, hom in tied:
+        a, b = _apply(hom, np.array([[0.0, 0.0], [1.0, 0.0]]) * board.spacing)
+        scores.append(b[0] - a[0])
+    return tied[int(np.argmax(scores))][1]
+
+
+def _checker_contrast(img8, board, hom):
+    """Mean grey of the squares the labelling makes white minus that of the black ones."""
+    s = float(board.spacing)
+    i, j = np.divmod(np.arange(board.rows * board.cols), board.cols)
+    centres = np.column_stack([(j + 0.5) * s, (i + 0.5) * s])
+    px = _apply(hom, centres)
+    height, width = img8.shape
+    inside = (px[:, 0] >= 0) & (px[:, 0] <= width - 1) & (px[:, 1] >= 0) & (px[:, 1] <= height - 1)
+    if not inside.any():
+        return 0.0
+    grey = img8[np.rint(px[inside, 1]).astype(int), np.rint(px[inside, 0]).astype(int)]
+    black = ((i + j) % 2 == 0)[inside]
+    if black.all() or not black.any():
+        return 0.0
+    return float(grey[~black].mean() - grey[black].mean())
+
+
+def _refine_circles(img8, board, indices, xy, *, iterations: int = 2):
+    """Circle centres refined to the projection of the true circle centres.
+
+    The blob detector's centroid of a disc seen in perspective is not the image of the disc's
+    centre. With the board→image homography ``H`` (fitted to the current centres), each disc is
+    measured by the grey-level (ink) centroid within its mapped outline grown by a ring of
+    paper; the centroid of the ink of a disc maps through ``H`` as that of the projected disc,
+    whose offset from ``H(centre)`` is computed from the disc's outline and subtracted.
+    """
+    obj = board.object_points()[indices, :2]
+    img = img8.astype(np.float64)
+    height, width = img.shape
+    r = board.marker_mm / 2
+    angles = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+    unit = np.column_stack([np.cos(angles), np.sin(angles)])
+    current = xy.copy()
+    for _ in range(iterations):
+        hom = _homography(obj, current)
+        out = current.copy()
+        for k, centre in enumerate(obj):
+            outline = _apply(hom, centre + r * unit)
+            grown = _apply(hom, centre + 1.6 * r * unit)
+            x0, y0 = np.floor(grown.min(axis=0)).astype(int)
+            x1, y1 = np.ceil(grown.max(axis=0)).astype(int)
+            if x0 < 0 or y0 < 0 or x1 >= width or y1 >= height:
+                continue
+            patch = img[y0:y1 + 1, x0:x1 + 1]
+            gy, gx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+            # ink weight against the local paper level: the brightest ring around the disc
+            paper = np.percentile(patch, 90)
+            weight = np.clip(paper - patch, 0, None)
+            inside = _in_polygon(np.column_stack([gx.ravel(), gy.ravel()]),
+                                 _apply(hom, centre + 1.3 * r * unit)).reshape(patch.shape)
+            weight = weight * inside
+            total = weight.sum()
+            if not total > 0:
+                continue
+            centroid = np.array([(weight * gx).sum(), (weight * gy).sum()]) / total
+            # the ellipse's area centroid vs the image of the disc's centre
+            bias = _polygon_centroid(outline) - _apply(hom, centre[None])[0]
+            out[k] = centroid - bias
+        if not np.all(np.isfinite(out)):
+            return None
+        current = out
+    return current
+
+
+def _polygon_centroid(poly):
+    x, y = poly[:, 0], poly[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6 * area)
+
+
+def _in_polygon(points, poly):
+    """Whether points ``(n, 2)`` lie inside a convex polygon ``(m, 2)`` (either winding)."""
+    edges = np.roll(poly, -1, axis=0) - poly
+    rel = points[:, None, :] - poly[None, :, :]
+    cross = edges[None, :, 0] * rel[..., 1] - edges[None, :, 1] * rel[..., 0]
+    return np.all(cross >= 0, axis=1) | np.all(cross <= 0, axis=1)
