@@ -1,0 +1,716 @@
+"""Calibration of the cameras and the projector from a flat board seen in several poses.
+
+Each pose of the board is a capture with the usual phase patterns. In every camera the board's
+features (corners or circle centres) are detected on the all-lit image (or the decoded mean
+intensity), and the projector coordinates of each feature are read off the decoded ``(xp, yp)``
+through a **local homography** fitted on the decoded pixels around it: the board is flat, so
+near a feature the camera-to-projector map is a homography, and a least-squares fit over many
+pixels gives the projector point of the feature to a fraction of the decoding noise (Moreno &
+Taubin 2012). The projector is then calibrated as an inverse camera on those points.
+
+Steps (:func:`calibrate_board`):
+
+1. each camera, and the projector, by Zhang's method (``cv2.calibrateCamera``) on its own
+   views: intrinsics, OpenCV distortion and the pose of the board in each view;
+2. the rig: every device's pose in the world frame (a camera's frame, or the board's frame in
+   a pose) from the per-view board poses, chained through the poses the devices share and
+   averaged (rotation mean);
+3. a joint bundle adjustment (``scipy.optimize.least_squares``, Levenberg–Marquardt) of all
+   intrinsics, distortions, device poses and board poses on the camera residuals (camera px)
+   and projector residuals (panel px), the projector with OpenCV's distortion or the thesis's
+   radial model (eq. 3.34; centre tied to the principal point, as
+   :func:`nail2nail.calibration.calibrate_rig_joint`); points left far off (beyond 5 robust
+   standard deviations) are dropped and the fit repeated once.
+
+The result is a :class:`BoardCalibration` whose :meth:`~BoardCalibration.rig_calibration` is a
+:class:`nail2nail.io.calibration.RigCalibration` of pinhole models (the same projector for
+every camera).
+
+References
+----------
+D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration", 3DIMPVT
+2012, doi:10.1109/3DIMPVT.2012.77.
+Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11), 2000,
+doi:10.1109/34.888718.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera_models import Pinhole
+from ..distortion import ideal_from_panel
+from ..io.calibration import CameraCalibration, RigCalibration
+
+__all__ = [
+    "PROJECTOR_MODELS",
+    "BoardCalibration",
+    "BoardView",
+    "calibrate_board",
+    "calibrate_device",
+    "projector_points",
+]
+
+PROJECTOR_MODELS = ("opencv", "thesis")
+#: Fewest views of a device (camera or projector) that Zhang's method is run on.
+MIN_VIEWS = 3
+#: Fewest features of a view.
+MIN_FEATURES = 6
+#: The cameras' OpenCV distortion terms fitted (indices into ``(k1, k2, p1, p2, k3)``).
+CAMERA_DISTORTION = {"radial": (0, 1), "none": (), "full": (0, 1, 2, 3, 4)}
+#: The solver works on k = ρ³ of the thesis model, scaled to O(1).
+_K_SCALE = 1e8
+
+
+@dataclass
+class BoardView:
+    """The board's features seen by one camera in one pose.
+
+    Attributes
+    ----------
+    camera : str
+        Camera name.
+    pose : int
+        Index of the board pose (the same index for every camera's view of that pose).
+    ids : (N,) int
+        Index of each feature in the board's object points.
+    xy_camera : (N, 2) float64
+        Feature positions in the camera image, px (pixel-centre convention).
+    xy_projector : (N, 2) float64 or None
+        Projector panel coordinates ``(xp, yp)`` of each feature, px, NaN where none could be
+        measured; ``None`` when the view gives no projector points.
+    """
+
+    camera: str
+    pose: int
+    ids: np.ndarray
+    xy_camera: np.ndarray
+    xy_projector: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.ids = np.asarray(self.ids, dtype=int).reshape(-1)
+        self.xy_camera = np.asarray(self.xy_camera, dtype=float).reshape(-1, 2)
+        n = len(self.ids)
+        if len(self.xy_camera) != n:
+            raise ValueError(f"view {self.camera}/pose {self.pose}: {n} ids but "
+                             f"{len(self.xy_camera)} camera points")
+        if len(np.unique(self.ids)) != n:
+            raise ValueError(f"view {self.camera}/pose {self.pose}: repeated feature ids")
+        if not np.all(np.isfinite(self.xy_camera)):
+            raise ValueError(f"view {self.camera}/pose {self.pose}: camera points not finite")
+        if self.xy_projector is not None:
+            self.xy_projector = np.asarray(self.xy_projector, dtype=float).reshape(-1, 2)
+            if len(self.xy_projector) != n:
+                raise ValueError(f"view {self.camera}/pose {self.pose}: {n} ids but "
+                                 f"{len(self.xy_projector)} projector points")
+
+
+@dataclass
+class BoardCalibration:
+    """Result of :func:`calibrate_board`.
+
+    Attributes
+    ----------
+    camera_names : list of str
+    cameras : list of Pinhole
+        Camera models, poses ``T_cam_world``.
+    projector : Pinhole
+        The projector (ideal coordinates with the thesis model, panel coordinates with OpenCV's
+        distortion in ``dist``).
+    projector_distortion : dict or None
+        ``{"center": [x, y], "rho": ρ}`` of the thesis model (eq. 3.34), else ``None``.
+    board_poses : dict of int to (4, 4) float64
+        ``T_world_board`` of every pose used.
+    camera_rms_px : dict of str to float
+        RMS reprojection residual of each camera, px (both coordinates together).
+    projector_rms_px : float
+        RMS residual of the projector points, panel px (ideal px with the thesis model).
+    projector_rms_by_camera_px : dict of str to float
+        The same, over the projector points measured through each camera.
+    pose_rms_px : dict of int to dict
+        Per pose: ``{"camera": {name: rms}, "projector": rms}``, px.
+    views_used, views_refused : list of (str, int)
+        ``(camera, pose)`` of the views fitted, and of those refused (too few features);
+    points_dropped : int
+        Residual outliers dropped before the final fit.
+    world : str
+        The world frame: a camera's name, or ``"board"`` (the board in the first pose).
+    projector_model : {"opencv", "thesis"}
+    """
+
+    camera_names: list
+    cameras: list
+    projector: Pinhole
+    projector_distortion: dict | None
+    board_poses: dict
+    camera_rms_px: dict
+    projector_rms_px: float
+    projector_rms_by_camera_px: dict
+    pose_rms_px: dict
+    views_used: list
+    views_refused: list = field(default_factory=list)
+    points_dropped: int = 0
+    world: str = "cam0"
+    projector_model: str = "opencv"
+
+    def rig_calibration(self, *, extra: dict | None = None) -> RigCalibration:
+        """The calibration as a :class:`~nail2nail.io.calibration.RigCalibration` (pinhole
+        cameras, the same projector for every camera)."""
+        cameras = [CameraCalibration(name, cam, self.projector, size=cam.size)
+                   for name, cam in zip(self.camera_names, self.cameras, strict=True)]
+        info = {"model": "board", "projector_model": self.projector_model, "world": self.world,
+                "camera_rms_px": self.camera_rms_px, "projector_rms_px": self.projector_rms_px}
+        return RigCalibration(cameras=cameras, projector_distortion=self.projector_distortion,
+                              extra={**info, **(extra or {})})
+
+    def summary(self) -> dict:
+        """JSON-ready figures: RMS per camera and projector, per pose, views used/refused."""
+        return {
+            "world": self.world,
+            "projector_model": self.projector_model,
+            "camera_rms_px": self.camera_rms_px,
+            "projector_rms_px": self.projector_rms_px,
+            "projector_rms_by_camera_px": self.projector_rms_by_camera_px,
+            "poses": {str(k): v for k, v in self.pose_rms_px.items()},
+            "views_used": [list(v) for v in self.views_used],
+            "views_refused": [list(v) for v in self.views_refused],
+            "points_dropped": self.points_dropped,
+            "projector_distortion": self.projector_distortion,
+        }
+
+
+# ------------------------------------------------------------------------------------------------
+# Projector points: local homographies (Moreno & Taubin 2012)
+# ------------------------------------------------------------------------------------------------
+def projector_points(xy_camera, xp, yp, mask=None, *, window_px: float = 12.0,
+                     min_pixels: int = 30, min_fraction: float = 0.25) -> np.ndarray:
+    """Projector panel coordinates of camera features on a flat surface, by local homographies.
+
+    For each feature, a homography from camera pixels to projector coordinates is fitted by
+    least squares (``cv2.findHomography``, Hartley-normalised DLT) on the validly decoded pixels
+    in the square window of half-size `window_px` around it, and the feature is mapped through
+    it. The plane's camera-to-projector map is a homography up to the lenses' distortion, which
+    is smooth over the window; fitting over the window averages the decoding noise and bridges
+    the board's dark features, where decoding is noisy or invalid (Moreno & Taubin 2012, sec. 3).
+
+    Parameters
+    ----------
+    xy_camera : (N, 2) float
+        Features in the camera image, px (pixel-centre convention).
+    xp, yp : (H, W) float
+        Decoded projector coordinates (:class:`nail2nail.phase.Decoded`), NaN where invalid.
+    mask : (H, W) bool, optional
+        Pixels to use (default: where `xp` and `yp` are finite).
+    window_px : float
+        Half-size of the window, camera px.
+    min_pixels : int
+        Fewest valid pixels for a fit.
+    min_fraction : float
+        Fewest valid pixels as a fraction of the window's.
+
+    Returns
+    -------
+    (N, 2) float64
+        ``(xp, yp)`` per feature, panel px; NaN where the window has too few valid pixels.
+
+    Raises
+    ------
+    ValueError
+        Mismatched shapes.
+
+    References
+    ----------
+    D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration",
+    3DIMPVT 2012, doi:10.1109/3DIMPVT.2012.77.
+
+    Examples
+    --------
+    >>> yy, xx = np.mgrid[0:60, 0:80].astype(float)
+    >>> xp, yp = 2 * xx + 5, 3 * yy - 1  # an affine map is a homography
+    >>> projector_points([[40.3, 30.7]], xp, yp).round(6).tolist()
+    [[85.6, 91.1]]
+    """
+    import cv2
+
+    xy = np.asarray(xy_camera, dtype=float).reshape(-1, 2)
+    xp = np.asarray(xp, dtype=float)
+    yp = np.asarray(yp, dtype=float)
+    if xp.ndim != 2 or xp.shape != yp.shape:
+        raise ValueError(f"xp, yp: expected two (H, W) images of one shape, got {xp.shape} "
+                         f"and {yp.shape}")
+    valid = np.isfinite(xp) & np.isfinite(yp)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != xp.shape:
+            raise ValueError(f"mask: expected shape {xp.shape}, got {mask.shape}")
+        valid &= mask
+    if not window_px > 0:
+        raise ValueError(f"window_px: expected a positive number, got {window_px!r}")
+    H, W = xp.shape
+    h = int(np.ceil(window_px))
+    out = np.full((len(xy), 2), np.nan)
+    for i, (x, y) in enumerate(xy):
+        cx, cy = round(x), round(y)
+        c0, c1 = max(0, cx - h), min(W, cx + h + 1)
+        r0, r1 = max(0, cy - h), min(H, cy + h + 1)
+        if c1 <= c0 or r1 <= r0:
+            continue
+        ok = valid[r0:r1, c0:c1]
+        n = int(ok.sum())
+        if n < max(min_pixels, min_fraction * (2 * h + 1) ** 2):
+            continue
+        rr, cc = np.nonzero(ok)
+        # centred on the feature: a well-conditioned fit whose value at the feature is H's offset
+        src = np.stack([cc + c0 - x, rr + r0 - y], axis=1)
+        dst = np.stack([xp[r0:r1, c0:c1][ok], yp[r0:r1, c0:c1][ok]], axis=1)
+        shift = dst.mean(axis=0)
+        hom, _ = cv2.findHomography(src, dst - shift, 0)
+        if hom is None or not np.all(np.isfinite(hom)) or hom[2, 2] == 0:
+            continue
+        out[i] = hom[:2, 2] / hom[2, 2] + shift
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Single-device calibration (Zhang's method, OpenCV)
+# ------------------------------------------------------------------------------------------------
+def _transform(rvec, tvec) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(np.ravel(rvec)).as_matrix()
+    T[:3, 3] = np.ravel(tvec)
+    return T
+
+
+def calibrate_device(object_points, image_points, size, *, name: str = "device",
+                     distortion: str = "full") -> tuple[Pinhole, list, float]:
+    """Intrinsics and per-view board poses of one camera (or projector) by Zhang's method.
+
+    Parameters
+    ----------
+    object_points : list of (N_i, 3) float
+        Board points of each view in the board frame (``z = 0``), mm.
+    image_points : list of (N_i, 2) float
+        Their image (or panel) coordinates, px.
+    size : (2,) int
+        Image ``(W, H)``, px.
+    name : str
+        How messages name the device.
+    distortion : {"full", "radial", "none"}
+        OpenCV's terms to fit: all of ``(k1, k2, p1, p2, k3)``, ``k1, k2`` or none.
+
+    Returns
+    -------
+    model : Pinhole
+        Intrinsics and distortion, identity pose.
+    T_device_board : list of (4, 4) float64
+        The board's pose in each view.
+    rms_px : float
+        OpenCV's RMS reprojection error, px.
+
+    Raises
+    ------
+    ValueError
+        Fewer than :data:`MIN_VIEWS` views or fewer than :data:`MIN_FEATURES` points in a view.
+
+    References
+    ----------
+    Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11), 2000,
+    doi:10.1109/34.888718.
+    """
+    import cv2
+
+    if len(object_points) != len(image_points):
+        raise ValueError(f"{name}: {len(object_points)} object point sets but "
+                         f"{len(image_points)} image point sets")
+    if len(object_points) < MIN_VIEWS:
+        raise ValueError(f"{name}: {len(object_points)} view(s) of the board; need at least "
+                         f"{MIN_VIEWS}")
+    obj = [np.ascontiguousarray(np.asarray(o, dtype=np.float32).reshape(-1, 1, 3))
+           for o in object_points]
+    img = [np.ascontiguousarray(np.asarray(p, dtype=np.float32).reshape(-1, 1, 2))
+           for p in image_points]
+    for k, (o, p) in enumerate(zip(obj, img, strict=True)):
+        if len(o) != len(p) or len(o) < MIN_FEATURES:
+            raise ValueError(f"{name}: view {k} has {len(o)} object and {len(p)} image points; "
+                             f"need at least {MIN_FEATURES} of each, as many")
+    if distortion not in CAMERA_DISTORTION:
+        raise ValueError(f"distortion: expected one of {tuple(CAMERA_DISTORTION)}, got "
+                         f"{distortion!r}")
+    free = CAMERA_DISTORTION[distortion]
+    flags = ((0 if 0 in free else cv2.CALIB_FIX_K1) | (0 if 1 in free else cv2.CALIB_FIX_K2)
+             | (0 if 4 in free else cv2.CALIB_FIX_K3)
+             | (0 if 2 in free else cv2.CALIB_ZERO_TANGENT_DIST))
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, tuple(int(v) for v in size),
+                                                     None, None, flags=flags, criteria=criteria)
+    model = Pinhole(K=K, R=np.eye(3), t=np.zeros(3), dist=np.ravel(dist)[:5], size=size)
+    return model, [_transform(r, t) for r, t in zip(rvecs, tvecs, strict=True)], float(rms)
+
+
+# ------------------------------------------------------------------------------------------------
+# Joint refinement
+# ------------------------------------------------------------------------------------------------
+def _rotations(rvecs: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(rvecs.reshape(-1, 3)).as_matrix()
+
+
+def _rvec(R) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def _project(intr: np.ndarray, dist: np.ndarray, xyz_device: np.ndarray) -> np.ndarray:
+    """Pixels ``(N, 2)`` of points ``(N, 3)`` in a device frame; `intr` = ``(fx, fy, cx, cy)``,
+    `dist` OpenCV's ``(k1, k2, p1, p2, k3)`` (as :meth:`Pinhole.project`)."""
+    x = xyz_device[:, 0] / xyz_device[:, 2]
+    y = xyz_device[:, 1] / xyz_device[:, 2]
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([intr[0] * xd + intr[2], intr[1] * yd + intr[3]], axis=1)
+
+
+def _average_transform(transforms: list) -> np.ndarray:
+    """Mean of rigid transforms ``(4, 4)``: chordal rotation mean, mean translation."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_matrix(np.array([t[:3, :3] for t in transforms])).mean().as_matrix()
+    T[:3, 3] = np.mean([t[:3, 3] for t in transforms], axis=0)
+    return T
+
+
+def _initial_poses(T_dev_board: dict, devices: list, poses: list, world) -> tuple[dict, dict]:
+    """Device poses ``T_dev_world`` and board poses ``T_world_board`` from per-view board poses.
+
+    `T_dev_board` maps ``(device, pose)`` to the board's pose in that view; `world` is a device
+    (its frame is the world) or ``("board", pose)``. Poses and devices are reached by turns
+    through the views they share; each is the mean over the views linking it to those known.
+    """
+    T_dev_world: dict = {}
+    T_world_board: dict = {}
+    if isinstance(world, tuple):
+        T_world_board[world[1]] = np.eye(4)
+    else:
+        T_dev_world[world] = np.eye(4)
+    while True:
+        grown = False
+        for pose in poses:
+            if pose in T_world_board:
+                continue
+            links = [np.linalg.inv(T_dev_world[d]) @ T_dev_board[d, pose] for d in T_dev_world
+                     if (d, pose) in T_dev_board]
+            if links:
+                T_world_board[pose] = _average_transform(links)
+                grown = True
+        for dev in devices:
+            if dev in T_dev_world:
+                continue
+            links = [T_dev_board[dev, p] @ np.linalg.inv(T_world_board[p]) for p in T_world_board
+                     if (dev, p) in T_dev_board]
+            if links:
+                T_dev_world[dev] = _average_transform(links)
+                grown = True
+        if not grown:
+            break
+    missing = [d for d in devices if d not in T_dev_world]
+    if missing:
+        raise ValueError(f"{missing[0]}: shares no board pose with the others (directly or "
+                         "through other cameras); its place in the rig is unknown")
+    return T_dev_world, T_world_board
+
+
+def calibrate_board(
+    views: list[BoardView],
+    object_points,
+    camera_sizes: dict,
+    *,
+    projector_size=(1280, 1040),
+    projector_model: str = "opencv",
+    world: str | None = None,
+    camera_distortion: str = "radial",
+    outlier_sigma: float = 5.0,
+) -> BoardCalibration:
+    """Calibrate every camera and the projector from views of a flat board in several poses.
+
+    Parameters
+    ----------
+    views : list of BoardView
+        Every camera's view of every pose (a pose a camera does not see is simply absent).
+        Views with fewer than :data:`MIN_FEATURES` features are refused (listed in the result).
+    object_points : (M, 3) float
+        The board's features in the board frame (``z = 0``), mm; ``BoardView.ids`` index them.
+    camera_sizes : dict of str to (2,) int
+        Image ``(W, H)`` of each camera; its order is the order of the cameras in the result.
+    projector_size : (2,) int
+        Projector panel ``(W, H)``, px.
+    projector_model : {"opencv", "thesis"}
+        The projector's lens: OpenCV's ``(k1, k2, p1, p2, k3)`` in the panel coordinates, or
+        the thesis's radial model (eq. 3.34, ``docs/conventions.md``), its centre the principal
+        point, written as ``projector_distortion``.
+    world : str, optional
+        The world frame: a camera's name (its frame, ``x`` right, ``y`` down, ``z`` forward),
+        or ``"board"`` (the board's frame in the first pose). Default: the first camera.
+    camera_distortion : {"radial", "none", "full"}
+        The cameras' OpenCV distortion terms fitted: ``k1, k2`` (default), none, or all five
+        ``(k1, k2, p1, p2, k3)``. The scanner's cameras see a narrow field (about 12°), where
+        higher terms are not determined by a board and trade off with the principal point.
+    outlier_sigma : float
+        Residuals beyond this many robust standard deviations (1.4826 × the median absolute
+        residual, per device) are dropped after a first fit, which is then repeated;
+        ``inf`` keeps every point.
+
+    Returns
+    -------
+    BoardCalibration
+
+    Raises
+    ------
+    ValueError
+        An unknown model or world, a camera with fewer than :data:`MIN_VIEWS` usable views, no
+        projector points in enough poses, or a device that shares no pose with the others.
+    """
+    from scipy.optimize import least_squares
+
+    if camera_distortion not in CAMERA_DISTORTION:
+        raise ValueError(f"camera_distortion: expected one of {tuple(CAMERA_DISTORTION)}, got "
+                         f"{camera_distortion!r}")
+    if projector_model not in PROJECTOR_MODELS:
+        raise ValueError(f"projector_model: expected one of {PROJECTOR_MODELS}, got "
+                         f"{projector_model!r}")
+    obj = np.asarray(object_points, dtype=float)
+    if obj.ndim != 2 or obj.shape[1] != 3 or not np.all(np.isfinite(obj)):
+        raise ValueError(f"object_points: expected finite (M, 3) mm, got shape {obj.shape}")
+    if np.max(np.abs(obj[:, 2])) > 1e-9 * max(1.0, np.max(np.abs(obj))):
+        raise ValueError("object_points: the board's points must lie in its plane z = 0")
+    names = list(camera_sizes)
+    if not names:
+        raise ValueError("camera_sizes: need at least one camera")
+    world = names[0] if world is None else world
+    if world != "board" and world not in names:
+        raise ValueError(f"world: expected 'board' or a camera name {names}, got {world!r}")
+    thesis = projector_model == "thesis"
+
+    used, refused = [], []
+    for v in views:
+        if v.camera not in camera_sizes:
+            raise ValueError(f"view of pose {v.pose}: unknown camera {v.camera!r} (has {names})")
+        if np.any((v.ids < 0) | (v.ids >= len(obj))):
+            raise ValueError(f"view {v.camera}/pose {v.pose}: feature ids outside "
+                             f"0..{len(obj) - 1}")
+        (used if len(v.ids) >= MIN_FEATURES else refused).append(v)
+    for v in refused:
+        warnings.warn(f"{v.camera}: pose {v.pose} has {len(v.ids)} board features (fewer than "
+                      f"{MIN_FEATURES}); view skipped", stacklevel=2)
+    poses = sorted({v.pose for v in used})
+
+    # 1. Zhang's method per camera, then for the projector on its points of every pose
+    T_dev_board: dict = {}
+    init: dict = {}
+    for name in names:
+        mine = [v for v in used if v.camera == name]
+        model, T, _ = calibrate_device([obj[v.ids] for v in mine], [v.xy_camera for v in mine],
+                                       camera_sizes[name], name=f"camera {name}",
+                                       distortion=camera_distortion)
+        init[name] = model
+        T_dev_board.update({(name, v.pose): t for v, t in zip(mine, T, strict=True)})
+    proj_obj, proj_img, proj_poses = [], [], []
+    for pose in poses:
+        ids, xy = [], []
+        for v in used:
+            if v.pose == pose and v.xy_projector is not None:
+                ok = np.all(np.isfinite(v.xy_projector), axis=1)
+                ids.append(v.ids[ok])
+                xy.append(v.xy_projector[ok])
+        if not ids:
+            continue
+        ids, xy = np.concatenate(ids), np.concatenate(xy)
+        uniq, inv = np.unique(ids, return_inverse=True)
+        if len(uniq) < MIN_FEATURES:
+            continue
+        mean = np.zeros((len(uniq), 2))
+        np.add.at(mean, inv, xy)
+        mean /= np.bincount(inv)[:, None]
+        proj_obj.append(obj[uniq])
+        proj_img.append(mean)
+        proj_poses.append(pose)
+    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector")
+    init["projector"] = model
+    T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
+
+    # 2. the rig
+    devices = [*names, "projector"]
+    T_dev_world, T_world_board = _initial_poses(
+        T_dev_board, devices, poses, ("board", poses[0]) if world == "board" else world)
+
+    # 3. bundle adjustment: per device fx, fy, cx, cy, its free distortion terms (the thesis
+    # projector: k = ρ³) and 6 for its pose; 6 per board pose; the world device's (or the first
+    # board pose's) pose is fixed.
+    layout, x0 = {}, []
+
+    def add(key, values):
+        layout[key] = slice(sum(len(v) for v in x0), sum(len(v) for v in x0) + len(values))
+        x0.append(np.asarray(values, dtype=float))
+
+    free_dist = {n: list(CAMERA_DISTORTION[camera_distortion]) for n in names}
+    free_dist["projector"] = [] if thesis else list(range(5))
+    for dev in devices:
+        m = init[dev]
+        add((dev, "intr"), [m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]])
+        if dev == "projector" and thesis:
+            # OpenCV's k1 on normalised panel coordinates is -ρ³ f² of eq. 3.34 to first order
+            add((dev, "k"), [-m.dist[0] / (m.K[0, 0] * m.K[1, 1]) * _K_SCALE])
+        if free_dist[dev]:
+            add((dev, "dist"), m.dist[free_dist[dev]])
+        if dev != world:
+            T = T_dev_world[dev]
+            add((dev, "pose"), [*_rvec(T[:3, :3]), *T[:3, 3]])
+    for pose in poses:
+        if world == "board" and pose == poses[0]:
+            continue
+        T = T_world_board[pose]
+        add(("board", pose), [*_rvec(T[:3, :3]), *T[:3, 3]])
+    x0 = np.concatenate(x0)
+
+    # observations, per device: pose index per point, board point, measurement, camera of origin
+    pose_index = {p: i for i, p in enumerate(poses)}
+    blocks = []
+    for dev in devices:
+        if dev == "projector":
+            mine = [(v, v.xy_projector) for v in used if v.xy_projector is not None]
+        else:
+            mine = [(v, v.xy_camera) for v in used if v.camera == dev]
+        pi, ids, meas, cam = [], [], [], []
+        for v, xy in mine:
+            ok = np.all(np.isfinite(xy), axis=1)
+            pi.append(np.full(ok.sum(), pose_index[v.pose]))
+            ids.append(v.ids[ok])
+            meas.append(xy[ok])
+            cam.append(np.full(ok.sum(), names.index(v.camera)))
+        blocks.append({"device": dev, "pose": np.concatenate(pi), "xyz": obj[np.concatenate(ids)],
+                       "meas": np.concatenate(meas), "camera": np.concatenate(cam)})
+
+    def unpack(x):
+        R_wb = np.repeat(np.eye(3)[None], len(poses), axis=0)
+        t_wb = np.zeros((len(poses), 3))
+        for pose, i in pose_index.items():
+            if ("board", pose) in layout:
+                p = x[layout["board", pose]]
+                R_wb[i], t_wb[i] = _rotations(p[:3])[0], p[3:]
+        dev_pose = {}
+        for dev in devices:
+            if (dev, "pose") in layout:
+                p = x[layout[dev, "pose"]]
+                dev_pose[dev] = (_rotations(p[:3])[0], p[3:])
+            else:
+                dev_pose[dev] = (np.eye(3), np.zeros(3))
+        return R_wb, t_wb, dev_pose
+
+    def block_residuals(x, block, R_wb, t_wb, dev_pose):
+        dev = block["device"]
+        R, t = dev_pose[dev]
+        xyz_world = np.einsum("nij,nj->ni", R_wb[block["pose"]], block["xyz"]) + t_wb[block["pose"]]
+        xyz_dev = xyz_world @ R.T + t
+        intr = x[layout[dev, "intr"]]
+        if dev == "projector" and thesis:
+            rho = float(np.cbrt(x[layout[dev, "k"]][0] / _K_SCALE))
+            ideal = ideal_from_panel(block["meas"], intr[2:4], rho)
+            return _project(intr, np.zeros(5), xyz_dev) - ideal
+        return _project(intr, distortion(x, dev), xyz_dev) - block["meas"]
+
+    def distortion(x, dev):
+        dist = np.zeros(5)
+        if free_dist[dev]:
+            dist[free_dist[dev]] = x[layout[dev, "dist"]]
+        return dist
+
+    def residuals(x, blocks):
+        R_wb, t_wb, dev_pose = unpack(x)
+        return np.concatenate([block_residuals(x, b, R_wb, t_wb, dev_pose).ravel()
+                               for b in blocks])
+
+    def solve(x_start, blocks):
+        # Levenberg–Marquardt (MINPACK) on the dense finite-difference Jacobian: the narrow
+        # field makes focal length and distance nearly interchangeable, a valley along which a
+        # trust-region solver on the sparse Jacobian crawls; a few hundred parameters at most
+        return least_squares(residuals, x_start, x_scale="jac", method="lm", ftol=1e-12,
+                             xtol=1e-12, gtol=1e-12, max_nfev=100 * (len(x_start) + 1),
+                             args=(blocks,)).x
+
+    x = solve(x0, blocks)
+    dropped = 0
+    if np.isfinite(outlier_sigma):
+        R_wb, t_wb, dev_pose = unpack(x)
+        kept_blocks = []
+        for b in blocks:
+            r = np.hypot(*block_residuals(x, b, R_wb, t_wb, dev_pose).T)
+            sigma = 1.4826 * np.median(r) * np.sqrt(2)  # |residual| of a 2D Gaussian
+            keep = r <= outlier_sigma * max(sigma, 1e-9)
+            dropped += int((~keep).sum())
+            kept_blocks.append({k: (v[keep] if isinstance(v, np.ndarray) else v)
+                                for k, v in b.items()})
+        if dropped:
+            blocks = kept_blocks
+            x = solve(x, blocks)
+
+    # results
+    R_wb, t_wb, dev_pose = unpack(x)
+    models = {}
+    for dev in devices:
+        intr = x[layout[dev, "intr"]]
+        K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
+        size = projector_size if dev == "projector" else camera_sizes[dev]
+        dist = distortion(x, dev)
+        R, t = dev_pose[dev]
+        models[dev] = Pinhole(K=K, R=R, t=t, dist=dist, size=size)
+    pdist = None
+    if thesis:
+        intr = x[layout["projector", "intr"]]
+        pdist = {"center": [float(intr[2]), float(intr[3])],
+                 "rho": float(np.cbrt(x[layout["projector", "k"]][0] / _K_SCALE))}
+    res = {b["device"]: block_residuals(x, b, R_wb, t_wb, dev_pose) for b in blocks}
+
+    def rms(r):
+        return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
+
+    bmap = {b["device"]: b for b in blocks}
+    pose_rms = {}
+    for pose, i in pose_index.items():
+        pose_rms[pose] = {
+            "camera": {n: rms(res[n][bmap[n]["pose"] == i]) for n in names
+                       if np.any(bmap[n]["pose"] == i)},
+            "projector": rms(res["projector"][bmap["projector"]["pose"] == i]),
+        }
+    T_board = {}
+    for pose, i in pose_index.items():
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_wb[i], t_wb[i]
+        T_board[pose] = T
+    return BoardCalibration(
+        camera_names=names,
+        cameras=[models[n] for n in names],
+        projector=models["projector"],
+        projector_distortion=pdist,
+        board_poses=T_board,
+        camera_rms_px={n: rms(res[n]) for n in names},
+        projector_rms_px=rms(res["projector"]),
+        projector_rms_by_camera_px={
+            n: rms(res["projector"][bmap["projector"]["camera"] == j])
+            for j, n in enumerate(names)},
+        pose_rms_px=pose_rms,
+        views_used=[(v.camera, v.pose) for v in used],
+        views_refused=[(v.camera, v.pose) for v in refused],
+        points_dropped=dropped,
+        world=world,
+        projector_model=projector_model,
+    )
