@@ -1,4 +1,4 @@
-"""Multi-frequency phase-shifted sinusoidal patterns (PMP) and the projected grid.
+"""Projector pattern sets (multi-frequency PMP, Gray code + phase, Gray code + line shift), grid.
 
 A :class:`PatternSet` is the small JSON-serialisable description of what the projector shows: for
 each direction (``"x"`` encodes the panel column ``xp``, ``"y"`` the panel row ``yp``) a list of
@@ -16,6 +16,18 @@ and step ``k`` of ``N`` shows ``1/2 + 1/2 cos(phi - delta_k)`` with the shift
 ``delta_k = sign * 2 pi k / N + offset`` (``sign = +1``, ``offset = 0`` by default). Frames are
 ordered direction by direction (in the order of :attr:`PatternSet.directions`), frequency by
 frequency (in the order listed), step by step; :func:`frame_table` says which frame is which.
+
+Other schemes (``scheme``, :mod:`nail2nail.gray_code`): ``"gray-phase"``, Gray code plus phase
+shifting (one sinusoid per direction whose period index the Gray-code bit planes give, with the
+complementary Gray-code bit by default), and ``"gray"``, Gray code plus line shifting (Gühring
+2001: the Gray code numbers stripes ``w`` px wide, ``w`` frames of one-pixel lines shifted by
+one pixel locate the position inside the stripe). Gray-code stripes follow the same panel
+convention as the phase: stripe ``k`` of width ``T`` covers ``k T <= u - origin < (k + 1) T``
+for pixel-centre coordinates ``u`` (``u = 0`` the centre of column 0; the default origin
+``-1/2`` is the panel's physical edge). Frame order of a direction: the Gray-code bits (most
+significant first, each followed by its inverse with ``reference="inverse"``), the
+complementary bit, then the phase steps or the line frames; with ``reference="pair"`` an
+all-lit and an all-dark frame open the whole sequence.
 """
 
 from __future__ import annotations
@@ -31,19 +43,27 @@ from ._validation import as_int_pair
 
 __all__ = [
     "DIRECTIONS",
+    "SCHEMES",
     "FrameInfo",
     "Frequency",
     "PatternSet",
     "default_pattern_set",
     "frame_table",
+    "gray_line_pattern_set",
+    "gray_phase_pattern_set",
     "grid_pattern",
     "make_patterns",
     "pattern_phase",
+    "stripe_width",
 ]
 
 DIRECTIONS = ("x", "y")
 PANEL_SIZE = (1280, 1040)  # (W, H)
 _FORMAT = "nail2nail-patterns"
+#: Pattern schemes: multi-frequency PMP, Gray code + phase shifting, Gray code + line shifting.
+SCHEMES = ("pmp", "gray-phase", "gray")
+_REFERENCES = {"pmp": (None,), "gray-phase": ("mean", "pair", "inverse"),
+               "gray": ("pair", "inverse")}
 
 
 @dataclass(frozen=True)
@@ -77,14 +97,22 @@ class Frequency:
 
 @dataclass(frozen=True)
 class FrameInfo:
-    """What one frame of a pattern set shows (a row of :func:`frame_table`)."""
+    """What one frame of a pattern set shows (a row of :func:`frame_table`).
+
+    ``kind`` is ``"phase"`` (a phase step; ``shift`` is ``delta_k`` in radians), ``"gray"``,
+    ``"gray-inverse"``, ``"complementary"``, ``"complementary-inverse"`` (Gray-code bit plane
+    ``bit``, most significant first; the complementary bit is ``bit = n_bits``), ``"line"``
+    (line-shift frame ``step`` of ``steps``), ``"white"`` or ``"black"`` (``direction`` None).
+    """
 
     index: int
-    direction: str
+    direction: str | None
     periods: float
     step: int
     steps: int
-    shift: float  # delta_k in radians
+    shift: float  # delta_k in radians (phase frames; 0 otherwise)
+    kind: str = "phase"
+    bit: int = -1
 
 
 def _as_frequencies(value, name: str) -> tuple[Frequency, ...]:
@@ -137,6 +165,20 @@ class PatternSet:
     directions : tuple of str
         Order of the directions in the frame sequence; by default ``("x", "y")`` restricted to the
         non-empty ones.
+    scheme : {"pmp", "gray-phase", "gray"}
+        ``"pmp"`` (default): multi-frequency phase shifting. ``"gray-phase"``: one frequency per
+        direction (``n`` periods, ``N`` steps) and ``ceil(log2 n)`` Gray-code bits giving its
+        period index. ``"gray"``: one entry per direction ``(size / w, w)``: Gray code of stripes
+        ``w`` px wide and ``w`` line-shift frames (``steps`` is the line spacing ``w`` and
+        ``periods`` must be ``size / w``). See :mod:`nail2nail.gray_code`.
+    complementary : bool
+        Gray-code schemes: add the complementary Gray-code bit (stripes half a period wide,
+        edges half a period off the others') against one-period errors at code edges.
+    reference : {"mean", "pair", "inverse"} or None
+        Gray-code schemes: what a code bit is thresholded against: the mean of the phase frames
+        (``"gray-phase"`` only; its default), an all-lit and an all-dark frame (``"pair"``,
+        two frames first in the sequence; the default of ``"gray"``), or each bit's inverse
+        pattern (``"inverse"``, one more frame per bit). ``None`` for PMP.
     """
 
     x: tuple[Frequency, ...] = ()
@@ -148,6 +190,9 @@ class PatternSet:
     levels: tuple[int, int] = (0, 255)
     gamma: float | None = None
     directions: tuple[str, ...] = field(default=())
+    scheme: str = "pmp"
+    complementary: bool = True
+    reference: str | None = None
 
     def __post_init__(self) -> None:
         x = _as_frequencies(self.x, "x")
@@ -185,6 +230,21 @@ class PatternSet:
                 f"got {directions!r}"
             )
         object.__setattr__(self, "directions", directions)
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"scheme: expected one of {SCHEMES}, got {self.scheme!r}")
+        if not isinstance(self.complementary, (bool, np.bool_)):
+            raise TypeError(f"complementary: expected a bool, got {self.complementary!r}")
+        object.__setattr__(self, "complementary", bool(self.complementary))
+        reference = self.reference
+        if reference is None and self.scheme != "pmp":
+            reference = _REFERENCES[self.scheme][0]
+        if reference not in _REFERENCES[self.scheme]:
+            raise ValueError(f"reference: expected one of {_REFERENCES[self.scheme]} for scheme "
+                             f"{self.scheme!r}, got {self.reference!r}")
+        object.__setattr__(self, "reference", reference)
+        if self.scheme != "pmp":
+            self._check_gray()
+            return
         for d in present:
             coarsest = min(f.periods for f in getattr(self, d))
             if coarsest > 1.0:
@@ -193,11 +253,29 @@ class PatternSet:
                     f"for unambiguous unwrapping, got {coarsest:g}"
                 )
 
+    def _check_gray(self) -> None:
+        for d in self.directions:
+            freqs = getattr(self, d)
+            if len(freqs) != 1:
+                raise ValueError(f"{d}: scheme {self.scheme!r} takes one (periods, steps) entry "
+                                 f"per direction, got {len(freqs)}")
+            size = self.axis_size(d)
+            if self.scheme == "gray" and abs(freqs[0].periods * freqs[0].steps - size) > 1e-6:
+                raise ValueError(
+                    f"{d}: scheme 'gray' takes (size / w, w) with the line spacing w = steps; "
+                    f"expected periods {size / freqs[0].steps:g} for steps {freqs[0].steps}, "
+                    f"got {freqs[0].periods:g}")
+            if self.scheme == "gray-phase" and freqs[0].periods < 1.0:
+                raise ValueError(f"{d}: scheme 'gray-phase' needs at least 1 period, got "
+                                 f"{freqs[0].periods:g}")
+
     # -- sizes ---------------------------------------------------------------------------------
     @property
     def n_frames(self) -> int:
         """Total number of frames."""
-        return sum(f.steps for d in self.directions for f in getattr(self, d))
+        if self.scheme == "pmp":
+            return sum(f.steps for d in self.directions for f in getattr(self, d))
+        return len(frame_table(self))
 
     def axis_size(self, direction: str) -> int:
         """Panel pixels along the axis a direction encodes (W for ``"x"``, H for ``"y"``)."""
@@ -216,7 +294,11 @@ class PatternSet:
 
     # -- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """A JSON-serialisable dict (``from_dict`` inverts it)."""
+        """A JSON-serialisable dict (``from_dict`` inverts it); ``scheme`` is written always,
+        ``complementary`` and ``reference`` for the Gray-code schemes (a dict without
+        ``scheme``, e.g. an older file, is PMP)."""
+        gray = {} if self.scheme == "pmp" else {"complementary": self.complementary,
+                                                 "reference": self.reference}
         return {
             "format": _FORMAT,
             "version": 1,
@@ -229,6 +311,8 @@ class PatternSet:
             "phase_origin": self.phase_origin,
             "levels": list(self.levels),
             "gamma": self.gamma,
+            "scheme": self.scheme,
+            **gray,
         }
 
     @classmethod
@@ -240,7 +324,8 @@ class PatternSet:
         if fmt != _FORMAT:
             raise ValueError(f"pattern set: expected format {_FORMAT!r}, got {fmt!r}")
         known = {"format", "version", "panel_size", "directions", "x", "y", "shift_sign",
-                 "phase_offset", "phase_origin", "levels", "gamma"}
+                 "phase_offset", "phase_origin", "levels", "gamma", "scheme", "complementary",
+                 "reference"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"pattern set: unknown key(s) {unknown}")
@@ -320,13 +405,115 @@ def frame_table(pattern_set: PatternSet) -> list[FrameInfo]:
     """
     _check_pattern_set(pattern_set)
     rows: list[FrameInfo] = []
+    if pattern_set.scheme == "pmp":
+        for direction in pattern_set.directions:
+            for freq in pattern_set.frequencies(direction):
+                for k, delta in enumerate(pattern_set.shifts(freq.steps)):
+                    rows.append(
+                        FrameInfo(len(rows), direction, freq.periods, k, freq.steps, float(delta))
+                    )
+        return rows
+    from .gray_code import n_code_bits
+
+    inverse = pattern_set.reference == "inverse"
+    if pattern_set.reference == "pair":
+        rows.append(FrameInfo(0, None, 0.0, 0, 0, 0.0, kind="white"))
+        rows.append(FrameInfo(1, None, 0.0, 0, 0, 0.0, kind="black"))
     for direction in pattern_set.directions:
-        for freq in pattern_set.frequencies(direction):
+        (freq,) = pattern_set.frequencies(direction)
+        n_stripes = pattern_set.axis_size(direction) / stripe_width(pattern_set, direction)
+        n_bits = n_code_bits(n_stripes)
+        planes = [("gray", b) for b in range(n_bits)]
+        if pattern_set.complementary:
+            planes.append(("complementary", n_bits))
+        for kind, bit in planes:
+            rows.append(FrameInfo(len(rows), direction, freq.periods, 0, 0, 0.0, kind=kind,
+                                  bit=bit))
+            if inverse:
+                rows.append(FrameInfo(len(rows), direction, freq.periods, 0, 0, 0.0,
+                                      kind=f"{kind}-inverse", bit=bit))
+        if pattern_set.scheme == "gray-phase":
             for k, delta in enumerate(pattern_set.shifts(freq.steps)):
-                rows.append(
-                    FrameInfo(len(rows), direction, freq.periods, k, freq.steps, float(delta))
-                )
+                rows.append(FrameInfo(len(rows), direction, freq.periods, k, freq.steps,
+                                      float(delta)))
+        else:
+            for k in range(freq.steps):
+                rows.append(FrameInfo(len(rows), direction, freq.periods, k, freq.steps, 0.0,
+                                      kind="line"))
     return rows
+
+
+def stripe_width(pattern_set: PatternSet, direction: str) -> float:
+    """Width ``T`` (panel px) of a direction's finest code stripe or period: ``size / periods``
+    of its finest frequency (for ``"gray"``, the line spacing ``w``).
+
+    Examples
+    --------
+    >>> stripe_width(gray_phase_pattern_set(), "x"), stripe_width(gray_line_pattern_set(), "y")
+    (20.0, 8.0)
+    """
+    _check_pattern_set(pattern_set)
+    finest = max(f.periods for f in pattern_set.frequencies(direction))
+    return pattern_set.axis_size(direction) / finest
+
+
+def gray_phase_pattern_set(*, periods: float = 64, steps: int = 4, complementary: bool = True,
+                           reference: str = "mean", panel_size=PANEL_SIZE,
+                           directions=("x", "y"), gamma: float | None = 2.2) -> PatternSet:
+    """Gray code plus phase shifting (GCPS), the same in each direction.
+
+    Parameters
+    ----------
+    periods, steps : float, int
+        The sinusoid: periods across the panel and phase steps (64 and 4 by default:
+        ``ceil(log2 64) = 6`` code bits, one complementary bit).
+    complementary : bool
+        Add the complementary Gray-code bit.
+    reference : {"mean", "pair", "inverse"}
+        Threshold of the code bits (:class:`PatternSet`).
+    panel_size : (int, int)
+    directions : tuple of str
+        ``("x", "y")``, ``("x",)`` or ``("y",)``.
+    gamma : float or None
+        Projector gamma to pre-compensate.
+
+    Examples
+    --------
+    >>> gray_phase_pattern_set().n_frames
+    22
+    """
+    entry = [(periods, steps)]
+    return PatternSet(x=entry if "x" in directions else (), y=entry if "y" in directions else (),
+                      directions=tuple(directions), panel_size=panel_size, gamma=gamma,
+                      scheme="gray-phase", complementary=complementary, reference=reference)
+
+
+def gray_line_pattern_set(*, spacing: int = 8, complementary: bool = True,
+                          reference: str = "pair", panel_size=PANEL_SIZE,
+                          directions=("x", "y"), gamma: float | None = 2.2) -> PatternSet:
+    """Gray code plus line shifting (Gühring 2001), the same line spacing in each direction.
+
+    Parameters
+    ----------
+    spacing : int
+        Line spacing ``w`` = stripe width of the code = number of line frames (8 by default:
+        8 code bits for the 160 stripes of 1280 px, one complementary bit, 8 line frames).
+    complementary, reference, panel_size, directions, gamma
+        As :func:`gray_phase_pattern_set` (``reference`` ``"pair"`` or ``"inverse"``).
+
+    Examples
+    --------
+    >>> gray_line_pattern_set().n_frames
+    36
+    """
+    width, height = as_int_pair(panel_size, "panel_size", "(W, H)", error=TypeError)
+    spacing = int(spacing)
+    if spacing < 3:
+        raise ValueError(f"spacing: expected at least 3 px, got {spacing}")
+    return PatternSet(x=[(width / spacing, spacing)] if "x" in directions else (),
+                      y=[(height / spacing, spacing)] if "y" in directions else (),
+                      directions=tuple(directions), panel_size=(width, height), gamma=gamma,
+                      scheme="gray", complementary=complementary, reference=reference)
 
 
 def _check_pattern_set(pattern_set) -> None:
@@ -376,13 +563,30 @@ def make_patterns(pattern_set: PatternSet) -> np.ndarray:
     >>> frames[0, 0].tolist()
     [245, 176, 79, 10, 10, 79, 176, 245]
     """
+    from .gray_code import code_profile, line_profile, n_code_bits
+
     _check_pattern_set(pattern_set)
     width, height = pattern_set.panel_size
-    out = np.empty((pattern_set.n_frames, height, width), dtype=np.uint8)
-    for info in frame_table(pattern_set):
+    table = frame_table(pattern_set)
+    out = np.empty((len(table), height, width), dtype=np.uint8)
+    for info in table:
+        if info.kind in ("white", "black"):
+            out[info.index] = _to_levels(np.float64(info.kind == "white"), pattern_set)
+            continue
         size = pattern_set.axis_size(info.direction)
-        phase = pattern_phase(pattern_set, info.direction, info.periods, np.arange(size))
-        profile = _to_levels(0.5 + 0.5 * np.cos(phase - info.shift), pattern_set)
+        u = np.arange(size)
+        if info.kind == "phase":
+            phase = pattern_phase(pattern_set, info.direction, info.periods, u)
+            value = 0.5 + 0.5 * np.cos(phase - info.shift)
+        elif info.kind == "line":
+            value = line_profile(u, pattern_set.phase_origin, info.steps, info.step)
+        else:
+            stripe = stripe_width(pattern_set, info.direction)
+            value = code_profile(u, pattern_set.phase_origin, stripe,
+                                 n_code_bits(size / stripe), info.bit)
+            if info.kind.endswith("-inverse"):
+                value = 1 - value
+        profile = _to_levels(np.asarray(value, dtype=np.float64), pattern_set)
         if info.direction == "x":
             out[info.index] = profile[None, :]
         else:

@@ -295,6 +295,17 @@ def _check_scale(full_scale) -> float | None:
     return float(full_scale)
 
 
+def _check_modulation(value, name: str) -> float | None:
+    """A modulation threshold: a finite number >= 0 (``None`` allowed for `cue_modulation`)."""
+    if value is None and name == "cue_modulation":
+        return None
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.number))
+            or not 0 <= float(value) < np.inf):
+        raise ValueError(f"{name}: expected a finite number >= 0"
+                         f"{' or None' if name == 'cue_modulation' else ''}, got {value!r}")
+    return float(value)
+
+
 def _check_gradient(max_gradient) -> float | None:
     if max_gradient is None:
         return None
@@ -360,8 +371,18 @@ def _panel_coordinate(wrapped, unwrapped, size: float, periods: float, origin: f
     return u.astype(np.float32)
 
 
-def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation,
-                  unwrap_tolerance, erode, max_gradient, keep_invalid, full_scale) -> Decoded:
+def _decode_numpy(frames, pattern_set, *, min_modulation, cue_modulation, min_albedo,
+                  saturation, unwrap_tolerance, erode, max_gradient, keep_invalid,
+                  full_scale) -> Decoded:
+    if pattern_set.scheme != "pmp":
+        from .gray_code import decode_gray
+
+        return decode_gray(frames, pattern_set, min_modulation=min_modulation,
+                           cue_modulation=cue_modulation, min_albedo=min_albedo,
+                           saturation=saturation, unwrap_tolerance=unwrap_tolerance, erode=erode,
+                           max_gradient=max_gradient, keep_invalid=keep_invalid,
+                           full_scale=full_scale)
+    cue = min_modulation if cue_modulation is None else cue_modulation
     scale = _full_scale(frames.dtype) if full_scale is None else full_scale
     height, width = frames.shape[1:]
     reason = np.zeros((height, width), dtype=np.uint8)
@@ -385,9 +406,11 @@ def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation
             phi, b, _ = wrapped_phase(block, pattern_set.shifts(f.steps))
             phases.append(phi)
             amplitudes.append(b)
-            np.minimum(min_amplitude, b, out=min_amplitude)
         finest = int(np.argmax([f.periods for f in freqs]))
         np.minimum(finest_amplitude, amplitudes[finest], out=finest_amplitude)
+        for i, b in enumerate(amplitudes):  # the coarser, unwrap-only frequencies
+            if i != finest:
+                np.minimum(min_amplitude, b, out=min_amplitude)
         unwrapped, bad = unwrap_hierarchical(
             phases, [f.periods for f in freqs], tolerance=unwrap_tolerance
         )
@@ -399,7 +422,7 @@ def _decode_numpy(frames, pattern_set, *, min_modulation, min_albedo, saturation
             outside = (u < -0.5) | (u > size - 0.5)
         reason[outside] |= OUT_OF_PANEL
         coords[direction] = u
-    reason[min_amplitude < min_modulation] |= LOW_MODULATION
+    reason[(finest_amplitude < min_modulation) | (min_amplitude < cue)] |= LOW_MODULATION
     reason = neighbourhood_reasons(reason, list(coords.values()), erode=erode,
                                    max_gradient=max_gradient)
     mask = reason == 0
@@ -423,6 +446,7 @@ def decode(
     pattern_set: PatternSet,
     *,
     min_modulation: float = 0.03,
+    cue_modulation: float | None = None,
     min_albedo: float = 0.02,
     saturation: float = 254.5 / 255.0,
     unwrap_tolerance: float = np.pi / 2,
@@ -443,8 +467,14 @@ def decode(
     pattern_set : PatternSet
         What was projected.
     min_modulation : float
-        Smallest accepted amplitude ``B`` of every frequency, fraction of full scale
-        (0.03 = 7.7 grey levels of 8-bit amplitude; ``sigma_phi = sqrt(2/N) sigma / B``).
+        Smallest accepted amplitude ``B`` of the finest frequency of each direction, fraction of
+        full scale (0.03 = 7.7 grey levels of 8-bit amplitude; ``sigma_phi = sqrt(2/N) sigma /
+        B``); for the Gray-code schemes the fine signal's (:mod:`nail2nail.gray_code`).
+    cue_modulation : float or None
+        Smallest accepted amplitude of the coarser frequencies, which only unwrap (their phase
+        scaled by the frequency ratio must err by less than ``unwrap_tolerance``, not set the
+        precision), and of the Gray-code bits' contrast; ``None`` (default): `min_modulation`,
+        i.e. every frequency alike.
     min_albedo : float
         Smallest accepted mean intensity (shadow), fraction of full scale.
     saturation : float
@@ -475,6 +505,12 @@ def decode(
     -------
     Decoded
 
+    Notes
+    -----
+    The Gray-code schemes (``pattern_set.scheme`` ``"gray-phase"``, ``"gray"``) are decoded by
+    :func:`nail2nail.gray_code.decode_gray` in NumPy whatever `method` (the fused kernel
+    decodes PMP only), unless a `table` is asked for (an error).
+
     Raises
     ------
     ValueError, TypeError
@@ -490,11 +526,15 @@ def decode(
     (True, True)
     """
     frames = _check_frames(frames, pattern_set)
-    options = dict(min_modulation=float(min_modulation), min_albedo=float(min_albedo),
+    options = dict(min_modulation=_check_modulation(min_modulation, "min_modulation"),
+                   cue_modulation=_check_modulation(cue_modulation, "cue_modulation"),
+                   min_albedo=float(min_albedo),
                    saturation=float(saturation), unwrap_tolerance=float(unwrap_tolerance),
                    erode=_check_erode(erode), max_gradient=_check_gradient(max_gradient),
                    keep_invalid=bool(keep_invalid), full_scale=_check_scale(full_scale))
-    if method == "numpy":
+    if method not in ("numpy", "numba"):
+        raise ValueError(f"method: expected 'numpy' or 'numba', got {method!r}")
+    if method == "numpy" or (pattern_set.scheme != "pmp" and table is None):
         if table is not None:
             raise ValueError("table: triangulation is fused only with method='numba'")
         return _decode_numpy(frames, pattern_set, **options)
@@ -547,23 +587,27 @@ def _atan2_0_2pi(y, x):  # pragma: no cover - compiled
 @numba.njit(fastmath=_FAST, error_model="numpy")
 def _decode_row(frames, r, block_frame, block_cos, block_sin, block_size, group_block,
                 group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
-                dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol,
+                dir_origin, dir_size, inv_scale, sat_native, min_mod2, cue_mod2, min_alb, tol,
                 acc_s, acc_c, b2, total, peak, flags, min_b, fine_b, big_phi,
                 u_row, reason_row, mod_row, alb_row):  # pragma: no cover - compiled
     """Decode camera row `r`: ``u_row (n_dirs, W)``, per-pixel reasons, modulation, albedo.
 
     Every loop runs over the columns without branches (conditional expressions become
     selects), for LLVM's vectoriser; the frames are read as stored (uint8, uint16, float32),
-    three at a time, and the amplitudes are kept squared until the output.
+    three at a time, and the amplitudes are kept squared until the output: `min_b` the
+    smallest of the coarser (unwrap-only) levels', checked against `cue_mod2`, `fine_b` the
+    finest levels', against `min_mod2`.
     """
     width = frames.shape[2]
     zero = np.float32(0.0)
     half = np.float32(0.5)
     two_pi = np.float32(TWO_PI)
     inv_two_pi = np.float32(1.0 / TWO_PI)
+    inf = np.float32(np.inf)
     for d in range(dir_groups.shape[0]):
         for j in range(dir_levels[d]):  # coarse to fine
             g = dir_groups[d, j]
+            coarse = j < dir_levels[d] - 1
             first = group_block[g, 0]
             for bi in range(first, first + group_block[g, 1]):
                 k0, k1, k2 = block_frame[bi, 0], block_frame[bi, 1], block_frame[bi, 2]
@@ -612,7 +656,8 @@ def _decode_row(frames, r, block_frame, block_cos, block_sin, block_size, group_
                     sv = acc_s[c]
                     cv = acc_c[c]
                     q = (sv * sv + cv * cv) * bscale
-                    min_b[c] = q if d == 0 else min(min_b[c], q)
+                    qc = q if coarse else inf
+                    min_b[c] = qc if d == 0 else min(min_b[c], qc)
                     phi = _atan2_0_2pi(sv, cv)
                     big_phi[c] = phi
                     acc_s[c] = phi
@@ -624,7 +669,7 @@ def _decode_row(frames, r, block_frame, block_cos, block_sin, block_size, group_
                     sv = acc_s[c]
                     cv = acc_c[c]
                     q = (sv * sv + cv * cv) * bscale
-                    min_b[c] = min(min_b[c], q)
+                    min_b[c] = min(min_b[c], q if coarse else inf)
                     phi = _atan2_0_2pi(sv, cv)
                     target = big_phi[c] * ratio
                     k = np.rint((target - phi) * inv_two_pi)
@@ -652,7 +697,7 @@ def _decode_row(frames, r, block_frame, block_cos, block_sin, block_size, group_
         f = flags[c]
         f |= np.uint8(2) if peak[c] >= sat_native else np.uint8(0)
         f |= np.uint8(4) if alb < min_alb else np.uint8(0)
-        f |= np.uint8(1) if min_b[c] < min_mod2 else np.uint8(0)
+        f |= np.uint8(1) if (min_b[c] < cue_mod2) | (fine_b[c] < min_mod2) else np.uint8(0)
         reason_row[c] = f
         alb_row[c] = alb
         mod_row[c] = np.sqrt(fine_b[c])
@@ -942,8 +987,9 @@ def _finish_row(e, height, ring, reason_ring, u_ring, erode, max_gradient, check
 @numba.njit(parallel=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def _decode_kernel(frames, block_frame, block_cos, block_sin, block_size, group_block,
                    group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
-                   dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol, erode,
-                   max_gradient, check_gradient, keep_invalid, chunk, tri_mode, table_dir, num,
+                   dir_origin, dir_size, inv_scale, sat_native, min_mod2, cue_mod2, min_alb, tol,
+                   erode, max_gradient, check_gradient, keep_invalid, chunk, tri_mode, table_dir,
+                   num,
                    den, ray_f, ray_i, offsets, out_u, out_mod, out_alb, out_int, out_reason,
                    out_mask, out_xyz):  # pragma: no cover - compiled
     """Decode, check, triangulate: chunks of `chunk` rows in parallel, each decoding its rows
@@ -976,7 +1022,8 @@ def _decode_kernel(frames, block_frame, block_cos, block_sin, block_size, group_
                 alb_row = out_alb[rr]
             _decode_row(frames, rr, block_frame, block_cos, block_sin, block_size, group_block,
                         group_bscale, group_ratio, dir_groups, dir_levels, dir_coef, dir_period,
-                        dir_origin, dir_size, inv_scale, sat_native, min_mod2, min_alb, tol,
+                        dir_origin, dir_size, inv_scale, sat_native, min_mod2, cue_mod2, min_alb,
+                        tol,
                         f32[0], f32[1], f32[2], f32[3], f32[4], u8[0], f32[5], f32[6], f32[7],
                         u_ring[slot], reason_ring[slot], mod_row, alb_row)
             e = rr - halo
@@ -1085,6 +1132,7 @@ def decode_fast(
     *,
     table=None,
     min_modulation: float = 0.03,
+    cue_modulation: float | None = None,
     min_albedo: float = 0.02,
     saturation: float = 254.5 / 255.0,
     unwrap_tolerance: float = np.pi / 2,
@@ -1112,8 +1160,9 @@ def decode_fast(
         As for :func:`decode`; float64 frames are copied to float32.
     pattern_set : PatternSet
         What was projected.
-    min_modulation, min_albedo, saturation, unwrap_tolerance, erode, max_gradient, keep_invalid
-        As for :func:`decode`.
+    min_modulation, cue_modulation, min_albedo, saturation, unwrap_tolerance, erode, max_gradient,
+    keep_invalid
+        As for :func:`decode` (`cue_modulation` is the plan's threshold of the coarser levels).
     table : RayTable, TriangulationTable or tuple, optional
         Also triangulate into ``Decoded.xyz``: a
         :class:`~nail2nail.reconstruction.RayTable` (:func:`~nail2nail.reconstruction.ray_table`:
@@ -1137,7 +1186,8 @@ def decode_fast(
     ------
     ValueError, TypeError
         As :func:`decode`; a table for another image size, or whose projector coordinates the
-        pattern set does not decode.
+        pattern set does not decode; a pattern set of another scheme than PMP (the Gray-code
+        schemes are decoded by :func:`decode`'s NumPy path).
 
     Examples
     --------
@@ -1151,8 +1201,14 @@ def decode_fast(
     from .reconstruction import RayTable
 
     frames = _check_frames(frames, pattern_set)
+    if pattern_set.scheme != "pmp":
+        raise ValueError(f"pattern_set: the fused kernel decodes PMP only, got scheme "
+                         f"{pattern_set.scheme!r} (decode it with decode(), the NumPy path)")
     erode = _check_erode(erode)
     max_gradient = _check_gradient(max_gradient)
+    min_modulation = _check_modulation(min_modulation, "min_modulation")
+    cue_modulation = _check_modulation(cue_modulation, "cue_modulation")
+    cue = min_modulation if cue_modulation is None else cue_modulation
     if not frames.flags.c_contiguous:
         frames = np.ascontiguousarray(frames)
     if np.issubdtype(frames.dtype, np.floating) and frames.dtype != np.float32:
@@ -1218,7 +1274,7 @@ def decode_fast(
         plan.group_block, plan.group_bscale, plan.group_ratio, plan.dir_groups, plan.dir_levels,
         plan.dir_coef, plan.dir_period, plan.dir_origin, plan.dir_size,
         f32(1.0 / (pattern_set.n_frames * scale)), f32(saturation * scale),
-        f32(min_modulation) * f32(min_modulation), f32(min_albedo),
+        f32(min_modulation) * f32(min_modulation), f32(cue) * f32(cue), f32(min_albedo),
         f32(unwrap_tolerance), erode, f32(np.inf if max_gradient is None else max_gradient),
         max_gradient is not None, bool(keep_invalid), _chunk_rows(height), tri_mode, table_dir,
         num, den, ray_f, ray_i, offsets, u, out.modulation, out.albedo, out.intensity,
