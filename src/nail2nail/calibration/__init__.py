@@ -35,15 +35,15 @@ from .dlt import (
     fit_projection_matrix,
     reprojection_errors,
 )
-from .target import _mark_centroids as _mark_centroids
-from .target import _mark_quadrature as _mark_quadrature
-from .target import _ray_cylinder as _ray_cylinder
 from .target import (
     JointCalibration,
     TargetObservations,
     calibrate_from_observations,
     calibrate_rig_joint,
 )
+from .target import _mark_centroids as _mark_centroids
+from .target import _mark_quadrature as _mark_quadrature
+from .target import _ray_cylinder as _ray_cylinder
 
 __all__ = [
     "BoardCalibration",
