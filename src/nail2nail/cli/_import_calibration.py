@@ -1,0 +1,118 @@
+"""``nail2nail import-calibration`` and ``nail2nail export-calibration``: OpenCV calibrations.
+
+Thin command layer over :mod:`nail2nail.io.opencv_calibration` (``cv2.FileStorage`` XML and
+YAML files in the SLStudio, OpenCV ``stereo_calib`` or nail2nail multi-camera layout) and the
+rig calibration JSON of :mod:`nail2nail.io.calibration`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..io._json import dumps_json
+from ..io.calibration import load_calibration, save_calibration
+from ..io.opencv_calibration import LAYOUTS, read_opencv_calibration, write_opencv_calibration
+
+__all__ = ["add_parser", "run_export", "run_import"]
+
+
+def _size(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "import-calibration",
+        help="read an OpenCV calibration (SLStudio, stereo_calib, nail2nail layout) into a "
+        "rig calibration JSON",
+        description="Read a calibration written with OpenCV's FileStorage (XML or YAML) and "
+        "write the rig calibration JSON that scan and process take. Layouts: SLStudio (Kc kc "
+        "Kp kp Rp Tp frameWidth frameHeight screenResX screenResY: one camera and the "
+        "projector, x_proj = Rp x_cam + Tp, mm), OpenCV's stereo_calib (M1 D1 M2 D2 R T, the "
+        "projector as the second device; both of its files may be given) and nail2nail's "
+        "multi-camera layout. For the one-camera layouts the world frame is the camera's, "
+        "named cam0. Rotations stored as float32 are re-orthonormalised (a warning).",
+    )
+    p.add_argument("files", type=Path, nargs="+", metavar="FILE",
+                   help="the calibration file(s) (keys of several files are joined)")
+    p.add_argument("--format", choices=["opencv"], default="opencv",
+                   help="file format (OpenCV FileStorage; the only one so far)")
+    p.add_argument("--layout", choices=["auto", *LAYOUTS], default="auto",
+                   help="keys of the file (default: recognised from them)")
+    p.add_argument("--camera-size", type=_size, nargs=2, metavar=("W", "H"),
+                   help="camera image size in pixels, where the file holds none")
+    p.add_argument("--projector-size", type=_size, nargs=2, metavar=("W", "H"),
+                   help="projector panel size in pixels, where the file holds none")
+    p.add_argument("--allow-mirrored", action="store_true",
+                   help="accept a mirrored camera or projector (refused by default)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="rig calibration JSON to write")
+    p.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    p.set_defaults(func=run_import)
+
+    p = sub.add_parser(
+        "export-calibration",
+        help="write a rig calibration JSON as an OpenCV FileStorage file",
+        description="Write a rig calibration (JSON) as an OpenCV FileStorage file (.xml, .yml, "
+        ".yaml) in the nail2nail multi-camera layout (default), SLStudio's or stereo_calib's "
+        "(one camera, in its own frame). DLT matrices are decomposed into K, R, t "
+        "(pinhole_from_dlt; a warning); a projector radial distortion (the thesis's centre "
+        "and rho) has no OpenCV form and is refused.",
+    )
+    p.add_argument("calibration", type=Path, help="rig calibration JSON")
+    p.add_argument("-o", "--out", type=Path, required=True,
+                   help="file to write: .xml, .yml or .yaml")
+    p.add_argument("--layout", choices=list(LAYOUTS), default="nail2nail",
+                   help="keys to write (default: nail2nail, every camera)")
+    p.add_argument("--camera", default=None,
+                   help="the camera of the slstudio and stereo layouts (needed for a rig of "
+                   "several cameras)")
+    p.add_argument("--projector-size", type=_size, nargs=2, metavar=("W", "H"),
+                   help="panel size of a DLT projector (default 1280 x 1040)")
+    p.add_argument("--allow-mirrored", action="store_true",
+                   help="accept a mirrored camera or projector (refused by default)")
+    p.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    p.set_defaults(func=run_export)
+
+
+def _summary(calibration) -> dict:
+    return {c.name: {"size": list(c.size) if c.size else None} for c in calibration.cameras}
+
+
+def run_import(args: argparse.Namespace) -> int:
+    if args.out.suffix.lower() != ".json":
+        raise ValueError(f"--out: {args.out}: expected a .json file name (the rig "
+                         "calibration)")
+    calibration = read_opencv_calibration(
+        args.files, layout=args.layout, camera_size=args.camera_size,
+        projector_size=args.projector_size, allow_mirrored=args.allow_mirrored)
+    save_calibration(args.out, calibration)
+    summary = {"out": str(args.out), "layout": calibration.extra.get("source_layout"),
+               "world_frame": calibration.extra.get("world_frame", "as stored"),
+               "cameras": _summary(calibration)}
+    if args.json:
+        print(dumps_json(summary))
+        return 0
+    cams = ", ".join(f"{name} ({v['size'][0]} x {v['size'][1]} px)"
+                     for name, v in summary["cameras"].items())
+    print(f"{summary['layout']} layout: {cams}; world frame {summary['world_frame']}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    calibration = load_calibration(args.calibration, allow_mirrored=args.allow_mirrored)
+    notes = write_opencv_calibration(args.out, calibration, layout=args.layout,
+                                     camera=args.camera, projector_size=args.projector_size)
+    if args.json:
+        print(dumps_json({"out": str(args.out), "layout": args.layout, "notes": notes,
+                          "cameras": _summary(calibration)}))
+        return 0
+    print(f"wrote {args.out} ({args.layout} layout)")
+    return 0
