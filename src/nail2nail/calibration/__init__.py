@@ -5,6 +5,8 @@ Submodules
 :mod:`.dlt`
     Least-squares (DLT) projection matrices per camera and per projector (thesis eq. 3.1–3.11),
     the point-table calibration and the cross-check of two tables.
+:mod:`.observe`
+    Board views from pose captures: detection, decoding, the projector's board points.
 :mod:`.target`
     Joint refinement of pinhole cameras and one shared projector on the thesis's machined
     cylinder target (:mod:`nail2nail.markers`).
@@ -22,7 +24,6 @@ from .board import (
     BoardView,
     calibrate_board,
     calibrate_device,
-    projector_points,
 )
 from .dlt import METHODS as METHODS
 from .dlt import MIN_POINTS as MIN_POINTS
@@ -35,6 +36,7 @@ from .dlt import (
     fit_projection_matrix,
     reprojection_errors,
 )
+from .observe import BoardCaptures, board_views, projector_points
 from .target import (
     JointCalibration,
     TargetObservations,
@@ -47,11 +49,13 @@ from .target import _ray_cylinder as _ray_cylinder
 
 __all__ = [
     "BoardCalibration",
+    "BoardCaptures",
     "BoardView",
     "CalibrationReport",
     "CrossCheck",
     "JointCalibration",
     "TargetObservations",
+    "board_views",
     "calibrate_board",
     "calibrate_device",
     "calibrate_from_observations",

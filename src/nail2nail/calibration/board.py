@@ -51,7 +51,6 @@ __all__ = [
     "BoardView",
     "calibrate_board",
     "calibrate_device",
-    "projector_points",
 ]
 
 PROJECTOR_MODELS = ("opencv", "thesis")
@@ -180,98 +179,6 @@ class BoardCalibration:
             "points_dropped": self.points_dropped,
             "projector_distortion": self.projector_distortion,
         }
-
-
-# ------------------------------------------------------------------------------------------------
-# Projector points: local homographies (Moreno & Taubin 2012)
-# ------------------------------------------------------------------------------------------------
-def projector_points(xy_camera, xp, yp, mask=None, *, window_px: float = 12.0,
-                     min_pixels: int = 30, min_fraction: float = 0.25) -> np.ndarray:
-    """Projector panel coordinates of camera features on a flat surface, by local homographies.
-
-    For each feature, a homography from camera pixels to projector coordinates is fitted by
-    least squares (``cv2.findHomography``, Hartley-normalised DLT) on the validly decoded pixels
-    in the square window of half-size `window_px` around it, and the feature is mapped through
-    it. The plane's camera-to-projector map is a homography up to the lenses' distortion, which
-    is smooth over the window; fitting over the window averages the decoding noise and bridges
-    the board's dark features, where decoding is noisy or invalid (Moreno & Taubin 2012, sec. 3).
-
-    Parameters
-    ----------
-    xy_camera : (N, 2) float
-        Features in the camera image, px (pixel-centre convention).
-    xp, yp : (H, W) float
-        Decoded projector coordinates (:class:`nail2nail.phase.Decoded`), NaN where invalid.
-    mask : (H, W) bool, optional
-        Pixels to use (default: where `xp` and `yp` are finite).
-    window_px : float
-        Half-size of the window, camera px.
-    min_pixels : int
-        Fewest valid pixels for a fit.
-    min_fraction : float
-        Fewest valid pixels as a fraction of the window's.
-
-    Returns
-    -------
-    (N, 2) float64
-        ``(xp, yp)`` per feature, panel px; NaN where the window has too few valid pixels.
-
-    Raises
-    ------
-    ValueError
-        Mismatched shapes.
-
-    References
-    ----------
-    D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration",
-    3DIMPVT 2012, doi:10.1109/3DIMPVT.2012.77.
-
-    Examples
-    --------
-    >>> yy, xx = np.mgrid[0:60, 0:80].astype(float)
-    >>> xp, yp = 2 * xx + 5, 3 * yy - 1  # an affine map is a homography
-    >>> projector_points([[40.3, 30.7]], xp, yp).round(6).tolist()
-    [[85.6, 91.1]]
-    """
-    import cv2
-
-    xy = np.asarray(xy_camera, dtype=float).reshape(-1, 2)
-    xp = np.asarray(xp, dtype=float)
-    yp = np.asarray(yp, dtype=float)
-    if xp.ndim != 2 or xp.shape != yp.shape:
-        raise ValueError(f"xp, yp: expected two (H, W) images of one shape, got {xp.shape} "
-                         f"and {yp.shape}")
-    valid = np.isfinite(xp) & np.isfinite(yp)
-    if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != xp.shape:
-            raise ValueError(f"mask: expected shape {xp.shape}, got {mask.shape}")
-        valid &= mask
-    if not window_px > 0:
-        raise ValueError(f"window_px: expected a positive number, got {window_px!r}")
-    H, W = xp.shape
-    h = int(np.ceil(window_px))
-    out = np.full((len(xy), 2), np.nan)
-    for i, (x, y) in enumerate(xy):
-        cx, cy = round(x), round(y)
-        c0, c1 = max(0, cx - h), min(W, cx + h + 1)
-        r0, r1 = max(0, cy - h), min(H, cy + h + 1)
-        if c1 <= c0 or r1 <= r0:
-            continue
-        ok = valid[r0:r1, c0:c1]
-        n = int(ok.sum())
-        if n < max(min_pixels, min_fraction * (2 * h + 1) ** 2):
-            continue
-        rr, cc = np.nonzero(ok)
-        # centred on the feature: a well-conditioned fit whose value at the feature is H's offset
-        src = np.stack([cc + c0 - x, rr + r0 - y], axis=1)
-        dst = np.stack([xp[r0:r1, c0:c1][ok], yp[r0:r1, c0:c1][ok]], axis=1)
-        shift = dst.mean(axis=0)
-        hom, _ = cv2.findHomography(src, dst - shift, 0)
-        if hom is None or not np.all(np.isfinite(hom)) or hom[2, 2] == 0:
-            continue
-        out[i] = hom[:2, 2] / hom[2, 2] + shift
-    return out
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,0 +1,268 @@
+"""Board views from captures: detection, decoding and the projector's board points.
+
+Each pose of the board is a capture directory (``docs/capture-format.md``) with the phase
+patterns. For every camera the frames are decoded (:func:`nail2nail.phase.decode`), the board is
+detected (:func:`nail2nail.boards.detect_board`) on the all-lit frame when the pattern set has
+one, else on the decoded mean intensity (the phase frames' mean, the thesis's C image), and the
+projector coordinates of each feature are read off the decoded ``(xp, yp)`` by a local
+homography (:func:`projector_points`, Moreno & Taubin 2012). The views feed
+:func:`nail2nail.calibration.board.calibrate_board`.
+
+References
+----------
+D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration", 3DIMPVT
+2012, doi:10.1109/3DIMPVT.2012.77.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .board import BoardView
+
+__all__ = ["BoardCaptures", "board_views", "projector_points"]
+
+
+def projector_points(xy_camera, xp, yp, mask=None, *, window_px: float = 12.0,
+                     min_pixels: int = 30, min_fraction: float = 0.25,
+                     outlier_sigma: float = 3.0) -> np.ndarray:
+    """Projector panel coordinates of camera features on a flat surface, by local homographies.
+
+    For each feature, a homography from camera pixels to projector coordinates is fitted by
+    least squares (``cv2.findHomography``, Hartley-normalised DLT) on the validly decoded pixels
+    in the square window of half-size `window_px` around it, refitted once without the pixels
+    beyond `outlier_sigma` robust standard deviations, and the feature is mapped through it. A
+    plane's camera-to-projector map is a homography up to the lenses' distortion, which is
+    smooth over the window; the fit averages the decoding noise over hundreds of pixels and
+    bridges the board's dark features, where decoding is noisy or invalid (Moreno & Taubin 2012,
+    sec. 3).
+
+    Parameters
+    ----------
+    xy_camera : (N, 2) float
+        Features in the camera image, px (pixel-centre convention).
+    xp, yp : (H, W) float
+        Decoded projector coordinates (:class:`nail2nail.phase.Decoded`), NaN where invalid.
+    mask : (H, W) bool, optional
+        Pixels to use (default: where `xp` and `yp` are finite).
+    window_px : float
+        Half-size of the window, camera px.
+    min_pixels : int
+        Fewest valid pixels for a fit.
+    min_fraction : float
+        Fewest valid pixels as a fraction of the window's.
+    outlier_sigma : float
+        Refit without pixels farther from the first fit than this many robust standard
+        deviations (1.4826 × median absolute residual); ``inf`` for one plain fit.
+
+    Returns
+    -------
+    (N, 2) float64
+        ``(xp, yp)`` per feature, panel px; NaN where the window has too few valid pixels.
+
+    Raises
+    ------
+    ValueError
+        Mismatched shapes or a window that is not positive.
+
+    References
+    ----------
+    D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration",
+    3DIMPVT 2012, doi:10.1109/3DIMPVT.2012.77.
+
+    Examples
+    --------
+    >>> yy, xx = np.mgrid[0:60, 0:80].astype(float)
+    >>> xp, yp = 2 * xx + 5, 3 * yy - 1  # an affine map is a homography
+    >>> projector_points([[40.3, 30.7]], xp, yp).round(6).tolist()
+    [[85.6, 91.1]]
+    """
+    import cv2
+
+    xy = np.asarray(xy_camera, dtype=float).reshape(-1, 2)
+    xp = np.asarray(xp, dtype=float)
+    yp = np.asarray(yp, dtype=float)
+    if xp.ndim != 2 or xp.shape != yp.shape:
+        raise ValueError(f"xp, yp: expected two (H, W) images of one shape, got {xp.shape} "
+                         f"and {yp.shape}")
+    valid = np.isfinite(xp) & np.isfinite(yp)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != xp.shape:
+            raise ValueError(f"mask: expected shape {xp.shape}, got {mask.shape}")
+        valid &= mask
+    if not window_px > 0:
+        raise ValueError(f"window_px: expected a positive number, got {window_px!r}")
+    H, W = xp.shape
+    h = int(np.ceil(window_px))
+    need = max(min_pixels, min_fraction * (2 * h + 1) ** 2)
+    out = np.full((len(xy), 2), np.nan)
+    for i, (x, y) in enumerate(xy):
+        cx, cy = round(x), round(y)
+        c0, c1 = max(0, cx - h), min(W, cx + h + 1)
+        r0, r1 = max(0, cy - h), min(H, cy + h + 1)
+        if c1 <= c0 or r1 <= r0:
+            continue
+        ok = valid[r0:r1, c0:c1]
+        if ok.sum() < need:
+            continue
+        rr, cc = np.nonzero(ok)
+        # centred on the feature: well conditioned, and the feature maps to H's last column
+        src = np.stack([cc + c0 - x, rr + r0 - y], axis=1)
+        dst = np.stack([xp[r0:r1, c0:c1][ok], yp[r0:r1, c0:c1][ok]], axis=1)
+        shift = dst.mean(axis=0)
+        dst = dst - shift
+        hom, _ = cv2.findHomography(src, dst, 0)
+        if hom is not None and np.isfinite(outlier_sigma):
+            pred = src @ hom[:2, :2].T + hom[:2, 2]
+            pred /= (src @ hom[2, :2] + hom[2, 2])[:, None]
+            r = np.hypot(*(pred - dst).T)
+            keep = r <= outlier_sigma * 1.4826 * np.median(r) + 1e-12
+            if keep.sum() >= need and not keep.all():
+                hom, _ = cv2.findHomography(src[keep], dst[keep], 0)
+        if hom is None or not np.all(np.isfinite(hom)) or hom[2, 2] == 0:
+            continue
+        out[i] = hom[:2, 2] / hom[2, 2] + shift
+    return out
+
+
+@dataclass
+class BoardCaptures:
+    """The board views of a set of pose captures (:func:`board_views`).
+
+    Attributes
+    ----------
+    views : list of BoardView
+        One per camera and pose where the board was found.
+    camera_sizes : dict of str to (int, int)
+        Image ``(W, H)`` per camera, in the order the cameras were first met.
+    projector_size : (int, int)
+        Panel ``(W, H)``.
+    poses : list of str
+        The capture directories, in pose order (``BoardView.pose`` indexes them).
+    refused : list of dict
+        ``{"pose", "camera", "reason"}`` of each view skipped (board not found, ...).
+    """
+
+    views: list
+    camera_sizes: dict
+    projector_size: tuple
+    poses: list
+    refused: list = field(default_factory=list)
+
+
+def _white_frame(pattern_set) -> int | None:
+    """Index of an all-lit frame in the pattern set's frame order, if it has one."""
+    from ..patterns import frame_table
+
+    for info in frame_table(pattern_set):
+        if getattr(info, "kind", None) == "white":
+            return int(info.index)
+    return None
+
+
+def board_views(capture_dirs, board, *, window_px: float | None = None,
+                decode_options: dict | None = None, progress: bool = False) -> BoardCaptures:
+    """Detect the board and measure its projector points in every camera of every pose.
+
+    Parameters
+    ----------
+    capture_dirs : sequence of path-like
+        One capture directory per pose, each with a pattern set coding both projector
+        directions.
+    board : nail2nail.boards.Board
+    window_px : float, optional
+        Half-size of the local homography's window (:func:`projector_points`), camera px; by
+        default the board's spacing in the image (at least 8 px).
+    decode_options : dict, optional
+        Passed to :func:`nail2nail.phase.decode`.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    BoardCaptures
+
+    Raises
+    ------
+    ValueError
+        A capture that cannot be read, has no pattern set or codes one direction only, a
+        camera whose image size differs between poses, or captures of different projectors.
+
+    Warns
+    -----
+    UserWarning
+        For each camera and pose where the board is not found (the view is skipped).
+    """
+    import cv2
+    from tqdm.auto import tqdm
+
+    from ..boards import detect_board
+    from ..io.capture import read_capture
+    from ..phase import decode
+
+    if not capture_dirs:
+        raise ValueError("capture_dirs: need at least one pose capture")
+    object_xy = board.object_points()[:, :2]
+    views, refused, sizes, poses = [], [], {}, []
+    projector_size = None
+    jobs = [(k, os.fspath(d)) for k, d in enumerate(capture_dirs)]
+    for k, path in tqdm(jobs, desc="poses", unit="pose", disable=not progress):
+        capture = read_capture(path, load=False)
+        ps = capture.pattern_set
+        if ps is None:
+            raise ValueError(f"{path}: the manifest names no pattern set")
+        if not (ps.x and ps.y):
+            raise ValueError(f"{path}: the pattern set codes one projector direction; board "
+                             "calibration needs both (xp and yp)")
+        panel = tuple(int(v) for v in capture.manifest.get("projector", {}).get(
+            "size", ps.panel_size))
+        if projector_size is None:
+            projector_size = panel
+        elif panel != projector_size:
+            raise ValueError(f"{path}: projector panel {panel}, the first pose's is "
+                             f"{projector_size}")
+        white = _white_frame(ps)
+        poses.append(path)
+        for name in capture.camera_names:
+            frames = capture.load_frames(name, raw=True)
+            size = (frames.shape[2], frames.shape[1])
+            if sizes.setdefault(name, size) != size:
+                raise ValueError(f"{path}: camera {name} has {size[0]}x{size[1]} images, "
+                                 f"{sizes[name][0]}x{sizes[name][1]} in an earlier pose")
+            decoded = decode(frames, ps, full_scale=2**capture.bit_depth - 1,
+                             **{"method": "numba", **(decode_options or {})})
+            image = decoded.albedo if white is None else frames[white]
+            del frames
+            found = detect_board(image, board)
+            if found is None:
+                reason = "board not found"
+                refused.append({"pose": path, "camera": name, "reason": reason})
+                warnings.warn(f"{path}: camera {name}: {reason}; view skipped", stacklevel=2)
+                continue
+            ids, xy = found
+            half = window_px
+            if half is None:
+                hom, _ = cv2.findHomography(object_xy[ids], xy, 0)
+                # px per mm at the board's centre: the square root of the local area ratio
+                centre = object_xy[ids].mean(axis=0)
+                J = _homography_jacobian(hom, centre)
+                half = max(8.0, board.spacing * np.sqrt(abs(np.linalg.det(J))))
+            xy_p = projector_points(xy, decoded.xp, decoded.yp, decoded.mask, window_px=half)
+            views.append(BoardView(name, k, ids, xy, xy_p))
+    return BoardCaptures(views=views, camera_sizes=sizes, projector_size=projector_size,
+                         poses=poses, refused=refused)
+
+
+def _homography_jacobian(hom: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``(2, 2)`` derivative of the homography `hom` at the point `xy`."""
+    x, y = xy
+    w = hom[2, 0] * x + hom[2, 1] * y + hom[2, 2]
+    u = (hom[0, 0] * x + hom[0, 1] * y + hom[0, 2]) / w
+    v = (hom[1, 0] * x + hom[1, 1] * y + hom[1, 2]) / w
+    return np.array([[hom[0, 0] - u * hom[2, 0], hom[0, 1] - u * hom[2, 1]],
+                     [hom[1, 0] - v * hom[2, 0], hom[1, 1] - v * hom[2, 1]]]) / w
