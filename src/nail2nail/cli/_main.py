@@ -29,6 +29,7 @@ REPORT_URL = "the nail2nail issue tracker"
 # Subcommand modules, in pipeline order.
 COMMANDS = [
     "calibrate",
+    "calibrate_board",
     "import_calibration",
     "crosscheck",
     "simulate",

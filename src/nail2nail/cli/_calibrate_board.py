@@ -1,0 +1,110 @@
+"""``nail2nail calibrate-board POSE_DIR...``: cameras and projector from a flat board in poses."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from ..calibration.board import CAMERA_DISTORTION, PROJECTOR_MODELS, calibrate_board
+from ..calibration.observe import board_views
+from ..io._json import dumps_json
+from ..io.calibration import check_handedness, save_calibration
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    from ..boards import BOARD_KINDS
+
+    p = sub.add_parser(
+        "calibrate-board",
+        help="calibrate cameras and projector from captures of a flat board in several poses",
+        description="Calibrate every camera and the projector from captures of a flat board in "
+        "several poses (each a capture directory with the phase patterns): Zhang's method per "
+        "camera, the projector's board points by local homographies on the decoded projector "
+        "coordinates (Moreno & Taubin 2012), then a joint bundle adjustment. Writes a "
+        "calibration of pinhole models (one projector for every camera) and prints the RMS "
+        "reprojection errors per camera, of the projector and per pose. A pose where a camera "
+        "does not find the board is skipped for that camera with a warning.",
+    )
+    p.add_argument("poses", type=Path, nargs="+", metavar="POSE_DIR",
+                   help="capture directory of one board pose (at least 3)")
+    p.add_argument("--board", required=True, choices=BOARD_KINDS, help="board kind")
+    p.add_argument("--rows", required=True, type=int,
+                   help="squares (checkerboard, ChArUco) or circles along the board's y")
+    p.add_argument("--cols", required=True, type=int,
+                   help="squares or circles along the board's x (asymmetric: circles a row)")
+    p.add_argument("--spacing", required=True, type=float,
+                   help="square side or circle spacing, mm")
+    p.add_argument("--marker", type=float,
+                   help="ChArUco marker side or circle diameter, mm (default: the board's)")
+    p.add_argument("--projector-model", choices=PROJECTOR_MODELS, default="opencv",
+                   help="projector lens: OpenCV distortion (k1, k2, p1, p2, k3) or the thesis's "
+                   "radial model (eq. 3.34, written as projector_distortion); default opencv")
+    p.add_argument("--camera-distortion", choices=tuple(CAMERA_DISTORTION), default="radial",
+                   help="camera distortion terms: k1, k2 (radial, default), none, or all five")
+    p.add_argument("--world", default=None,
+                   help="world frame: a camera's name (default: the first camera) or 'board' "
+                   "(the board in the first pose)")
+    p.add_argument("--window", type=float, default=None, metavar="PX",
+                   help="half-size of the local homography window, camera px (default: the "
+                   "board's spacing in the image)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="calibration JSON to write")
+    p.add_argument("--allow-mirrored", action="store_true",
+                   help="accept a mirrored camera or projector (refused by default)")
+    p.add_argument("--json", action="store_true", help="print machine-readable results")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..boards import Board
+
+    board = Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
+                  marker=args.marker)
+    if args.window is not None and not args.window > 0:
+        raise ValueError(f"--window: expected a positive number of pixels, got {args.window}")
+    if args.output.is_dir():
+        raise ValueError(f"{args.output}: is a directory; give the calibration file to write")
+    captures = board_views(args.poses, board, window_px=args.window, progress=not args.json)
+    result = calibrate_board(
+        captures.views, board.object_points(), captures.camera_sizes,
+        projector_size=captures.projector_size, projector_model=args.projector_model,
+        world=args.world, camera_distortion=args.camera_distortion)
+    calib = result.rig_calibration(extra={
+        "board": board.to_dict(), "poses": [str(p) for p in captures.poses]})
+    if not args.allow_mirrored:
+        centre = np.mean([T[:3, 3] for T in result.board_poses.values()], axis=0)
+        check_handedness(calib, str(args.output), scene_point=centre)
+    save_calibration(args.output, calib)
+    summary = result.summary()
+    poses = {str(captures.poses[int(k)]): v for k, v in summary.pop("poses").items()}
+    used = [[c, str(captures.poses[k])] for c, k in result.views_used]
+    refused = [[r["camera"], r["pose"], r["reason"]] for r in captures.refused]
+    refused += [[c, str(captures.poses[k]), "too few board features"]
+                for c, k in result.views_refused]
+    if args.json:
+        summary.pop("views_used")
+        summary.pop("views_refused")
+        print(dumps_json({"output": str(args.output), **summary, "poses": poses,
+                          "views_used": used, "views_refused": refused}, indent=2))
+        return 0
+    for name, rms in result.camera_rms_px.items():
+        n = sum(1 for c, _ in result.views_used if c == name)
+        print(f"{name}: {n} poses, RMS {rms:.4f} px, projector points through it RMS "
+              f"{result.projector_rms_by_camera_px[name]:.4f} px")
+    print(f"projector ({args.projector_model}): RMS {result.projector_rms_px:.4f} px")
+    if result.projector_distortion:
+        d = result.projector_distortion
+        print(f"projector distortion: centre {np.round(d['center'], 2).tolist()} px, "
+              f"rho {d['rho']:.6f}")
+    for pose, r in poses.items():
+        cams = ", ".join(f"{c} {v:.4f}" for c, v in r["camera"].items())
+        print(f"pose {pose}: cameras {cams} px; projector {r['projector']:.4f} px")
+    for cam, pose, why in refused:
+        print(f"refused: {cam} in {pose} ({why})")
+    if result.points_dropped:
+        print(f"{result.points_dropped} outlying point(s) dropped before the final fit")
+    print(f"wrote {args.output} (world frame: {result.world})")
+    return 0
