@@ -36,6 +36,7 @@ __all__ = [
     "reconstruct_image",
     "reconstruct_points",
     "reconstruct_points_lsq",
+    "reconstruct_points_one_coordinate",
     "reconstruct_points_ray",
     "triangulate",
     "triangulation_table",
@@ -628,4 +629,129 @@ def reconstruct_points_ray(camera, projector, xc, yc, xp, yp, *,
     ray_f, ray_i = _pack_ray(RayTable(shape=(1, 1), **fields))
     points = _ray_points_flat(np.ascontiguousarray(cam[:, 0]), np.ascontiguousarray(cam[:, 1]),
                               xp.ravel().copy(), yp.ravel().copy(), ray_f, ray_i)
+    return points.reshape(*shape, 3)
+
+
+def _panel_of_points(projector, projector_distortion, xyz) -> np.ndarray:
+    """Panel coordinates ``(n, 2)`` where the projector shows world points `xyz` ``(n, 3)``:
+    the pinhole or DLT projection, the lens distortion of a pinhole projector, then the radial
+    distortion model (:func:`~nail2nail.distortion.panel_from_ideal`); NaN behind it."""
+    from .camera_models import Pinhole
+    from .distortion import panel_from_ideal
+
+    if isinstance(projector, Pinhole):
+        xy = projector.project(xyz)
+    else:
+        M = model_matrix(projector)
+        h = xyz @ M[:, :3].T + M[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = h[:, :2] / np.where(h[:, 2:3] != 0, h[:, 2:3], np.nan)
+    if projector_distortion is not None:
+        xy = panel_from_ideal(xy, projector_distortion["center"], projector_distortion["rho"])
+    return xy
+
+
+def reconstruct_points_one_coordinate(camera, projector, xc, yc, p, *, axis: str,
+                                      projector_distortion: dict | None = None,
+                                      tolerance: float = 1e-6,
+                                      max_iterations: int = 30) -> np.ndarray:
+    """World points from one decoded projector coordinate of a distorted projector.
+
+    With one projector coordinate (a pattern set of one direction) the panel column (row) of
+    a distorted projector is a curved surface, not a plane, and its ideal coordinate needs the
+    other coordinate (:func:`~nail2nail.distortion.ideal_from_panel`), which was not decoded.
+    The point is found on the camera ray instead: ``X(t) = C + t d`` for the lens-undistorted
+    pixel (thesis eq. 3.12–3.13 exact), and ``t`` solves ``panel_k(X(t)) = p`` (``k`` the
+    `axis`), where ``panel`` is the projector's forward model (projection, lens distortion of a
+    pinhole projector, then the radial model ``{center, rho}`` of eq. 3.34). Secant iterations
+    on ``t`` from the plane solution that takes `p` as ideal (eq. 3.14), all pixels at once;
+    the distortion is smooth, so it converges in a few steps.
+
+    Parameters
+    ----------
+    camera, projector : (3, 4) array or Pinhole
+        As for :func:`reconstruct_image`.
+    xc, yc : (...) float
+        Camera pixel coordinates, px (pixel centres, ``docs/conventions.md``).
+    p : (...) float
+        Decoded panel coordinate ``xp`` (``axis="x"``) or ``yp`` (``axis="y"``), px.
+    axis : {"x", "y"}
+        Which projector coordinate `p` is.
+    projector_distortion : dict, optional
+        ``{"center": (x, y), "rho": ρ}``, the radial model; none for pre-distorted patterns.
+    tolerance : float
+        Convergence: ``|panel_k(X) - p|`` below this, projector px.
+    max_iterations : int
+        Secant steps at most; pixels not converged by then are NaN.
+
+    Returns
+    -------
+    (..., 3) float64
+        World points, mm; NaN where `p` is NaN, the ray misses the projector or the iteration
+        did not converge.
+
+    Raises
+    ------
+    ValueError
+        On an `axis` other than ``"x"`` or ``"y"``.
+
+    Examples
+    --------
+    >>> Mc = np.array([[900., 0, 0, 500], [0, 900, 0, 600], [0, 0, 0.01, 1]])
+    >>> Mp = np.array([[800., 0, 300, 600], [0, 800, 300, 500], [0, 0, 0.01, 1]])
+    >>> from nail2nail.camera_models import project_dlt
+    >>> from nail2nail.distortion import panel_from_ideal
+    >>> X = np.array([1.0, 2.0, 3.0])
+    >>> (xc, yc), ideal = project_dlt(Mc, X), project_dlt(Mp, X)
+    >>> dist = {"center": (2000.0, 2500.0), "rho": -0.004}
+    >>> xp = panel_from_ideal(ideal, dist["center"], dist["rho"])[0]
+    >>> reconstruct_points_one_coordinate(Mc, Mp, xc, yc, xp, axis="x",
+    ...                                   projector_distortion=dist).round(6).tolist()
+    [1.0, 2.0, 3.0]
+    """
+    k = _axis_row(axis)
+    xc, yc, p = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (xc, yc, p)))
+    shape = xc.shape
+    p = p.ravel()
+    cam = undistorted_pixels(camera, np.stack([xc.ravel(), yc.ravel()], axis=-1))
+    M_c, M_p = model_matrix(camera), model_matrix(projector)
+    try:
+        inverse = np.linalg.inv(M_c[:, :3])
+    except np.linalg.LinAlgError:
+        return np.full((*shape, 3), np.nan)
+    center = -inverse @ M_c[:, 3]
+    rays = np.column_stack([cam, np.ones(len(cam))]) @ inverse.T  # (n, 3)
+    # start: the plane of p taken as an ideal coordinate (eq. 3.14 on the ray)
+    r = M_p[k, :3][None, :] - p[:, None] * M_p[2, :3][None, :]
+    e = M_p[k, 3] - p * M_p[2, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = -(r @ center + e) / np.sum(r * rays, axis=1)
+
+    def residual(t, idx):
+        xyz = center + t[:, None] * rays[idx]
+        return _panel_of_points(projector, projector_distortion, xyz)[:, k] - p[idx]
+
+    t_out = np.full(len(p), np.nan)
+    idx = np.flatnonzero(np.isfinite(t0) & np.isfinite(p))
+    t_prev = t0[idx]
+    g_prev = residual(t_prev, idx)
+    t_cur = t_prev * (1.0 + 1e-4) + 1e-4
+    g_cur = residual(t_cur, idx)
+    for _ in range(max_iterations):
+        done = np.abs(g_cur) < tolerance
+        t_out[idx[done]] = t_cur[done]
+        keep = ~done & np.isfinite(g_cur) & np.isfinite(g_prev)
+        idx, t_prev, g_prev, t_cur, g_cur = (idx[keep], t_prev[keep], g_prev[keep], t_cur[keep],
+                                             g_cur[keep])
+        if idx.size == 0:
+            break
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_new = t_cur - g_cur * (t_cur - t_prev) / (g_cur - g_prev)
+        t_prev, g_prev = t_cur, g_cur
+        t_cur = t_new
+        g_cur = residual(t_cur, idx)
+    else:
+        done = np.abs(g_cur) < tolerance
+        t_out[idx[done]] = t_cur[done]
+    points = center + t_out[:, None] * rays
     return points.reshape(*shape, 3)

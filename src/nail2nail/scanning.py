@@ -23,7 +23,15 @@ from .camera_models import Pinhole
 from .io.calibration import CameraCalibration, RigCalibration, check_handedness
 from .io.capture import frame_intensities
 from .phase import NO_POINT, _check_frames, decode, decode_fast
-from .reconstruction import Scan, _check_use, _reconstruct_into, band_rows, model_matrix, ray_table
+from .reconstruction import (
+    Scan,
+    _check_use,
+    _reconstruct_into,
+    band_rows,
+    model_matrix,
+    ray_table,
+    reconstruct_points_one_coordinate,
+)
 
 #: Pixels per band of rows that the NumPy reference of :func:`scan_frames` (``method="numpy"``)
 #: decodes and triangulates at a time (the fused kernel needs no bands).
@@ -163,7 +171,7 @@ def _scan(frames, pattern_set, camera: CameraCalibration, *, projector_distortio
     (``raw=True``), else frames of their dtype's full scale."""
     _check_method(method)
     _check_use(use)
-    if method == "numba":
+    if method == "numba" and pattern_set.scheme == "pmp":  # the kernel decodes PMP only
         return _scan_fast(frames, pattern_set, camera, projector_distortion=projector_distortion,
                           use=use, decode_options=decode_options,
                           full_scale=None if bit_depth is None else 2**bit_depth - 1)
@@ -177,17 +185,42 @@ def _scan(frames, pattern_set, camera: CameraCalibration, *, projector_distortio
 
 
 def _check_directions(pattern_set, camera: CameraCalibration, use, projector_distortion):
-    """Refuse a pattern set with one projector direction where triangulation needs both."""
+    """Refuse a pattern set with one projector direction where triangulation needs both
+    (``use="xpyp"``) or lacks the one asked for."""
     if "x" in pattern_set.directions and "y" in pattern_set.directions:
         return
-    lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
-    if use == "xpyp" or projector_distortion is not None or lens:
+    if use == "xpyp":
         raise ValueError(
-            f"camera {camera.name!r}: the pattern set has one projector direction, but "
-            "use='xpyp', a projector distortion model or a projector lens distortion "
-            "needs both (every point would be lost); use 'yp' or 'xp' with patterns "
-            "pre-distorted and a calibration without projector distortion"
-        )
+            f"camera {camera.name!r}: the pattern set has one projector direction "
+            f"({pattern_set.directions[0]!r}), but use='xpyp' needs both (every point would "
+            f"be lost); use '{pattern_set.directions[0]}p'")
+    if use[0] not in pattern_set.directions:
+        raise ValueError(
+            f"camera {camera.name!r}: use={use!r}, but the pattern set decodes only "
+            f"{pattern_set.directions[0]!r}; use '{pattern_set.directions[0]}p'")
+
+
+def _one_coordinate(pattern_set, camera: CameraCalibration, use, projector_distortion) -> bool:
+    """Whether points come from one decoded coordinate of a distorted projector (radial model
+    or lens): :func:`~nail2nail.reconstruction.reconstruct_points_one_coordinate`, an iterative
+    solve on the camera ray, instead of the ray table (which needs both coordinates then)."""
+    if use == "xpyp" or ("x" in pattern_set.directions and "y" in pattern_set.directions):
+        return False
+    lens = isinstance(camera.projector, Pinhole) and np.any(camera.projector.dist != 0)
+    return projector_distortion is not None or bool(lens)
+
+
+def _points_one_coordinate(camera: CameraCalibration, p, valid, row0: int, *,
+                           projector_distortion, use) -> np.ndarray:
+    """Points ``(h, W, 3)`` float64 of rows ``row0 …`` from one coordinate `p` ``(h, W)`` at the
+    `valid` pixels (NaN elsewhere)."""
+    out = np.full((*p.shape, 3), np.nan)
+    rows, cols = np.nonzero(valid)
+    out[rows, cols] = reconstruct_points_one_coordinate(
+        camera.camera, camera.projector, cols.astype(float), (rows + row0).astype(float),
+        np.asarray(p, float)[rows, cols], axis=use[0],
+        projector_distortion=projector_distortion)
+    return out
 
 
 def _no_valid_pixel(camera: CameraCalibration, min_modulation, lit: int, decoded_valid: int):
@@ -206,9 +239,21 @@ def _scan_fast(frames, pattern_set, camera: CameraCalibration, *, projector_dist
     options = dict(decode_options)
     options.pop("keep_invalid", None)  # a scan's xp, yp are NaN where invalid regardless
     height, width = frames.shape[1:]
-    table = ray_table(camera.camera, camera.projector, (height, width),
-                      projector_distortion=projector_distortion, use=use)
-    decoded = decode_fast(frames, pattern_set, table=table, full_scale=full_scale, **options)
+    if _one_coordinate(pattern_set, camera, use, projector_distortion):
+        decoded = decode_fast(frames, pattern_set, full_scale=full_scale, **options)
+        p = decoded.xp if use == "xp" else decoded.yp
+        points = _points_one_coordinate(camera, p, decoded.mask, 0,
+                                        projector_distortion=projector_distortion, use=use)
+        lost = decoded.mask & ~np.all(np.isfinite(points), axis=-1)
+        decoded.reason[lost] |= NO_POINT
+        decoded.mask &= ~lost
+        p[lost] = np.nan
+        decoded.intensity[lost] = 0
+        decoded.xyz = points.astype(np.float32)
+    else:
+        table = ray_table(camera.camera, camera.projector, (height, width),
+                          projector_distortion=projector_distortion, use=use)
+        decoded = decode_fast(frames, pattern_set, table=table, full_scale=full_scale, **options)
     if not decoded.mask.any():
         min_modulation = options.get("min_modulation", 0.03)
         lit = int(np.count_nonzero(decoded.modulation >= min_modulation))
@@ -255,6 +300,7 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
     mask = np.empty((height, width), bool)
     min_modulation = decode_options.get("min_modulation", 0.03)
     lit = decoded_valid = 0
+    one_coordinate = _one_coordinate(pattern_set, camera, use, projector_distortion)
     for a in range(0, height, step):
         b = min(a + step, height)
         lo, hi = max(a - halo, 0), min(b + halo, height)
@@ -266,9 +312,13 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
         xp = decoded.xp[rows] if decoded.xp is not None else nan
         yp = decoded.yp[rows] if decoded.yp is not None else nan
         band_mask = decoded.mask[rows]
-        points = _reconstruct_into(camera.camera, camera.projector, xp, yp,
-                                   np.empty((b - a, width, 3)), row0=a,
-                                   projector_distortion=projector_distortion, use=use)
+        if one_coordinate:
+            points = _points_one_coordinate(camera, xp if use == "xp" else yp, band_mask, a,
+                                            projector_distortion=projector_distortion, use=use)
+        else:
+            points = _reconstruct_into(camera.camera, camera.projector, xp, yp,
+                                       np.empty((b - a, width, 3)), row0=a,
+                                       projector_distortion=projector_distortion, use=use)
         lit += int(np.count_nonzero(decoded.modulation[rows] >= min_modulation))
         decoded_valid += int(np.count_nonzero(band_mask))
         band_mask = band_mask & np.all(np.isfinite(points), axis=-1)
