@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BOARD_KINDS", "Board", "detect_board", "to_uint8"]
+__all__ = ["BOARD_KINDS", "Board", "default_board", "detect_board", "to_uint8"]
 
 BOARD_KINDS = ("checkerboard", "charuco", "circles", "asymmetric-circles")
 
@@ -121,7 +121,8 @@ class Board:
         marker = self.marker_mm
         limit = {"checkerboard": math.inf, "charuco": self.spacing,
                  "circles": self.spacing, "asymmetric-circles": math.sqrt(2) * self.spacing}
-        if not (math.isfinite(marker) and 0 < marker < limit[self.kind]):
+        if self.kind != "checkerboard" and not (math.isfinite(marker)
+                                                 and 0 < marker < limit[self.kind]):
             raise ValueError(f"marker: expected a size in (0, {limit[self.kind]:g}) mm for a "
                              f"{self.kind} board of spacing {self.spacing:g}, got {marker!r}")
         if self.margin is not None and not (math.isfinite(self.margin) and self.margin >= 0):
@@ -139,11 +140,14 @@ class Board:
     # -- geometry ----------------------------------------------------------------------------
     @property
     def marker_mm(self) -> float:
-        """ChArUco marker side or circle diameter, mm (the default when `marker` is None)."""
+        """ChArUco marker side or circle diameter, mm (the default when `marker` is None; 0 for
+        a checkerboard)."""
+        if self.kind == "checkerboard":
+            return 0.0
         if self.marker is not None:
             return float(self.marker)
-        return {"checkerboard": 0.0, "charuco": 0.7, "circles": 0.5,
-                "asymmetric-circles": 0.7}[self.kind] * float(self.spacing) or 1.0
+        return {"charuco": 0.7, "circles": 0.5,
+                "asymmetric-circles": 0.7}[self.kind] * float(self.spacing)
 
     @property
     def margin_mm(self) -> float:
@@ -211,7 +215,8 @@ class Board:
     def to_dict(self) -> dict:
         """JSON-ready description (kind, counts, sizes in mm; what `from_dict` reads)."""
         out = {"kind": self.kind, "rows": int(self.rows), "cols": int(self.cols),
-               "spacing": float(self.spacing), "marker": self.marker_mm,
+               "spacing": float(self.spacing),
+               "marker": None if self.kind == "checkerboard" else self.marker_mm,
                "margin": self.margin_mm, "white": self.white, "black": self.black,
                "pattern_size": list(self.pattern_size), "size_mm": list(self.size_mm)}
         if self.kind == "charuco":
@@ -228,9 +233,7 @@ class Board:
         missing = [k for k in ("kind", "rows", "cols", "spacing") if k not in data]
         if missing:
             raise ValueError(f"board: missing {', '.join(missing)}")
-        options = {k: data[k] for k in keys if k in data}
-        if options.get("kind") == "checkerboard":
-            options.pop("marker", None)
+        options = {k: data[k] for k in keys if data.get(k) is not None}
         return cls(**options)
 
     # -- appearance ----------------------------------------------------------------------------
@@ -358,6 +361,24 @@ class Board:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols, self.rows), float(self.spacing),
                                       float(self.marker_mm), dictionary)
+
+
+def default_board(kind: str = "checkerboard") -> Board:
+    """A board of `kind` sized for the default rig's 32 × 40 mm view (2.5 mm pitch).
+
+    Checkerboard and ChArUco: 11 × 8 squares of 2.5 mm; circles: 11 × 8 circles 2.5 mm apart;
+    asymmetric circles: 11 rows of 4 circles, rows 2.5 mm apart. The pattern spans about
+    20 × 27.5 mm, so that tilted by 30° it stays inside every camera's view.
+
+    Examples
+    --------
+    >>> default_board("charuco").size_mm
+    (25.0, 32.5)
+    """
+    if kind not in BOARD_KINDS:
+        raise ValueError(f"board: expected a kind in {', '.join(BOARD_KINDS)}, got {kind!r}")
+    cols = 4 if kind == "asymmetric-circles" else 8
+    return Board(kind, rows=11, cols=cols, spacing=2.5)
 
 
 def _dictionary_size(name: str) -> int:

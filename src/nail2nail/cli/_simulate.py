@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..boards import BOARD_KINDS
 from ..io._json import dumps_json
 from ..simulation.scenes import SCENES
 
@@ -38,6 +39,30 @@ def add_parser(sub) -> None:
                    "a synthetic print; truth/rolled_print.png is this image")
     p.add_argument("--print-ppi", type=float, metavar="PPI",
                    help="resolution of --print (default: the file's, else 500)")
+    board = p.add_argument_group(
+        "board scene", "a printed planar calibration board (--scene board; docs/real-scanner.md)")
+    board.add_argument("--board", choices=BOARD_KINDS, default=None,
+                       help="board kind (default checkerboard)")
+    board.add_argument("--rows", type=int, metavar="R",
+                       help="squares (checkerboard, charuco) or circles along the board's y "
+                       "(default 11)")
+    board.add_argument("--cols", type=int, metavar="C",
+                       help="squares or circles along x; asymmetric-circles: circles in a row "
+                       "(default 8, 4 for asymmetric-circles)")
+    board.add_argument("--spacing", type=float, metavar="MM",
+                       help="square side or circle spacing, mm (default 2.5)")
+    board.add_argument("--marker", type=float, metavar="MM",
+                       help="ChArUco marker side or circle diameter, mm (default 0.7 or 0.5 "
+                       "spacing)")
+    board.add_argument("--dictionary", default=None,
+                       help="ChArUco ArUco dictionary (default DICT_5X5_100)")
+    board.add_argument("--pose", type=float, nargs=6,
+                       metavar=("RX", "RY", "RZ", "TX", "TY", "TZ"),
+                       help="board pose: rotation vector in degrees from facing the centre "
+                       "camera, and the sheet centre in world mm (default 0 0 0 0 3.175 0)")
+    board.add_argument("--poses", type=int, metavar="N",
+                       help="write N captures of the board at well-spread poses as "
+                       "OUT/pose00 ... OUT/poseNN and OUT/poses.json")
     p.add_argument("--no-truth", action="store_true", help="do not write truth/")
     p.add_argument("--json", action="store_true", help="print the manifest summary as JSON")
     p.set_defaults(func=run)
@@ -53,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--print: only with --scene finger, got --scene {args.scene}")
     if args.print_ppi is not None and not args.print_ppi > 0:
         raise ValueError(f"--print-ppi: expected a positive number, got {args.print_ppi}")
+    board = _board_from_args(args)
     print_image = None
     print_ppi = args.print_ppi
     if args.print_image is not None:
@@ -65,8 +91,22 @@ def run(args: argparse.Namespace) -> int:
     if args.patterns:
         patterns, names = load_pattern_dir(args.patterns)
     start = time.perf_counter()
+    if args.poses is not None:
+        return _run_poses(args, board, rig, patterns, names, start)
+    scene = args.scene
+    if board is not None:
+        from ..simulation.capture import _configure_rig
+        from ..simulation.scenes import make_scene
+
+        rig = _configure_rig(rig, scale=args.scale,
+                             projector_distortion=args.projector_distortion)
+        args.scale = args.projector_distortion = None  # applied
+        options = {"board": board}
+        if args.pose is not None:
+            options["pose"] = tuple(args.pose)
+        scene = make_scene("board", rig=rig, **options)
     manifest = simulate_capture(
-        args.out, args.scene, rig=rig, scale=args.scale,
+        args.out, scene, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, patterns=patterns, pattern_names=names,
         seed=args.seed, write_truth=not args.no_truth, progress=sys.stderr.isatty(),
         print_image=print_image, print_ppi=print_ppi or 500.0,
@@ -88,4 +128,54 @@ def run(args: argparse.Namespace) -> int:
         cams = ", ".join(f"{c['name']} {c['size'][0]}x{c['size'][1]}" for c in summary["cameras"])
         print(f"wrote {args.out}: scene {args.scene}, {summary['n_frames']} frames x "
               f"{len(summary['cameras'])} cameras ({cams}) in {elapsed:.1f} s")
+    return 0
+
+
+def _board_from_args(args):
+    """The Board of ``--scene board`` (None for other scenes); options checked first."""
+    from ..boards import Board, default_board
+
+    given = [f"--{k}" for k in ("board", "rows", "cols", "spacing", "marker", "dictionary",
+                                "pose", "poses") if getattr(args, k) is not None]
+    if args.scene != "board":
+        if given:
+            raise ValueError(f"{given[0]}: only with --scene board, got --scene {args.scene}")
+        return None
+    if args.pose is not None and args.poses is not None:
+        raise ValueError("--pose: not with --poses (which draws the poses)")
+    if args.poses is not None and not 1 <= args.poses <= 99:
+        raise ValueError(f"--poses: expected a number of poses in 1..99, got {args.poses}")
+    base = default_board(args.board or "checkerboard")
+    options = {"kind": base.kind, "rows": base.rows if args.rows is None else args.rows,
+               "cols": base.cols if args.cols is None else args.cols,
+               "spacing": base.spacing if args.spacing is None else args.spacing}
+    if args.marker is not None:
+        options["marker"] = args.marker
+    if args.dictionary is not None:
+        options["dictionary"] = args.dictionary
+    try:
+        return Board(**options)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--board {base.kind} --rows {options['rows']} --cols "
+                         f"{options['cols']} --spacing {options['spacing']:g}: {exc}") from None
+
+
+def _run_poses(args, board, rig, patterns, names, start) -> int:
+    from ..simulation.board_poses import simulate_board_captures
+
+    summary = simulate_board_captures(
+        args.out, args.poses, board=board, rig=rig, scale=args.scale,
+        projector_distortion=args.projector_distortion, seed=args.seed, patterns=patterns,
+        pattern_names=names, write_truth=not args.no_truth)
+    elapsed = time.perf_counter() - start
+    if args.json:
+        print(dumps_json({"out": str(args.out), "scene": "board", "board": summary["board"],
+                          "poses": [{"capture": p["capture"], "pose": p["pose"]}
+                                    for p in summary["poses"]],
+                          "seconds": round(elapsed, 2)}))
+    else:
+        b = summary["board"]
+        print(f"wrote {args.out}: {len(summary['poses'])} captures of a {b['kind']} board "
+              f"({b['rows']} x {b['cols']}, {b['spacing']:g} mm) at pose00 ... "
+              f"pose{len(summary['poses']) - 1:02d}, poses.json in {elapsed:.1f} s")
     return 0

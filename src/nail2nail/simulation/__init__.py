@@ -1,10 +1,12 @@
 """The virtual scanner: rig, scenes, rendering and capture writing (``docs/capture-format.md``).
 
 Modules: :mod:`.rig` (cameras, projector, photometry), :mod:`.scenes` (target, finger, plane,
-sphere, coin), :mod:`.fingerprint` (synthetic prints), :mod:`.render` (per-camera geometry and
-frames), :mod:`.capture` (in-memory simulation and capture directories).
+sphere, coin, calibration board), :mod:`.fingerprint` (synthetic prints), :mod:`.render`
+(per-camera geometry and frames), :mod:`.capture` (in-memory simulation and capture
+directories), :mod:`.board_poses` (board poses in front of a rig, board capture series).
 """
 
+from .board_poses import board_poses, simulate_board_captures
 from .capture import (
     SimulatedCapture,
     load_pattern_dir,
@@ -14,15 +16,17 @@ from .capture import (
 )
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
 from .rig import Photometry, Rig, default_rig, ideal_calibration, load_rig, save_rig
-from .scenes import SCENES, Scene, make_scene
+from .scenes import SCENES, BoardScene, Scene, make_scene
 
 __all__ = [
     "SCENES",
+    "BoardScene",
     "CameraGeometry",
     "Photometry",
     "Rig",
     "Scene",
     "SimulatedCapture",
+    "board_poses",
     "camera_geometry",
     "default_rig",
     "ideal_calibration",
@@ -33,6 +37,7 @@ __all__ = [
     "render_frames",
     "save_rig",
     "simulate",
+    "simulate_board_captures",
     "simulate_capture",
     "write_capture",
 ]

@@ -1,4 +1,4 @@
-"""Objects the virtual scanner sees: target cylinder, finger, plane, sphere, coin.
+"""Objects the virtual scanner sees: target cylinder, finger, plane, sphere, coin, board.
 
 Every scene answers two questions, vectorised over rays and points:
 
@@ -18,11 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..boards import Board, default_board
 from ..markers import TargetGeometry
 from .fingerprint import Fingerprint, generate_fingerprint, legacy_geometry
 
 __all__ = [
     "SCENES",
+    "BoardScene",
     "Coin",
     "CylinderTarget",
     "Finger",
@@ -33,7 +35,7 @@ __all__ = [
     "make_scene",
 ]
 
-SCENES = ("finger", "target", "plane", "sphere", "coin")
+SCENES = ("finger", "target", "plane", "sphere", "coin", "board")
 
 
 @dataclass
@@ -205,6 +207,123 @@ class CylinderTarget(Scene):
                 "key_outer_diameter": g.key_outer_diameter,
                 "key_inner_diameter": g.key_inner_diameter,
                 "surface_albedo": self.surface_albedo, "mark_albedo": self.mark_albedo}
+
+
+def _default_board() -> Board:
+    return default_board("checkerboard")
+
+
+def _rotation_from_vector(rvec_deg) -> np.ndarray:
+    """Rotation matrix ``(3, 3)`` of a rotation vector in degrees (axis · angle, Rodrigues)."""
+    r = np.radians(np.asarray(rvec_deg, dtype=float))
+    angle = float(np.linalg.norm(r))
+    if angle < 1e-15:
+        return np.eye(3)
+    k = r / angle
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+
+
+#: board frame -> world frame of the rest pose: printed face towards +Z, rows down world -Y
+BOARD_REST_ROTATION = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass
+class BoardScene(Scene):
+    """A printed planar calibration board (:class:`nail2nail.boards.Board`), a flat sheet.
+
+    Pose: ``pose = (rx, ry, rz, tx, ty, tz)``, a rotation vector in degrees (axis times angle,
+    world frame) and the world position of the sheet's centre in mm. At rest (rotation 0) the
+    printed face looks towards ``+Z`` (the centre camera) and the board stands upright as the
+    cameras see it: board ``x`` along world ``+X``, board ``y`` (down the sheet) along world
+    ``−Y``. So a board point ``p`` (board frame, mm) is at
+    ``X = R_world_board p + t_world_board`` with ``R_world_board = R(r) · diag(1, −1, −1)`` and
+    ``t_world_board = t − R_world_board c`` (``c`` the sheet centre, :attr:`Board.center`);
+    :attr:`R_world_board`, :attr:`t_world_board` give them, and :meth:`to_dict` records both in
+    ``capture.json`` (``scene``).
+
+    The sheet (pattern plus white margin, :meth:`Board.extent`) is opaque from both sides; rays
+    beyond it miss. The albedo is the printed board's (:meth:`Board.albedo`) box-filtered over
+    `footprint` mm (about one camera pixel's footprint, so that the point-sampling renderer
+    integrates each pixel's area; :func:`make_scene` takes it from the rig). Surface parameters:
+    the board coordinates ``x``, ``y`` (mm) of every hit (``truth/<cam>.npz``
+    ``param_x``, ``param_y``).
+    """
+
+    board: Board = field(default_factory=_default_board)
+    pose: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 3.175, 0.0)
+    footprint: float = 0.03
+    name = "board"
+
+    def __post_init__(self):
+        if not isinstance(self.board, Board):
+            raise TypeError(f"board: expected a nail2nail.boards.Board, got "
+                            f"{type(self.board).__name__}")
+        pose = np.asarray(self.pose, dtype=float)
+        if pose.shape != (6,) or not np.all(np.isfinite(pose)):
+            raise ValueError(f"pose: expected 6 finite numbers (rx ry rz in degrees, tx ty tz in "
+                             f"mm), got {self.pose!r}")
+        if not (np.isfinite(self.footprint) and self.footprint >= 0):
+            raise ValueError(f"footprint: expected a length >= 0 mm, got {self.footprint!r}")
+        self.pose = tuple(float(v) for v in pose)
+        self._R = _rotation_from_vector(pose[:3]) @ BOARD_REST_ROTATION
+        self._t = pose[3:] - self._R @ self.board.center
+        self._n = -self._R[:, 2]  # the printed face looks towards -z of the board
+
+    @property
+    def R_world_board(self) -> np.ndarray:
+        """Rotation ``(3, 3)`` from the board frame to the world frame."""
+        return self._R.copy()
+
+    @property
+    def t_world_board(self) -> np.ndarray:
+        """World position ``(3,)`` of the board frame's origin, mm."""
+        return self._t.copy()
+
+    def board_from_world(self, xyz) -> np.ndarray:
+        """Board-frame coordinates ``(N, 3)`` of world points ``(N, 3)``, mm."""
+        return (np.asarray(xyz, dtype=float) - self._t) @ self._R
+
+    def world_from_board(self, points) -> np.ndarray:
+        """World coordinates ``(N, 3)`` of board-frame points ``(N, 3)`` (e.g.
+        :meth:`Board.object_points`), mm."""
+        return np.asarray(points, dtype=float) @ self._R.T + self._t
+
+    def intersect(self, origin, directions):
+        o = np.asarray(origin, dtype=float)
+        d = np.asarray(directions, dtype=float)
+        denom = d @ self._n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((self._t - o) @ self._n) / denom
+        hit = (t > 0) & np.isfinite(t)
+        t = np.where(hit, t, np.inf)
+        local = self.board_from_world(o + np.where(hit, t, 0.0)[:, None] * d)
+        x0, x1, y0, y1 = self.board.extent()
+        on_sheet = ((local[:, 0] >= x0) & (local[:, 0] <= x1)
+                    & (local[:, 1] >= y0) & (local[:, 1] <= y1))
+        return np.where(hit & on_sheet, t, np.inf)
+
+    def surface(self, xyz):
+        xyz = np.asarray(xyz, dtype=float)
+        local = self.board_from_world(xyz)
+        normal = np.broadcast_to(self._n, xyz.shape).copy()
+        albedo = self.board.albedo(local[:, 0], local[:, 1], footprint=self.footprint)
+        return SurfaceInfo(normal, albedo, {"x": local[:, 0].copy(), "y": local[:, 1].copy()})
+
+    def to_dict(self):
+        return {"name": self.name, "board": self.board.to_dict(),
+                "pose": {"rotation_vector_deg": list(self.pose[:3]),
+                         "center_mm": list(self.pose[3:])},
+                "R_world_board": self._R.tolist(), "t_world_board": self._t.tolist(),
+                "footprint_mm": self.footprint}
+
+
+def board_footprint(rig, point) -> float:
+    """Largest camera pixel footprint (mm) of a rig at a world point, facing the camera."""
+    point = np.asarray(point, dtype=float)
+    sizes = [np.linalg.norm(cam.center - point) / min(cam.K[0, 0], cam.K[1, 1])
+             for cam in rig.cameras]
+    return float(max(sizes))
 
 
 # -- implicit (relief) scenes ---------------------------------------------------------------------
@@ -752,7 +871,7 @@ class Coin(Scene):
 
 
 def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
-    """Build a scene by name: ``finger``, ``target``, ``plane``, ``sphere`` or ``coin``.
+    """Build a scene by name: ``finger``, ``target``, ``plane``, ``sphere``, ``coin`` or ``board``.
 
     Parameters
     ----------
@@ -760,12 +879,14 @@ def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
     rig : Rig, optional
         For the plane's default pose: facing the projector (normal towards its centre), through
         the axis point ``(0, 3.175, 0)``, so that it fills the projector's view (distortion
-        estimation). Without a rig the plane faces ``+Z``.
+        estimation). Without a rig the plane faces ``+Z``. For the board, the default
+        `footprint` (:func:`board_footprint`: one camera pixel at the board's centre).
     seed : int
         Fingerprint seed (finger).
     **options
         Keyword arguments of the scene class (e.g. ``point=``, ``normal=`` for the plane;
-        ``pattern=``, ``print_image=``, ``print_ppi=`` for the finger).
+        ``pattern=``, ``print_image=``, ``print_ppi=`` for the finger; ``board=``, ``pose=``
+        for the board, :class:`BoardScene`).
 
     Examples
     --------
@@ -780,6 +901,11 @@ def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
         return Sphere(**options)
     if name == "coin":
         return Coin(**options)
+    if name == "board":
+        if rig is not None and "footprint" not in options:
+            pose = options.get("pose", BoardScene.pose)
+            options["footprint"] = board_footprint(rig, np.asarray(pose, dtype=float)[3:])
+        return BoardScene(**options)
     if name == "plane":
         if rig is not None and "normal" not in options:
             point = np.asarray(options.get("point", (0.0, 3.175, 0.0)), dtype=float)

@@ -1,0 +1,268 @@
+"""Poses of a planar calibration board in front of a rig, for simulated board captures."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..boards import Board
+from .rig import Rig, default_rig
+from .scenes import BoardScene, _default_board
+
+__all__ = ["board_pose_checks", "board_poses", "rig_working_point", "simulate_board_captures"]
+
+_GOLDEN_ANGLE_DEG = 180.0 * (3.0 - np.sqrt(5.0))
+
+
+def rig_working_point(rig: Rig) -> np.ndarray:
+    """World point ``(3,)`` closest (least squares) to the optical axes of the rig's cameras, mm.
+
+    The point the cameras look at: ``(0, 3.175, 0)`` for the default rig.
+    """
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for cam in rig.cameras:
+        axis = cam.R[2]  # the camera's z axis in the world frame
+        proj = np.eye(3) - np.outer(axis, axis)
+        a += proj
+        b += proj @ cam.center
+    return np.linalg.solve(a, b)
+
+
+def board_pose_checks(scene: BoardScene, rig: Rig, *, max_obliquity_deg: float = 65.0,
+                      border: float = 0.03) -> dict:
+    """Whether a board pose is usable: every camera and the projector see its whole pattern.
+
+    Parameters
+    ----------
+    scene : BoardScene
+    rig : Rig
+    max_obliquity_deg : float
+        Largest angle between the board's normal and the direction to a camera or to the
+        projector, degrees.
+    border : float
+        Fraction of the image (panel) size kept clear at its edges.
+
+    Returns
+    -------
+    dict
+        ``{"ok": bool, "obliquity_deg": {camera or "projector": angle}, "inside": {…: bool}}``;
+        the pattern is its extent grown by half a spacing (the quiet zone detectors need).
+    """
+    board = scene.board
+    x0, x1, y0, y1 = board.pattern_extent()
+    pad = 0.5 * board.spacing
+    xs = np.linspace(x0 - pad, x1 + pad, 9)
+    ys = np.linspace(y0 - pad, y1 + pad, 9)
+    edge = np.concatenate([np.column_stack([xs, np.full(9, y0 - pad)]),
+                           np.column_stack([xs, np.full(9, y1 + pad)]),
+                           np.column_stack([np.full(9, x0 - pad), ys]),
+                           np.column_stack([np.full(9, x1 + pad), ys])])
+    world = scene.world_from_board(np.column_stack([edge, np.zeros(len(edge))]))
+    centre = scene.world_from_board(board.center[None])[0]
+    normal = -scene.R_world_board[:, 2]
+    out = {"obliquity_deg": {}, "inside": {}}
+    viewers = [(name, cam.center, cam) for name, cam in zip(rig.camera_names, rig.cameras,
+                                                            strict=True)]
+    viewers.append(("projector", rig.projector.center, None))
+    ok = True
+    for name, position, cam in viewers:
+        view = position - centre
+        cos = float(normal @ view / np.linalg.norm(view))
+        angle = float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+        if cam is None:
+            xy = rig.panel_from_ideal(rig.projector.project(world))
+            width, height = rig.panel_size
+        else:
+            xy = cam.project(world)
+            width, height = cam.size
+        inside = bool(np.all(np.isfinite(xy))
+                      and np.all((xy[:, 0] >= border * width) & (xy[:, 0] <= (1 - border) * width)
+                                 & (xy[:, 1] >= border * height)
+                                 & (xy[:, 1] <= (1 - border) * height)))
+        out["obliquity_deg"][name] = round(angle, 3)
+        out["inside"][name] = inside
+        ok &= inside and angle <= max_obliquity_deg
+    out["ok"] = bool(ok)
+    return out
+
+
+def board_poses(
+    n: int,
+    rig: Rig | None = None,
+    *,
+    board: Board | None = None,
+    seed: int = 0,
+    tilt_deg: tuple[float, float] = (15.0, 30.0),
+    max_obliquity_deg: float = 65.0,
+    spin_deg: float = 10.0,
+    shift_mm: tuple[float, float, float] = (2.0, 2.0, 3.0),
+) -> list[tuple[float, float, float, float, float, float]]:
+    """`n` well-spread board poses in front of a rig, each seen whole by every camera.
+
+    Pose ``k`` tilts the board (from facing the centre camera, :class:`BoardScene`) by an angle
+    between ``tilt_deg`` (evenly spread over the poses, alternately) about an axis in the
+    world ``XY`` plane whose direction turns by the golden angle (137.5°) from pose to pose, so
+    the tilts are about both axes and spread in direction; it adds a spin of up to
+    ``±spin_deg`` about the board's normal and moves its centre by up to ``shift_mm`` (X, Y,
+    Z) about the rig's working point (:func:`rig_working_point`). A pose whose pattern is not
+    inside every camera's image and the projector's panel, or is seen more obliquely than
+    `max_obliquity_deg` (:func:`board_pose_checks`), is drawn again with the random parts
+    redrawn and, after 20 tries, with a tilt 2° smaller.
+
+    Parameters
+    ----------
+    n : int
+        Number of poses (≥ 1).
+    rig : Rig, optional
+        :func:`~nail2nail.simulation.rig.default_rig` by default.
+    board : Board, optional
+        The board (its size matters); that of ``make_scene("board")`` by default.
+    seed : int
+        Random seed of the spins and shifts.
+    tilt_deg : (float, float)
+        Smallest and largest tilt, degrees.
+    max_obliquity_deg, spin_deg, shift_mm
+        See above.
+
+    Returns
+    -------
+    list of (rx, ry, rz, tx, ty, tz)
+        Poses as :class:`BoardScene` takes them: rotation vector (degrees) and the sheet
+        centre (mm).
+
+    Raises
+    ------
+    ValueError
+        When no usable pose is found for some ``k`` (a board too large for the rig's view).
+
+    Examples
+    --------
+    >>> poses = board_poses(3)
+    >>> len(poses), len(poses[0])
+    (3, 6)
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n: expected a positive number of poses, got {n!r}")
+    lo, hi = (float(v) for v in tilt_deg)
+    if not 0 <= lo <= hi < 80:
+        raise ValueError(f"tilt_deg: expected 0 <= low <= high < 80 degrees, got {tilt_deg!r}")
+    rig = rig or default_rig()
+    board = board or _default_board()
+    centre = rig_working_point(rig)
+    rng = np.random.default_rng(seed)
+    poses = []
+    for k in range(n):
+        fraction = 0.5 if n == 1 else (k * 0.618034) % 1.0
+        tilt = lo + (hi - lo) * fraction
+        direction = np.radians(45.0 + k * _GOLDEN_ANGLE_DEG)
+        found = None
+        for attempt in range(200):
+            current = max(tilt - 2.0 * (attempt // 20), 0.0)
+            axis = np.array([np.cos(direction), np.sin(direction), 0.0])
+            spin = rng.uniform(-spin_deg, spin_deg)
+            shift = rng.uniform(-1, 1, 3) * np.asarray(shift_mm, dtype=float)
+            # the spin about the board's normal (world Z at rest) composed as a rotation vector:
+            # a tilt about an in-plane axis after a spin about Z is close to their sum for
+            # the small angles used; the pose is checked as built
+            rvec = _compose(current * axis, np.array([0.0, 0.0, spin]))
+            pose = (*[float(v) for v in rvec], *[float(v) for v in centre + shift])
+            scene = BoardScene(board=board, pose=pose)
+            if board_pose_checks(scene, rig, max_obliquity_deg=max_obliquity_deg)["ok"]:
+                found = tuple(round(v, 6) for v in pose)
+                break
+        if found is None:
+            raise ValueError(f"board: no pose {k} found in which every camera and the projector "
+                             f"see the whole {board.size_mm[0]:g} x {board.size_mm[1]:g} mm "
+                             "board; use a smaller board")
+        poses.append(found)
+    return poses
+
+
+def _compose(first_deg, then_deg) -> np.ndarray:
+    """Rotation vector (degrees) of ``R(first) · R(then)`` (``then`` applied first)."""
+    from .scenes import _rotation_from_vector
+
+    r = _rotation_from_vector(first_deg) @ _rotation_from_vector(then_deg)
+    angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))
+    if angle < 1e-12:
+        return np.zeros(3)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return np.degrees(angle) * axis / (2 * np.sin(angle))
+
+
+def simulate_board_captures(
+    out_dir: str | os.PathLike,
+    n: int,
+    *,
+    board: Board | None = None,
+    rig: Rig | None = None,
+    scale: float | None = None,
+    projector_distortion: str | None = None,
+    seed: int = 0,
+    patterns=None,
+    pattern_set=None,
+    pattern_names: list[str] | None = None,
+    write_truth: bool = True,
+    poses: list | None = None,
+) -> dict:
+    """Simulate `n` captures of a board at :func:`board_poses` into ``OUT/pose00`` … .
+
+    Each ``poseKK`` is a normal capture directory (``docs/capture-format.md``: frames of the
+    pattern set, ``capture.json`` with the rig and, in ``scene``, the board and its pose
+    ``R_world_board``, ``t_world_board``; ``truth/`` with the ideal calibration and per
+    camera the board coordinates ``param_x``, ``param_y`` of every pixel). ``OUT/poses.json``
+    lists them (board, rig, poses). `OUT` is written as a whole
+    (:func:`nail2nail.io._atomic.atomic_directory`, marker ``poses.json``). Pose ``k`` renders
+    with noise seed ``seed + k``.
+
+    Parameters
+    ----------
+    out_dir : path-like
+    n : int
+        Number of poses (ignored when `poses` is given).
+    board : Board, optional
+        That of ``make_scene("board")`` by default.
+    rig, scale, projector_distortion, patterns, pattern_set, pattern_names, write_truth
+        As :func:`nail2nail.simulation.capture.simulate_capture`.
+    seed : int
+        Seed of the poses (:func:`board_poses`) and of the noise.
+    poses : list of (6,) float, optional
+        Explicit poses instead of :func:`board_poses`.
+
+    Returns
+    -------
+    dict
+        The content of ``poses.json``.
+    """
+    from ..io._atomic import atomic_directory, check_output_directory
+    from ..io._json import write_json
+    from .capture import _configure_rig, simulate, write_capture
+    from .scenes import make_scene
+
+    check_output_directory(out_dir, marker="poses.json")
+    rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
+    board = board or _default_board()
+    if poses is None:
+        poses = board_poses(n, rig, board=board, seed=seed)
+    entries = []
+    with atomic_directory(out_dir, marker="poses.json") as tmp:
+        for k, pose in enumerate(poses):
+            scene = make_scene("board", rig=rig, board=board, pose=tuple(pose))
+            sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set,
+                           seed=seed + k)
+            name = f"pose{k:02d}"
+            write_capture(Path(tmp) / name, sim, seed=seed + k, pattern_names=pattern_names,
+                          write_truth=write_truth)
+            checks = board_pose_checks(scene, rig)
+            entries.append({"capture": name, "pose": list(scene.pose),
+                            "R_world_board": scene.R_world_board.tolist(),
+                            "t_world_board": scene.t_world_board.tolist(),
+                            "obliquity_deg": checks["obliquity_deg"]})
+        summary = {"format": "nail2nail-board-poses", "version": 1,
+                   "created_by": "nail2nail simulate", "board": board.to_dict(),
+                   "rig": rig.to_dict(), "seed": seed, "poses": entries}
+        write_json(Path(tmp) / "poses.json", summary)
+    return summary
