@@ -199,21 +199,24 @@ def test_fast_scan_capture_raw_frames(tmp_path, bit_depth):
 
 
 def test_fast_scan_one_projector_direction(finger):
-    """A pattern set of rows only: ``use="yp"`` triangulates; ``xp`` is NaN; the options that
-    need both directions are refused with the reference's message."""
+    """A pattern set of rows only: ``use="yp"`` triangulates, with a projector distortion
+    model too (issue 12: on the camera ray, tests/test_one_direction.py); ``xp`` is NaN;
+    ``use="xpyp"`` and ``use="xp"`` are refused with the reference's message."""
     frames, pattern_set, camera, distortion = finger
     assert pattern_set.directions == ("x", "y")  # frames: the columns', then the rows'
     rows = dataclasses.replace(pattern_set, x=(), directions=())
     y_frames = frames[pattern_set.n_frames - rows.n_frames:]
     fast = check_scan(y_frames, rows, camera, None, use="yp")
     assert np.isnan(fast.xp).all()
+    scans = [scan_frames(y_frames, rows, camera, method=method, use="yp",
+                         projector_distortion=distortion) for method in ("numba", "numpy")]
+    assert np.array_equal(scans[0].mask, scans[1].mask) and scans[0].mask.sum() > 2000
+    both = scans[0].mask
+    assert np.abs(scans[0].xyz - scans[1].xyz)[both].max() <= 1e-4
     for method in ("numba", "numpy"):
-        for options in ({"use": "xpyp"}, {"use": "yp", "projector_distortion": distortion}):
-            with pytest.raises(ValueError, match="the pattern set has one projector direction"):
-                scan_frames(y_frames, rows, camera, method=method, **options)
-    # triangulating xp from a pattern set without columns: every point is lost
-    for method in ("numba", "numpy"):
-        with pytest.raises(ValueError, match=r"triangulation failed at all \d+ decoded pixels"):
+        with pytest.raises(ValueError, match="the pattern set has one projector direction"):
+            scan_frames(y_frames, rows, camera, method=method, use="xpyp")
+        with pytest.raises(ValueError, match="use='xp', but the pattern set decodes only 'y'"):
             scan_frames(y_frames, rows, camera, use="xp", method=method)
 
 

@@ -10,7 +10,15 @@ from PIL import Image
 
 from ..io._atomic import atomic_directory, atomic_path
 from ..io._json import dumps_json, write_json
-from ..patterns import PatternSet, default_pattern_set, frame_table, grid_pattern, make_patterns
+from ..patterns import (
+    PatternSet,
+    default_pattern_set,
+    frame_table,
+    gray_line_pattern_set,
+    gray_phase_pattern_set,
+    grid_pattern,
+    make_patterns,
+)
 
 __all__ = ["add_parser", "run"]
 
@@ -18,12 +26,29 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "patterns",
-        help="write multi-frequency phase-shifted patterns as 8-bit PNG",
-        description="Render the frames of a pattern set (JSON spec, or the default 24-frame set: "
-        "1, 8 and 64 periods in x and y) as 8-bit PNG files pattern_000.png … with "
-        "patterns.json (the spec and the frame table) beside them.",
+        help="write structured-light patterns (PMP, Gray code + phase, Gray code) as 8-bit PNG",
+        description="Render the frames of a pattern set (JSON spec, or a scheme: by default the "
+        "24-frame multi-frequency PMP set, 1, 8 and 64 periods in x and y) as 8-bit PNG files "
+        "pattern_000.png … with patterns.json (the spec and the frame table) beside them.",
     )
     p.add_argument("--spec", type=Path, help="pattern set JSON (PatternSet.to_dict format)")
+    p.add_argument("--scheme", choices=("pmp", "gray-phase", "gray"), default=None,
+                   help="without --spec: 'pmp' (default: multi-frequency phase shifting), "
+                   "'gray-phase' (Gray code + phase shifting) or 'gray' (Gray code + line "
+                   "shifting)")
+    p.add_argument("--periods", type=float, default=64,
+                   help="gray-phase: periods of the sinusoid across the panel (default 64)")
+    p.add_argument("--steps", type=int, default=4,
+                   help="gray-phase: phase steps (default 4)")
+    p.add_argument("--spacing", type=int, default=8,
+                   help="gray: line spacing = code stripe width = line frames, px (default 8)")
+    p.add_argument("--no-complementary", action="store_true",
+                   help="gray schemes: leave out the complementary Gray-code bit")
+    p.add_argument("--reference", choices=("mean", "pair", "inverse"), default=None,
+                   help="gray schemes: what code bits are thresholded against (default: mean "
+                   "for gray-phase, pair for gray)")
+    p.add_argument("--directions", choices=("xy", "x", "y"), default="xy",
+                   help="gray schemes: projector directions encoded (default xy)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--grid", action="store_true",
                    help="also write grid.png, a line grid for projector distortion estimation")
@@ -53,8 +78,33 @@ def _write_png(path: Path, image: np.ndarray) -> None:
         Image.fromarray(image).save(tmp, "PNG")
 
 
+def _scheme_set(args: argparse.Namespace) -> PatternSet:
+    """The pattern set of ``--spec`` or ``--scheme`` and its options (checked first)."""
+    scheme_options = (args.periods != 64 or args.steps != 4 or args.spacing != 8
+                      or args.no_complementary or args.reference is not None
+                      or args.directions != "xy")
+    if args.spec is not None:
+        if args.scheme is not None or scheme_options:
+            raise ValueError("--spec: the spec file says the scheme; leave out --scheme and its "
+                             "options")
+        return _load_spec(args.spec)
+    scheme = args.scheme or "pmp"
+    if scheme == "pmp":
+        if scheme_options:
+            raise ValueError("--scheme pmp: --periods, --steps, --spacing, --no-complementary, "
+                             "--reference and --directions are for the gray schemes (give a "
+                             "--spec for another PMP set)")
+        return default_pattern_set()
+    common = dict(complementary=not args.no_complementary, directions=tuple(args.directions))
+    if args.reference is not None:
+        common["reference"] = args.reference
+    if scheme == "gray-phase":
+        return gray_phase_pattern_set(periods=args.periods, steps=args.steps, **common)
+    return gray_line_pattern_set(spacing=args.spacing, **common)
+
+
 def run(args: argparse.Namespace) -> int:
-    pattern_set = _load_spec(args.spec)
+    pattern_set = _scheme_set(args)
     frames = make_patterns(pattern_set)
     # Hook: pre-distortion of the frames (``--predistort RIG.json``) is applied here.
     lut = None
@@ -76,8 +126,9 @@ def run(args: argparse.Namespace) -> int:
     manifest = {
         "pattern_set": pattern_set.to_dict(),
         "frames": [
-            {"file": files[t.index], "direction": t.direction, "periods": t.periods,
-             "step": t.step, "steps": t.steps, "shift": t.shift}
+            {"file": files[t.index], "kind": t.kind, "direction": t.direction,
+             "periods": t.periods, "step": t.step, "steps": t.steps, "shift": t.shift,
+             **({"bit": t.bit} if t.bit >= 0 else {})}
             for t in frame_table(pattern_set)
         ],
     }
@@ -92,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
             _write_png(tmp / "grid.png", grid)
         write_json(tmp / "patterns.json", manifest)
     summary = {"out": str(out), "n_frames": len(files), "panel_size": list(pattern_set.panel_size),
-               "spec": "patterns.json", "grid": manifest.get("grid")}
+               "scheme": pattern_set.scheme, "spec": "patterns.json", "grid": manifest.get("grid")}
     if args.json:
         print(dumps_json(summary, indent=None))
     else:

@@ -26,6 +26,7 @@ from .scenes import Finger, Scene, make_scene
 __all__ = [
     "SimulatedCapture",
     "load_pattern_dir",
+    "read_pattern_dir",
     "simulate",
     "simulate_capture",
     "write_capture",
@@ -56,17 +57,61 @@ class SimulatedCapture:
 
 
 def load_pattern_dir(directory: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
-    """Panel images from the PNG files of a directory, in sorted name order.
+    """Panel images from the PNG files of a directory, in sorted name order; for a directory
+    written by ``nail2nail patterns`` the frames its ``patterns.json`` lists, in its order
+    (not ``grid.png``): :func:`read_pattern_dir`.
 
     Returns
     -------
     patterns : (n_frames, Hp, Wp) uint8
     names : list of str
     """
+    patterns, names, _ = read_pattern_dir(directory)
+    return patterns, names
+
+
+def read_pattern_dir(directory: str | os.PathLike):
+    """Panel images of a directory and, from its ``patterns.json`` if any, the pattern set.
+
+    A directory written by ``nail2nail patterns`` (``patterns.json`` beside the PNGs): the
+    frames it lists, in frame order, and its pattern set (any scheme), which a capture
+    rendered from them should record (``simulate_capture(pattern_set=…)``) so that ``scan``
+    decodes it. Any other directory: every PNG in sorted name order, and ``None``.
+
+    Returns
+    -------
+    patterns : (n_frames, Hp, Wp) uint8
+    names : list of str
+    pattern_set : PatternSet or None
+
+    Raises
+    ------
+    ValueError
+        Not a directory, no PNG, images of different sizes, a ``patterns.json`` that is not
+        valid or lists missing files.
+    """
+    from ..io._json import read_json
+    from ..patterns import PatternSet
+
     directory = Path(directory)
     if not directory.is_dir():
         raise ValueError(f"{directory}: not a directory of pattern PNGs")
-    files = sorted(p for p in directory.iterdir() if p.suffix.lower() == ".png")
+    pattern_set = None
+    spec = directory / "patterns.json"
+    if spec.is_file():
+        manifest = read_json(spec)
+        try:
+            pattern_set = PatternSet.from_dict(manifest["pattern_set"])
+            files = [directory / str(frame["file"]) for frame in manifest["frames"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{spec}: not a pattern manifest of nail2nail patterns "
+                             f"({exc})") from exc
+        missing = [f.name for f in files if not f.is_file() or f.parent != directory]
+        if missing or len(files) != pattern_set.n_frames:
+            raise ValueError(f"{spec}: lists {len(files)} frames for a pattern set of "
+                             f"{pattern_set.n_frames}, missing {missing[:3]}")
+    else:
+        files = sorted(p for p in directory.iterdir() if p.suffix.lower() == ".png")
     if not files:
         raise ValueError(f"{directory}: no .png pattern files")
     images = []
@@ -76,7 +121,7 @@ def load_pattern_dir(directory: str | os.PathLike) -> tuple[np.ndarray, list[str
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise ValueError(f"{directory}: pattern images differ in size ({sorted(shapes)})")
-    return np.stack(images), [f.name for f in files]
+    return np.stack(images), [f.name for f in files], pattern_set
 
 
 def _default_patterns():
