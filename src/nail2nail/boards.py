@@ -48,7 +48,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BOARD_KINDS", "Board", "default_board", "detect_board", "to_uint8"]
+__all__ = [
+    "BOARD_KINDS",
+    "Board",
+    "Sheet",
+    "board_sheet",
+    "default_board",
+    "detect_board",
+    "target_wrap_sheet",
+    "to_uint8",
+]
 
 BOARD_KINDS = ("checkerboard", "charuco", "circles", "asymmetric-circles")
 
@@ -739,3 +748,285 @@ def _in_polygon(points, poly):
     rel = points[:, None, :] - poly[None, :, :]
     cross = edges[None, :, 0] * rel[..., 1] - edges[None, :, 1] * rel[..., 0]
     return np.all(cross >= 0, axis=1) | np.all(cross <= 0, axis=1)
+
+
+# -- printable sheets -----------------------------------------------------------------------------
+_INK = "#000000"
+_PAPER = "#ffffff"
+
+
+@dataclass
+class Sheet:
+    """A printable page at true size: primitives in mm, ``x`` right, ``y`` down from top-left.
+
+    Built by :func:`board_sheet` and :func:`target_wrap_sheet`; written by :meth:`save` as SVG
+    (``width="…mm"``, ``viewBox`` in mm) or PDF (matplotlib's PDF backend, page size in inches
+    = mm / 25.4), both at 1:1 scale.
+
+    Attributes
+    ----------
+    width, height : float
+        Page size, mm.
+    items : list of tuple
+        ``("rect", x, y, w, h, colour)``, ``("circle", cx, cy, r, colour)``,
+        ``("line", x0, y0, x1, y1, width, colour)``, ``("text", x, y, size, text, anchor)``
+        (``anchor`` ``start``/``middle``/``end``, ``size`` the font height in mm, ``y`` the
+        baseline), ``("image", x, y, w, h, array (H, W) uint8)``, in drawing order.
+    title : str
+    """
+
+    width: float
+    height: float
+    items: list
+    title: str = ""
+
+    def to_svg(self) -> str:
+        """The page as an SVG document (mm units)."""
+        import base64
+        import io
+        from xml.sax.saxutils import escape
+
+        from PIL import Image
+
+        def f(v):
+            return f"{v:.4f}".rstrip("0").rstrip(".")
+
+        out = ['<?xml version="1.0" encoding="UTF-8"?>',
+               f'<svg xmlns="http://www.w3.org/2000/svg" '
+               f'xmlns:xlink="http://www.w3.org/1999/xlink" width="{f(self.width)}mm" '
+               f'height="{f(self.height)}mm" viewBox="0 0 {f(self.width)} {f(self.height)}">',
+               f"<title>{escape(self.title)}</title>",
+               f'<rect x="0" y="0" width="{f(self.width)}" height="{f(self.height)}" '
+               f'fill="{_PAPER}"/>']
+        for item in self.items:
+            kind = item[0]
+            if kind == "rect":
+                _, x, y, w, h, colour = item
+                out.append(f'<rect x="{f(x)}" y="{f(y)}" width="{f(w)}" height="{f(h)}" '
+                           f'fill="{colour}"/>')
+            elif kind == "circle":
+                _, cx, cy, r, colour = item
+                out.append(f'<circle cx="{f(cx)}" cy="{f(cy)}" r="{f(r)}" fill="{colour}"/>')
+            elif kind == "line":
+                _, x0, y0, x1, y1, width, colour = item
+                out.append(f'<line x1="{f(x0)}" y1="{f(y0)}" x2="{f(x1)}" y2="{f(y1)}" '
+                           f'stroke="{colour}" stroke-width="{f(width)}"/>')
+            elif kind == "text":
+                _, x, y, size, text, anchor = item
+                out.append(f'<text x="{f(x)}" y="{f(y)}" font-family="sans-serif" '
+                           f'font-size="{f(size)}" text-anchor="{anchor}">{escape(text)}</text>')
+            elif kind == "image":
+                _, x, y, w, h, array = item
+                buffer = io.BytesIO()
+                Image.fromarray(np.asarray(array, dtype=np.uint8)).save(buffer, format="PNG")
+                data = base64.b64encode(buffer.getvalue()).decode("ascii")
+                out.append(f'<image x="{f(x)}" y="{f(y)}" width="{f(w)}" height="{f(h)}" '
+                           'preserveAspectRatio="none" style="image-rendering:pixelated" '
+                           f'xlink:href="data:image/png;base64,{data}"/>')
+            else:  # pragma: no cover - built here only
+                raise ValueError(f"sheet: unknown item {kind!r}")
+        out.append("</svg>")
+        return "\n".join(out) + "\n"
+
+    def _pdf(self, path) -> None:
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        from matplotlib.figure import Figure
+        from matplotlib.patches import Circle, Rectangle
+
+        fig = Figure(figsize=(self.width / 25.4, self.height / 25.4))
+        ax = fig.add_axes((0, 0, 1, 1))
+        ax.set_xlim(0, self.width)
+        ax.set_ylim(self.height, 0)
+        ax.set_axis_off()
+        points_per_mm = 72 / 25.4
+        for item in self.items:
+            kind = item[0]
+            if kind == "rect":
+                _, x, y, w, h, colour = item
+                ax.add_patch(Rectangle((x, y), w, h, facecolor=colour, edgecolor="none",
+                                       linewidth=0))
+            elif kind == "circle":
+                _, cx, cy, r, colour = item
+                ax.add_patch(Circle((cx, cy), r, facecolor=colour, edgecolor="none",
+                                    linewidth=0))
+            elif kind == "line":
+                _, x0, y0, x1, y1, width, colour = item
+                ax.plot([x0, x1], [y0, y1], color=colour, linewidth=width * points_per_mm,
+                        solid_capstyle="butt")
+            elif kind == "text":
+                _, x, y, size, text, anchor = item
+                ha = {"start": "left", "middle": "center", "end": "right"}[anchor]
+                ax.text(x, y, text, fontsize=size * points_per_mm, ha=ha,
+                        va="baseline", family="sans-serif")
+            elif kind == "image":
+                _, x, y, w, h, array = item
+                ax.imshow(array, cmap="gray", vmin=0, vmax=255, extent=(x, x + w, y + h, y),
+                          interpolation="nearest", resample=False)
+        ax.set_xlim(0, self.width)
+        ax.set_ylim(self.height, 0)
+        fig.savefig(path, format="pdf")
+
+    def save(self, path) -> None:
+        """Write the page as ``.svg`` or ``.pdf`` (by the suffix), atomically, at 1:1 scale."""
+        from pathlib import Path
+
+        from .io._atomic import atomic_path
+
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".svg", ".pdf"):
+            raise ValueError(f"{path}: expected a .svg or .pdf file name")
+        with atomic_path(path) as tmp:
+            if suffix == ".svg":
+                tmp.write_text(self.to_svg(), encoding="utf-8")
+            else:
+                self._pdf(tmp)
+
+
+def _scale_bar(items, x, y, length=50.0):
+    """A `length` mm bar with 10 mm ticks, its label above, its top-left at ``(x, y)``."""
+    items.append(("rect", x, y + 2.5, length, 0.6, _INK))
+    for k in range(int(length // 10) + 1):
+        items.append(("line", x + 10 * k, y + 1.0, x + 10 * k, y + 3.1, 0.3, _INK))
+    items.append(("text", x, y + 6.4, 2.4,
+                  f"scale check: this bar is {length:g} mm long; print at 100 % (no fit to page)",
+                  "start"))
+
+
+def board_sheet(board: Board, *, page_margin: float = 10.0) -> Sheet:
+    """The printable page of a board: the board at true size, its dimensions, a 50 mm bar.
+
+    The board's sheet (pattern plus its white margin, :meth:`Board.extent`) is drawn with a
+    thin grey cut line around it; below it the kind, rows and columns (and what they count),
+    spacing, marker, overall size and OpenCV pattern size, and a 50 mm scale bar to check the
+    printer's scaling. Checkerboards and circle grids are vector drawings; a ChArUco board is
+    the raster of ``cv2.aruco.CharucoBoard.generateImage`` (whole pixels per marker bit not
+    guaranteed: at least 40 px/mm, drawn without smoothing).
+    """
+    x0, x1, y0, y1 = board.extent()
+    width, height = board.size_mm
+    text_block = 40.0
+    page_w = max(width, 170.0) + 2 * page_margin
+    page_h = height + 2 * page_margin + text_block
+    ox = page_margin + (page_w - 2 * page_margin - width) / 2 - x0  # board x -> page x
+    oy = page_margin - y0
+    items: list = []
+    grey = "#b0b0b0"
+    for a, b, c, d in ((x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)):
+        items.append(("line", ox + a, oy + b, ox + c, oy + d, 0.1, grey))
+    s = float(board.spacing)
+    if board.kind == "checkerboard":
+        for i in range(board.rows):
+            for j in range(board.cols):
+                if (i + j) % 2 == 0:
+                    items.append(("rect", ox + j * s, oy + i * s, s, s, _INK))
+    elif board.kind == "charuco":
+        raster, _ = _charuco_raster(board)
+        items.append(("image", ox, oy, board.cols * s, board.rows * s, raster))
+    else:
+        for x, y, _ in board.object_points():
+            items.append(("circle", ox + x, oy + y, board.marker_mm / 2, _INK))
+    counts = {"checkerboard": "squares", "charuco": "squares", "circles": "circles",
+              "asymmetric-circles": "circles (cols per row)"}[board.kind]
+    spacing_is = {"checkerboard": "square side", "charuco": "square side",
+                  "circles": "centre spacing",
+                  "asymmetric-circles": "row spacing; circles in a row 2 x apart"}[board.kind]
+    lines = [f"nail2nail {board.kind} board: --rows {board.rows} --cols {board.cols} "
+             f"({counts}) --spacing {s:g} mm ({spacing_is})"]
+    if board.kind == "charuco":
+        lines.append(f"marker side {board.marker_mm:g} mm, dictionary {board.dictionary}")
+    elif board.kind != "checkerboard":
+        lines.append(f"circle diameter {board.marker_mm:g} mm, dark circles on white")
+    lines.append(f"overall {width:g} x {height:g} mm (margin {board.margin_mm:g} mm); "
+                 f"OpenCV pattern size {board.pattern_size[0]} x {board.pattern_size[1]}")
+    lines.append("board frame: origin at the top-left of the pattern, x right, y down; "
+                 "keep the sheet flat")
+    ty = page_margin + height + 7.0
+    for k, line in enumerate(lines):
+        items.append(("text", page_margin, ty + 4.2 * k, 2.6, line, "start"))
+    _scale_bar(items, page_margin, ty + 4.2 * len(lines) + 1.0)
+    return Sheet(page_w, page_h, items, title=lines[0])
+
+
+def target_wrap_sheet(geometry=None, *, page_margin: float = 10.0) -> Sheet:
+    """The printable wrap of the cylindrical calibration target (:class:`TargetGeometry`).
+
+    The cylinder's surface unrolled: ``2π · radius`` wide (the seam at the back, ``θ = ±180°``;
+    the middle of the sheet faces ``+Z``, the centre camera, and ``θ`` grows to the right as
+    seen from the front, towards ``+X``) and as tall as the cylinder's extent ``y_range`` (world
+    ``Y`` up the sheet). Marks are **bright on dark**: the wrap is black, the marks white discs
+    of `mark_diameter` (arc length on the surface = diameter on the sheet) at arc length
+    ``radius · θ`` of their column and at their row's ``Y``; the key mark a ring (outer and
+    inner diameters). Ticks and labels outside the wrap give the column angles and row
+    heights; text below gives every dimension and a 50 mm scale bar.
+    """
+    from .markers import TargetGeometry
+
+    g = geometry or TargetGeometry()
+    r = float(g.radius)
+    width = 2 * np.pi * r
+    y_lo, y_hi = (float(v) for v in g.y_range)
+    height = y_hi - y_lo
+    top = page_margin + 8.0  # room for the column labels
+    left = page_margin + 12.0  # and the row labels
+    page_w = max(width + left + page_margin, 190.0)
+    text_block = 70.0
+    page_h = top + height + 8.0 + text_block
+
+    def sheet_x(theta_deg):
+        return left + width / 2 + r * np.radians(theta_deg)
+
+    def sheet_y(y):
+        return top + (y_hi - y)
+
+    items: list = [("rect", left, top, width, height, _INK)]
+    for i, y in enumerate(g.row_y):
+        for j, theta in enumerate(g.column_angles_deg):
+            cx, cy = sheet_x(theta), sheet_y(y)
+            if (i, j) == tuple(g.key):
+                items.append(("circle", cx, cy, g.key_outer_diameter / 2, _PAPER))
+                items.append(("circle", cx, cy, g.key_inner_diameter / 2, _INK))
+            else:
+                items.append(("circle", cx, cy, g.mark_diameter / 2, _PAPER))
+    for j, theta in enumerate(g.column_angles_deg):
+        x = sheet_x(theta)
+        items.append(("line", x, top - 2.5, x, top - 0.5, 0.2, _INK))
+        items.append(("line", x, top + height + 0.5, x, top + height + 2.5, 0.2, _INK))
+        items.append(("text", x, top - 3.2, 1.8, f"{j}", "middle"))
+        items.append(("text", x, top + height + 4.6, 1.8, f"{j}", "middle"))
+    for i, y in enumerate(g.row_y):
+        yy = sheet_y(y)
+        items.append(("line", left - 2.5, yy, left - 0.5, yy, 0.2, _INK))
+        items.append(("text", left - 3.0, yy + 0.7, 1.8, f"Y {y:+.2f}", "end"))
+        items.append(("text", left + width + 1.0, yy + 0.7, 1.8, f"row {i}", "start"))
+    items.append(("text", left - 1.0, top - 3.2, 1.8, "column", "end"))
+    for theta, label in ((-180.0, "seam"), (0.0, "+Z (centre camera)"), (180.0, "seam")):
+        x = sheet_x(theta)
+        items.append(("line", x, top + height + 0.5, x, top + height + 6.5, 0.2, "#808080"))
+        items.append(("text", x, top + height + 9.0, 1.8, label, "middle"))
+    key_row, key_col = g.key
+    pitch = r * np.radians(g.column_angles_deg[1] - g.column_angles_deg[0])
+    lines = [
+        f"nail2nail cylinder calibration target wrap: radius {r:g} mm, circumference "
+        f"{width:.3f} mm (= the wrap's width),",
+        f"height {height:g} mm (the cylinder's extent: Y {y_lo:g} to {y_hi:g} mm)",
+        f"marks: bright (white) discs of {g.mark_diameter:g} mm diameter (arc length on the "
+        "cylinder) on a dark (black) cylinder;",
+        "dark marks on a light cylinder are not found",
+        f"rows 0-{g.n_rows - 1}: Y = {', '.join(f'{y:g}' for y in g.row_y)} mm",
+        f"columns 0-{g.n_cols - 1}: {', '.join(f'{t:.2f}' for t in g.column_angles_deg)} deg "
+        f"from +Z towards +X (arc {pitch:.3f} mm apart)",
+        f"key mark: a ring at row {key_row}, column {key_col} (Y {g.row_y[key_row]:g} mm, "
+        f"{g.column_angles_deg[key_col]:+.2f} deg): outer diameter {g.key_outer_diameter:g} mm, "
+        f"hole {g.key_inner_diameter:g} mm",
+        "wrap printed side out on a cylinder of exactly this radius, seam at the back, Y up;",
+        "the middle of the wrap faces the centre camera (world +Z), its axis is world Y",
+        "matte paper or print; marks must stay sharp and bright under the projector",
+    ]
+    ty = top + height + 16.0
+    for k, line in enumerate(lines):
+        items.append(("text", page_margin, ty + 4.0 * k, 2.4, line, "start"))
+    _scale_bar(items, page_margin, ty + 4.0 * len(lines) + 1.0)
+    return Sheet(page_w, page_h, items, title=lines[0])

@@ -277,7 +277,8 @@ def find_target_marks(
     mask = ndi.binary_opening(mask, iterations=1)
     labels, n = ndi.label(mask)
     if n == 0:
-        raise ValueError("image: no bright marks found")
+        raise ValueError("image: no bright marks found (the marks must be bright discs on a "
+                         "darker cylinder)")
     index = np.arange(1, n + 1)
     filled = ndi.binary_fill_holes(mask)
     filled_labels, _ = ndi.label(filled)
@@ -307,7 +308,11 @@ def find_target_marks(
         & (width >= min_aspect * height) & (width <= 1.3 * height) & ~touches
     )
     if not np.any(keep):
-        raise ValueError("image: no mark of the expected size found")
+        raise ValueError(
+            f"image: no mark of the expected size ({d:.1f} px across) found; the marks must be "
+            "bright (white) discs on a darker cylinder (dark marks are not found), and "
+            "mark_diameter_px (nail2nail calibrate --mark-diameter-px) their approximate image "
+            "diameter")
     cx, cy, width, height, hole_fraction, region = (
         a[keep] for a in (cx, cy, width, height, hole_fraction, index)
     )

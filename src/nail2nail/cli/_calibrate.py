@@ -45,6 +45,9 @@ def add_parser(sub) -> None:
     p.add_argument("--model", choices=["dlt", "joint"], default="dlt",
                    help="capture only: per-camera DLT (thesis) or joint pinhole calibration "
                    "with one shared, distorted projector (default: dlt)")
+    p.add_argument("--mark-diameter-px", type=float, metavar="PX",
+                   help="capture only: approximate image diameter of a plain 1.2 mm mark, px "
+                   "(default: from the nominal rig in capture.json; required without one)")
     p.add_argument("--allow-mirrored", action="store_true",
                    help="accept a mirrored camera (a flipped image or a left-handed pose; "
                    "refused by default: its scans would be mirrored)")
@@ -100,6 +103,9 @@ def format_table(report, table) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.mark_diameter_px is not None and not args.mark_diameter_px > 2:
+        raise ValueError(f"--mark-diameter-px: expected a diameter > 2 px, got "
+                         f"{args.mark_diameter_px:g}")
     if args.source.is_dir():
         from ._calibrate_capture import run_capture
 

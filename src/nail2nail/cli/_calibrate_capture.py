@@ -23,10 +23,18 @@ def run_capture(args: argparse.Namespace) -> int:
     if args.output is None:
         raise ValueError("calibrate CAPTURE_DIR: give the calibration file to write with -o")
     capture = read_capture(args.source)
+    diameter = getattr(args, "mark_diameter_px", None)
+    if diameter is None and "rig" not in capture.manifest:
+        raise ValueError(
+            f"{args.source / 'capture.json'}: no nominal 'rig', so the marks' size in the images "
+            "is unknown: give --mark-diameter-px PX (the image diameter of a 1.2 mm mark, about "
+            "focal length in px x 1.2 / distance to the target in mm) or add a nominal 'rig' "
+            "(docs/capture-format.md)")
     joint = args.model == "joint"
     # the joint model predicts each mark's projected disc on the cylinder: it takes the marks
     # re-measured against their local background (unbiased centroids)
-    observations = target_observations(capture, progress=not args.json, refine_marks=joint)
+    observations = target_observations(capture, progress=not args.json, refine_marks=joint,
+                                       mark_diameter_px=diameter)
     surface = TargetGeometry().signed_distance if joint else None
     calib, summary = calibrate_from_observations(
         observations, model=args.model, method=args.method, use=args.use, surface=surface,

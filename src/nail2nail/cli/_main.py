@@ -33,6 +33,7 @@ COMMANDS = [
     "import_calibration",
     "crosscheck",
     "simulate",
+    "print_target",
     "patterns",
     "scan",
     "distortion",
