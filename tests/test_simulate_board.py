@@ -105,7 +105,7 @@ def test_simulate_board_poses_detected(tmp_path, capsys):
                  "--cols", "8", "--spacing", "2.5", "--poses", "2", "--scale", "0.5",
                  "--out", str(out)]) == 0
     assert "2 captures" in capsys.readouterr().out
-    summary = json.loads((out / "poses.json").read_text())
+    summary = json.loads((out / "board-poses.json").read_text())
     board = Board.from_dict(summary["board"])
     assert [p["capture"] for p in summary["poses"]] == ["pose00", "pose01"]
     errors = []

@@ -62,7 +62,7 @@ def add_parser(sub) -> None:
                        "camera, and the sheet centre in world mm (default 0 0 0 0 3.175 0)")
     board.add_argument("--poses", type=int, metavar="N",
                        help="write N captures of the board at well-spread poses as "
-                       "OUT/pose00 ... OUT/poseNN and OUT/poses.json")
+                       "OUT/pose00 ... OUT/poseNN and OUT/board-poses.json")
     p.add_argument("--no-truth", action="store_true", help="do not write truth/")
     p.add_argument("--json", action="store_true", help="print the manifest summary as JSON")
     p.set_defaults(func=run)
@@ -177,5 +177,5 @@ def _run_poses(args, board, rig, patterns, names, start) -> int:
         b = summary["board"]
         print(f"wrote {args.out}: {len(summary['poses'])} captures of a {b['kind']} board "
               f"({b['rows']} x {b['cols']}, {b['spacing']:g} mm) at pose00 ... "
-              f"pose{len(summary['poses']) - 1:02d}, poses.json in {elapsed:.1f} s")
+              f"pose{len(summary['poses']) - 1:02d}, board-poses.json in {elapsed:.1f} s")
     return 0

@@ -213,10 +213,11 @@ def simulate_board_captures(
     Each ``poseKK`` is a normal capture directory (``docs/capture-format.md``: frames of the
     pattern set, ``capture.json`` with the rig and, in ``scene``, the board and its pose
     ``R_world_board``, ``t_world_board``; ``truth/`` with the ideal calibration and per
-    camera the board coordinates ``param_x``, ``param_y`` of every pixel). ``OUT/poses.json``
-    lists them (board, rig, poses). `OUT` is written as a whole
-    (:func:`nail2nail.io._atomic.atomic_directory`, marker ``poses.json``). Pose ``k`` renders
-    with noise seed ``seed + k``.
+    camera the board coordinates ``param_x``, ``param_y`` of every pixel).
+    ``OUT/board-poses.json`` lists them (board, rig, poses; not named ``pose…`` so that
+    ``OUT/pose*`` lists the captures only). `OUT` is written as a whole
+    (:func:`nail2nail.io._atomic.atomic_directory`, marker ``board-poses.json``). Pose ``k``
+    renders with noise seed ``seed + k``.
 
     Parameters
     ----------
@@ -235,20 +236,20 @@ def simulate_board_captures(
     Returns
     -------
     dict
-        The content of ``poses.json``.
+        The content of ``board-poses.json``.
     """
     from ..io._atomic import atomic_directory, check_output_directory
     from ..io._json import write_json
     from .capture import _configure_rig, simulate, write_capture
     from .scenes import make_scene
 
-    check_output_directory(out_dir, marker="poses.json")
+    check_output_directory(out_dir, marker="board-poses.json")
     rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
     board = board or _default_board()
     if poses is None:
         poses = board_poses(n, rig, board=board, seed=seed)
     entries = []
-    with atomic_directory(out_dir, marker="poses.json") as tmp:
+    with atomic_directory(out_dir, marker="board-poses.json") as tmp:
         for k, pose in enumerate(poses):
             scene = make_scene("board", rig=rig, board=board, pose=tuple(pose))
             sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set,
@@ -264,5 +265,5 @@ def simulate_board_captures(
         summary = {"format": "nail2nail-board-poses", "version": 1,
                    "created_by": "nail2nail simulate", "board": board.to_dict(),
                    "rig": rig.to_dict(), "seed": seed, "poses": entries}
-        write_json(Path(tmp) / "poses.json", summary)
+        write_json(Path(tmp) / "board-poses.json", summary)
     return summary
