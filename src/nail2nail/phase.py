@@ -30,7 +30,9 @@ could), ``xp``, ``yp`` within one float32 step (6.1e-5 px below 1024 px, 1.2e-4 
 kernel's arctangent is exact to 1.5e-7 rad), points within 1e-6 mm of the float64 reference
 triangulation of the same coordinates.
 
-Validity: per pixel, the amplitude of every frequency (:data:`LOW_MODULATION`), saturation,
+Validity: per pixel, the amplitude of the finest frequency (``min_modulation``) and of the
+coarser, unwrap-only ones (``cue_modulation``, by default the same) (:data:`LOW_MODULATION`),
+saturation,
 shadow, the unwrapping residual and the panel extent; then two neighbourhood checks:
 :data:`EDGE` (``erode``: pixels next to invalid ones, whose blurred signal mixes two surfaces or
 surface and background) and, optionally, :data:`STEEP` (``max_gradient``). On the virtual
