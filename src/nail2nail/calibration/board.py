@@ -373,9 +373,10 @@ def calibrate_board(
         ``(k1, k2, p1, p2, k3)``. The scanner's cameras see a narrow field (about 12°), where
         higher terms are not determined by a board and trade off with the principal point.
     outlier_sigma : float
-        Residuals beyond this many robust standard deviations (1.4826 × the median absolute
-        residual, per device) are dropped after a first fit, which is then repeated;
-        ``inf`` keeps every point.
+        After a first fit, each group of points (a camera's, and the projector's measured
+        through each camera) is weighted by the inverse of its noise (estimated robustly from
+        the residuals: median ``|r|`` / 1.1774 per coordinate), points beyond `outlier_sigma`
+        times it are dropped and the fit is repeated; ``inf`` keeps every point.
 
     Returns
     -------
@@ -505,7 +506,8 @@ def calibrate_board(
             meas.append(xy[ok])
             cam.append(np.full(ok.sum(), names.index(v.camera)))
         blocks.append({"device": dev, "pose": np.concatenate(pi), "xyz": obj[np.concatenate(ids)],
-                       "meas": np.concatenate(meas), "camera": np.concatenate(cam)})
+                       "meas": np.concatenate(meas), "camera": np.concatenate(cam),
+                       "weight": np.ones(sum(len(p) for p in pi))})
 
     def unpack(x):
         R_wb = np.repeat(np.eye(3)[None], len(poses), axis=0)
@@ -543,7 +545,8 @@ def calibrate_board(
 
     def residuals(x, blocks):
         R_wb, t_wb, dev_pose = unpack(x)
-        return np.concatenate([block_residuals(x, b, R_wb, t_wb, dev_pose).ravel()
+        return np.concatenate([(b["weight"][:, None] * block_residuals(x, b, R_wb, t_wb,
+                                                                       dev_pose)).ravel()
                                for b in blocks])
 
     def solve(x_start, blocks):
@@ -555,20 +558,26 @@ def calibrate_board(
                              args=(blocks,)).x
 
     x = solve(x0, blocks)
+    # second pass: each group of points (a camera's; the projector's through each camera) is
+    # weighted by 1 / its noise, estimated from the first fit's residuals (the projector
+    # points through an oblique camera carry its detection error times the steep fringe
+    # gradient), and outliers are dropped
+    R_wb, t_wb, dev_pose = unpack(x)
     dropped = 0
-    if np.isfinite(outlier_sigma):
-        R_wb, t_wb, dev_pose = unpack(x)
-        kept_blocks = []
-        for b in blocks:
-            r = np.hypot(*block_residuals(x, b, R_wb, t_wb, dev_pose).T)
-            sigma = 1.4826 * np.median(r) * np.sqrt(2)  # |residual| of a 2D Gaussian
-            keep = r <= outlier_sigma * max(sigma, 1e-9)
-            dropped += int((~keep).sum())
-            kept_blocks.append({k: (v[keep] if isinstance(v, np.ndarray) else v)
-                                for k, v in b.items()})
-        if dropped:
-            blocks = kept_blocks
-            x = solve(x, blocks)
+    for i, b in enumerate(blocks):
+        r = np.hypot(*block_residuals(x, b, R_wb, t_wb, dev_pose).T)
+        keep = np.ones(len(r), dtype=bool)
+        weight = np.ones(len(r))
+        for cam in np.unique(b["camera"]):
+            group = b["camera"] == cam
+            # per-coordinate sigma: the median of |r| of a 2D Gaussian is 1.1774 sigma
+            sigma = max(float(np.median(r[group])) / 1.1774, 1e-6)
+            weight[group] = 1.0 / sigma
+            keep[group] = r[group] <= outlier_sigma * sigma
+        dropped += int((~keep).sum())
+        blocks[i] = {**{k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in b.items()},
+                     "weight": weight[keep] / np.median(weight)}
+    x = solve(x, blocks)
 
     # results
     R_wb, t_wb, dev_pose = unpack(x)

@@ -165,7 +165,7 @@ def _white_frame(pattern_set) -> int | None:
     return None
 
 
-def board_views(capture_dirs, board, *, window_px: float | None = None,
+def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px: int = 3,
                 decode_options: dict | None = None, progress: bool = False) -> BoardCaptures:
     """Detect the board and measure its projector points in every camera of every pose.
 
@@ -177,7 +177,7 @@ def board_views(capture_dirs, board, *, window_px: float | None = None,
     board : nail2nail.boards.Board
     window_px : float, optional
         Half-size of the local homography's window (:func:`projector_points`), camera px; by
-        default the board's spacing in the image (at least 8 px).
+        default half the board's spacing in the image (at least 8 px).
     decode_options : dict, optional
         Passed to :func:`nail2nail.phase.decode`.
     progress : bool
@@ -251,11 +251,26 @@ def board_views(capture_dirs, board, *, window_px: float | None = None,
                 # px per mm at the board's centre: the square root of the local area ratio
                 centre = object_xy[ids].mean(axis=0)
                 J = _homography_jacobian(hom, centre)
-                half = max(8.0, board.spacing * np.sqrt(abs(np.linalg.det(J))))
-            xy_p = projector_points(xy, decoded.xp, decoded.yp, decoded.mask, window_px=half)
+                half = max(8.0, 0.5 * board.spacing * np.sqrt(abs(np.linalg.det(J))))
+            mask = decoded.mask
+            if edge_px:
+                mask = mask & ~_near_dark(decoded.albedo, edge_px)
+            xy_p = projector_points(xy, decoded.xp, decoded.yp, mask, window_px=half)
             views.append(BoardView(name, k, ids, xy, xy_p))
     return BoardCaptures(views=views, camera_sizes=sizes, projector_size=projector_size,
                          poses=poses, refused=refused)
+
+
+def _near_dark(albedo: np.ndarray, distance_px: int) -> np.ndarray:
+    """Pixels within `distance_px` of one darker than half its neighbourhood's white level
+    (the board's ink): there the camera's blur mixes the ink's weak fringes into the paper's
+    and biases the decoded phase along its gradient."""
+    from scipy import ndimage
+
+    albedo = np.nan_to_num(np.asarray(albedo, dtype=np.float32))
+    white = ndimage.maximum_filter(albedo, size=4 * distance_px + 9)
+    dark = albedo < 0.5 * white
+    return ndimage.binary_dilation(dark, iterations=int(distance_px))
 
 
 def _homography_jacobian(hom: np.ndarray, xy: np.ndarray) -> np.ndarray:
