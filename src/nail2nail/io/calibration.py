@@ -9,6 +9,10 @@ Format (``docs/capture-format.md``)::
 ``MODEL`` is ``{"model": "dlt", "matrix": [[...] x3], "size": [W, H]}`` (thesis eq. 3.3/3.6) or
 ``{"model": "pinhole", "K": ..., "dist": [k1, k2, p1, p2, k3], "R": ..., "t": ..., "size": ...}``
 (OpenCV). With DLT models each camera carries its own projector matrix, as in the thesis.
+The world frame is the file's own, any rigid frame (a camera's own included: pinhole models
+are used through :func:`nail2nail.camera_models.projection_matrix`, never normalised to
+``m34 = 1``). OpenCV ``FileStorage`` files (SLStudio, ``stereo_calib``) are read and written by
+:mod:`nail2nail.io.opencv_calibration`.
 """
 
 from __future__ import annotations
