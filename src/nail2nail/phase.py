@@ -32,8 +32,7 @@ triangulation of the same coordinates.
 
 Validity: per pixel, the amplitude of the finest frequency (``min_modulation``) and of the
 coarser, unwrap-only ones (``cue_modulation``, by default the same) (:data:`LOW_MODULATION`),
-saturation,
-shadow, the unwrapping residual and the panel extent; then two neighbourhood checks:
+saturation, shadow, the unwrapping residual and the panel extent; then two neighbourhood checks:
 :data:`EDGE` (``erode``: pixels next to invalid ones, whose blurred signal mixes two surfaces or
 surface and background) and, optionally, :data:`STEEP` (``max_gradient``). On the virtual
 scanner's finger (full scale, default noise, projector distortion off) the default set decodes
