@@ -135,12 +135,16 @@ def scan_frames(
         out when the patterns were pre-distorted.
     use : {"xpyp", "yp", "xp"}
         Projector coordinates used for triangulation
-        (:func:`~nail2nail.reconstruction.reconstruct_image`).
+        (:func:`~nail2nail.reconstruction.reconstruct_image`). A pattern set of one direction
+        takes ``use`` of that direction; with a projector distortion model or lens distortion
+        its points are solved on the camera ray
+        (:func:`~nail2nail.reconstruction.reconstruct_points_one_coordinate`), by both methods.
     method : {"numba", "numpy"}
-        The fused kernel, or the NumPy reference.
+        The fused kernel, or the NumPy reference. The kernel decodes PMP only: the Gray-code
+        schemes (:mod:`nail2nail.gray_code`) are scanned by the NumPy reference either way.
     **decode_options
-        Passed to :func:`nail2nail.phase.decode` (``min_modulation``, ``min_albedo``,
-        ``saturation``, ``unwrap_tolerance``, ``erode``, ``max_gradient``).
+        Passed to :func:`nail2nail.phase.decode` (``min_modulation``, ``cue_modulation``,
+        ``min_albedo``, ``saturation``, ``unwrap_tolerance``, ``erode``, ``max_gradient``).
 
     Returns
     -------
@@ -151,8 +155,8 @@ def scan_frames(
     Raises
     ------
     ValueError
-        Naming the camera: one projector direction where both are needed, or no valid pixel;
-        an unknown `use` or `method`, a bad decode option.
+        Naming the camera: one projector direction with ``use="xpyp"`` or a `use` of the other
+        direction, or no valid pixel; an unknown `use` or `method`, a bad decode option.
     """
     frames = _check_frames(frames, pattern_set)
     return _scan(frames, pattern_set, camera, projector_distortion=projector_distortion, use=use,
