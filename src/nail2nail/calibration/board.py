@@ -3,10 +3,11 @@
 Each pose of the board is a capture with the usual phase patterns. In every camera the board's
 features (corners or circle centres) are detected on the all-lit image (or the decoded mean
 intensity), and the projector coordinates of each feature are read off the decoded ``(xp, yp)``
-through a **local homography** fitted on the decoded pixels around it: the board is flat, so
-near a feature the camera-to-projector map is a homography, and a least-squares fit over many
-pixels gives the projector point of the feature to a fraction of the decoding noise (Moreno &
-Taubin 2012). The projector is then calibrated as an inverse camera on those points.
+through a **local homography** fitted on the decoded pixels around it
+(:mod:`nail2nail.calibration.observe`): the board is flat, so near a feature the
+camera-to-projector map is a homography, and a least-squares fit over many pixels gives the
+projector point of the feature to a fraction of the decoding noise (Moreno & Taubin 2012). The
+projector is then calibrated as an inverse camera on those points.
 
 Steps (:func:`calibrate_board`):
 
@@ -14,13 +15,16 @@ Steps (:func:`calibrate_board`):
    views: intrinsics, OpenCV distortion and the pose of the board in each view;
 2. the rig: every device's pose in the world frame (a camera's frame, or the board's frame in
    a pose) from the per-view board poses, chained through the poses the devices share and
-   averaged (rotation mean);
+   averaged (rotation mean): what ``cv2.stereoCalibrate`` does per pair, for all devices at
+   once and without needing one camera to see every pose;
 3. a joint bundle adjustment (``scipy.optimize.least_squares``, Levenberg–Marquardt) of all
    intrinsics, distortions, device poses and board poses on the camera residuals (camera px)
    and projector residuals (panel px), the projector with OpenCV's distortion or the thesis's
    radial model (eq. 3.34; centre tied to the principal point, as
-   :func:`nail2nail.calibration.calibrate_rig_joint`); points left far off (beyond 5 robust
-   standard deviations) are dropped and the fit repeated once.
+   :func:`nail2nail.calibration.calibrate_rig_joint`); after a first fit each group of points
+   (a camera's, the projector's through each camera) is weighted by the inverse of its noise
+   estimated from the residuals, points beyond 5 of those standard deviations are dropped and
+   the fit is repeated.
 
 The result is a :class:`BoardCalibration` whose :meth:`~BoardCalibration.rig_calibration` is a
 :class:`nail2nail.io.calibration.RigCalibration` of pinhole models (the same projector for
@@ -132,7 +136,7 @@ class BoardCalibration:
     pose_rms_px : dict of int to dict
         Per pose: ``{"camera": {name: rms}, "projector": rms}``, px.
     views_used, views_refused : list of (str, int)
-        ``(camera, pose)`` of the views fitted, and of those refused (too few features);
+        ``(camera, pose)`` of the views fitted, and of those refused (too few features).
     points_dropped : int
         Residual outliers dropped before the final fit.
     world : str
