@@ -76,12 +76,14 @@ def test_thresholds_reach_the_decoder(captures, tmp_path):
     """Each CLI threshold gives the library's result with the same option."""
     capture = captures / "finger12"
     calib = RigCalibration.from_dict(json.loads((captures / "rig.json").read_text()))
-    options = {"min_modulation": 0.05, "min_albedo": 0.05, "saturation": 0.9,
+    options = {"min_modulation": 0.05, "cue_modulation": 0.04, "min_albedo": 0.05,
+               "saturation": 0.9,
                "unwrap_tolerance": 2 * math.pi * 0.2, "erode": 2}
     want = scan_capture(read_capture(capture, load=False), calib, **options)
     out = tmp_path / "scan"
     assert main(["scan", str(capture), "--calib", str(captures / "rig.json"), "--out", str(out),
-                 "--no-mat5", "--no-ply", "--min-modulation", "0.05", "--min-albedo", "0.05",
+                 "--no-mat5", "--no-ply", "--min-modulation", "0.05", "--cue-modulation",
+                 "0.04", "--min-albedo", "0.05",
                  "--saturation", "0.9", "--unwrap-tolerance", "0.2", "--erode", "2",
                  "--json"]) == 0
     got = load_scans(out)
@@ -132,6 +134,7 @@ def test_user_mask_drops_pixels_of_one_camera(captures, tmp_path, capsys):
     (["--saturation", "1.5"], "--saturation"),
     (["--min-albedo", "nan"], "--min-albedo"),
     (["--erode", "-1"], "--erode"),
+    (["--cue-modulation", "-0.1"], "--cue-modulation"),
     (["--min-albedo", "0.99"], "0 valid pixels"),
 ])
 def test_bad_options_exit_2_and_write_nothing(captures, tmp_path, monkeypatch, capsys, args,

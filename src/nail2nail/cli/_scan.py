@@ -29,6 +29,10 @@ def add_scan_options(p) -> None:
                    help="smallest accepted fringe amplitude B of the phase frequencies, fraction "
                    "of full scale (default 0.03 = 7.7 grey levels of 8-bit amplitude; the phase "
                    "noise is sqrt(2/N) * noise / B for N steps)")
+    g.add_argument("--cue-modulation", type=float, default=None,
+                   help="smallest accepted amplitude of the coarser frequencies that only unwrap "
+                   "(e.g. a 1-period cue) and of Gray-code bits' contrast, fraction of full "
+                   "scale (default: --min-modulation)")
     g.add_argument("--min-albedo", type=float, default=0.02,
                    help="smallest accepted mean intensity over all frames, fraction of full "
                    "scale: darker pixels are shadow (default 0.02)")
@@ -119,6 +123,10 @@ def decode_options(args: argparse.Namespace) -> dict:
         if not math.isfinite(value) or value < 0:
             raise ValueError(f"--{name.replace('_', '-')}: expected a finite number >= 0, "
                              f"got {value}")
+    if args.cue_modulation is not None and not (math.isfinite(args.cue_modulation)
+                                                and args.cue_modulation >= 0):
+        raise ValueError(f"--cue-modulation: expected a finite number >= 0, got "
+                         f"{args.cue_modulation}")
     if not 0 < args.saturation <= 1:
         raise ValueError(f"--saturation: expected a fraction of full scale in (0, 1], got "
                          f"{args.saturation}")
@@ -127,7 +135,8 @@ def decode_options(args: argparse.Namespace) -> dict:
                          f"{args.unwrap_tolerance}")
     if args.erode < 0:
         raise ValueError(f"--erode: expected a number of pixels >= 0, got {args.erode}")
-    return {"min_modulation": args.min_modulation, "min_albedo": args.min_albedo,
+    return {"min_modulation": args.min_modulation, "cue_modulation": args.cue_modulation,
+            "min_albedo": args.min_albedo,
             "saturation": args.saturation, "unwrap_tolerance": 2 * math.pi * args.unwrap_tolerance,
             "erode": args.erode}
 
