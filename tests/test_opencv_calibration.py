@@ -168,6 +168,13 @@ def test_export_of_dlt_matrices_decomposes_them_with_a_warning(tmp_path):
         assert np.allclose(a.camera.K, b.camera.K, rtol=1e-9)
         assert np.allclose(a.camera.R, b.camera.R, atol=1e-9)
         assert np.allclose(a.camera.t, b.camera.t, atol=1e-7)
+    with pytest.warns(UserWarning) as caught:
+        notes = write_opencv_calibration(tmp_path / "guess.yml", dlt)
+    assert any("projector size not known for a DLT projector: 1280 x 1040 written"
+               in str(w.message) for w in caught)
+    assert sum("projector size" in note for note in notes) == 1  # said once, not per camera
+    assert read_opencv_calibration(tmp_path / "guess.yml").cameras[0].projector.size == (1280,
+                                                                                          1040)
     with pytest.raises(ValueError, match="holds one camera: give the camera"):
         write_opencv_calibration(tmp_path / "one.xml", calib, layout="slstudio")
 

@@ -510,13 +510,14 @@ def write_opencv_calibration(
     notes: list[str] = []
     panel = _DEFAULT_PANEL if projector_size is None else tuple(int(v) for v in projector_size)
     models = []
+    guessed = False  # a DLT projector's panel size: the default, said once
     for cam in calibration.cameras:
         cam_size = cam.size or (cam.camera.size if isinstance(cam.camera, Pinhole) else None)
         if cam_size is None:
             raise ValueError(f"calibration: camera {cam.name!r} is a DLT matrix without an "
                              "image size: the pinhole model needs one")
-        if (not isinstance(cam.projector, Pinhole) and projector_size is None
-                and "projector size" not in " ".join(notes)):
+        if not isinstance(cam.projector, Pinhole) and projector_size is None and not guessed:
+            guessed = True
             notes.append(f"projector size not known for a DLT projector: {panel[0]} x "
                          f"{panel[1]} written (give the projector size)")
         models.append((cam.name,
