@@ -190,3 +190,18 @@ def test_board_dict_round_trip():
         assert again.size_mm == board.size_mm and again.marker_mm == board.marker_mm
     with pytest.raises(TypeError, match="rows"):
         Board("circles", rows=4.5, cols=5, spacing=1.0)
+
+
+@pytest.mark.parametrize("kind", BOARD_KINDS)
+def test_albedo_footprint_per_point(kind):
+    """A footprint per point gives what each footprint alone gives."""
+    board = BOARDS[kind]
+    rng = np.random.default_rng(2)
+    x = rng.uniform(-1, 20, 200)
+    y = rng.uniform(-1, 14, 200)
+    widths = rng.choice([0.0, 0.02, 0.08], 200)
+    each = np.array([board.albedo(a, b, footprint=w) for a, b, w in zip(x, y, widths,
+                                                                           strict=True)])
+    np.testing.assert_allclose(board.albedo(x, y, footprint=widths), each.ravel(), atol=1e-12)
+    with pytest.raises(ValueError, match="footprint"):
+        board.albedo(x, y, footprint=-1.0)

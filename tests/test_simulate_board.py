@@ -66,8 +66,19 @@ def test_board_geometry_round_trip():
 
 
 def test_make_scene_board_footprint_from_rig():
-    scene = make_scene("board", rig=default_rig(0.5))
-    assert scene.footprint == pytest.approx(150 / (32 * 150 * 0.5), rel=1e-3)  # one pixel
+    rig = default_rig(0.5)
+    scene = make_scene("board", rig=rig)
+    pixel = 150 / (32 * 150 * 0.5)
+    assert scene.footprint == pytest.approx(pixel, rel=1e-3)  # one pixel
+    centre = np.array([[0.0, 3.175, 0.0]])
+    # facing the centre camera: the side cameras see the board at 45 degrees
+    assert scene.pixel_footprint(centre)[0] == pytest.approx(pixel / np.cos(np.radians(45)),
+                                                             rel=1e-3)
+    turned = make_scene("board", rig=rig, pose=(0.0, 30.0, 0.0, 0.0, 3.175, 0.0))
+    assert turned.pixel_footprint(centre)[0] == pytest.approx(pixel / np.cos(np.radians(75)),
+                                                              rel=1e-3)
+    bare = BoardScene(footprint=0.05)
+    assert bare.pixel_footprint(centre)[0] == 0.05
 
 
 @pytest.mark.parametrize("kind", ["checkerboard", "charuco", "asymmetric-circles"])
@@ -132,7 +143,7 @@ def test_simulate_board_poses_detected(tmp_path, capsys):
                             params["param_y"][row, col]
                             - board.object_points()[indices[0], 1]) < 0.1
     errors = np.concatenate(errors)
-    assert np.sqrt(np.mean(errors**2)) < 0.15 and errors.max() < 0.6
+    assert np.sqrt(np.mean(errors**2)) < 0.08 and errors.max() < 0.3  # measured 0.050, 0.21
 
 
 def test_simulate_board_single_pose(tmp_path):
@@ -152,7 +163,7 @@ def test_simulate_board_single_pose(tmp_path):
         indices, xy = detect_board(_decoded_albedo(capture, name), board)
         assert len(indices) == board.n_points  # every corner, at 61 degrees too (cam2)
         truth = cam.project(board.object_points()[indices] @ r_wb.T + t_wb)
-        assert np.linalg.norm(xy - truth, axis=1).max() < 0.4
+        assert np.linalg.norm(xy - truth, axis=1).max() < 0.2  # measured 0.105
 
 
 @pytest.mark.parametrize(("argv", "match"), [

@@ -246,28 +246,29 @@ class Board:
         return cls(**options)
 
     # -- appearance ----------------------------------------------------------------------------
-    def ink(self, x, y, *, footprint: float = 0.0) -> np.ndarray:
+    def ink(self, x, y, *, footprint=0.0) -> np.ndarray:
         """Fraction of ink (0 paper, 1 black) at board coordinates, box-filtered.
 
         Parameters
         ----------
         x, y : array_like of float
             Board coordinates, mm (broadcast together).
-        footprint : float
-            Side of the square box filter, mm (0: point samples). The checkerboard is averaged
-            exactly over the box; circles get a linear edge ramp of the box's width; a ChArUco
-            board is sampled bilinearly from a raster of at least 40 px/mm that is box-filtered
-            to the footprint.
+        footprint : float or array_like of float
+            Side of the square box filter, mm (0: point samples), one for all points or one per
+            point (broadcast with `x`, `y`). The checkerboard is averaged exactly over the box;
+            circles get a linear edge ramp of the box's width; a ChArUco board is sampled
+            bilinearly from a raster of at least 40 px/mm box-filtered to the footprint
+            (rounded to an odd number of raster pixels).
 
         Returns
         -------
         ndarray of float64, the broadcast shape of `x`, `y`, in ``[0, 1]``
         """
-        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
-                                   np.asarray(y, dtype=np.float64))
-        w = float(footprint)
-        if not (math.isfinite(w) and w >= 0):
-            raise ValueError(f"footprint: expected a length >= 0 mm, got {footprint!r}")
+        x, y, w = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
+                                      np.asarray(y, dtype=np.float64),
+                                      np.asarray(footprint, dtype=np.float64))
+        if not np.all(np.isfinite(w) & (w >= 0)):
+            raise ValueError("footprint: expected lengths >= 0 mm")
         if self.kind == "checkerboard":
             return self._checker_ink(x, y, w)
         if self.kind == "charuco":
@@ -330,35 +331,23 @@ class Board:
                 j = np.clip(np.rint((x / s - shift) / 2), 0, self.cols - 1)
                 cx = (2 * j + shift) * s
             best = np.minimum(best, np.hypot(x - cx, y - i * s))
-        if w == 0:
-            return (best <= r).astype(np.float64)
-        return np.clip((r - best) / w + 0.5, 0.0, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ramp = np.clip((r - best) / w + 0.5, 0.0, 1.0)
+        return np.where(w > 0, ramp, (best <= r).astype(np.float64))
 
     def _raster_ink(self, x, y, w):
         import cv2
 
         raster, ppm = _charuco_raster(self)
-        ink = 1.0 - raster.astype(np.float32) / 255.0
-        k = 2 * round(w * ppm / 2) + 1  # odd: centred
-        if k >= 3:
-            ink = cv2.blur(ink, (k, k), borderType=cv2.BORDER_CONSTANT)
-        # raster pixel (c, r) centre at board (c + 1/2, r + 1/2) / ppm; paper beyond it
-        col = x * ppm - 0.5
-        row = y * ppm - 0.5
-        h, wd = ink.shape
-        padded = np.pad(ink, 1)
-        c0 = np.floor(col)
-        r0 = np.floor(row)
-        fc = col - c0
-        fr = row - r0
-        c0 = np.clip(c0.astype(np.intp) + 1, 0, wd)
-        r0 = np.clip(r0.astype(np.intp) + 1, 0, h)
-        fc = np.where((col < -1) | (col > wd), 0.0, fc)
-        fr = np.where((row < -1) | (row > h), 0.0, fr)
-        value = ((1 - fc) * (1 - fr) * padded[r0, c0] + fc * (1 - fr) * padded[r0, c0 + 1]
-                 + (1 - fc) * fr * padded[r0 + 1, c0] + fc * fr * padded[r0 + 1, c0 + 1])
-        outside = (col < -1) | (col > wd) | (row < -1) | (row > h)
-        return np.where(outside, 0.0, value).astype(np.float64)
+        base = 1.0 - raster.astype(np.float32) / 255.0
+        kernel = 2 * np.rint(w * ppm / 2).astype(np.intp) + 1  # odd: centred
+        out = np.empty(x.shape)
+        for k in np.unique(kernel):
+            ink = base if k < 3 else cv2.blur(base, (int(k), int(k)),
+                                              borderType=cv2.BORDER_CONSTANT)
+            pick = kernel == k
+            out[pick] = _bilinear_ink(ink, x[pick] * ppm - 0.5, y[pick] * ppm - 0.5)
+        return out
 
     # -- OpenCV objects ------------------------------------------------------------------------
     def opencv_charuco(self):
@@ -370,6 +359,24 @@ class Board:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols, self.rows), float(self.spacing),
                                       float(self.marker_mm), dictionary)
+
+
+def _bilinear_ink(ink, col, row):
+    """Bilinear samples of a raster at pixel coordinates (centres at integers), 0 beyond it."""
+    h, wd = ink.shape
+    padded = np.pad(ink, 1)
+    c0 = np.floor(col)
+    r0 = np.floor(row)
+    fc = col - c0
+    fr = row - r0
+    c0 = np.clip(c0.astype(np.intp) + 1, 0, wd)
+    r0 = np.clip(r0.astype(np.intp) + 1, 0, h)
+    fc = np.where((col < -1) | (col > wd), 0.0, fc)
+    fr = np.where((row < -1) | (row > h), 0.0, fr)
+    value = ((1 - fc) * (1 - fr) * padded[r0, c0] + fc * (1 - fr) * padded[r0, c0 + 1]
+             + (1 - fc) * fr * padded[r0 + 1, c0] + fc * fr * padded[r0 + 1, c0 + 1])
+    outside = (col < -1) | (col > wd) | (row < -1) | (row > h)
+    return np.where(outside, 0.0, value).astype(np.float64)
 
 
 def default_board(kind: str = "checkerboard") -> Board:
@@ -416,12 +423,14 @@ def _box_average_checker(x, s, n, w):
         r = t - k * s
         return np.where(np.mod(k, 2) == 0, r, s - r)
 
-    if w == 0:
-        inside = ((x >= 0) & (x < n * s)).astype(np.float64)
-        q = np.where(np.mod(np.floor(x / s), 2) == 0, 1.0, -1.0) * inside
-        return inside, q
+    inside = ((x >= 0) & (x < n * s)).astype(np.float64)
+    q = np.where(np.mod(np.floor(x / s), 2) == 0, 1.0, -1.0) * inside
     a, b = x - w / 2, x + w / 2
-    return (f_in(b) - f_in(a)) / w, (f_q(b) - f_q(a)) / w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        box_in = (f_in(b) - f_in(a)) / w
+        box_q = (f_q(b) - f_q(a)) / w
+    point = w == 0
+    return np.where(point, inside, box_in), np.where(point, q, box_q)
 
 
 _RASTERS: dict = {}
@@ -691,10 +700,13 @@ def _refine_circles(img8, board, indices, xy, *, iterations: int = 2):
     """Circle centres refined to the projection of the true circle centres.
 
     The blob detector's centroid of a disc seen in perspective is not the image of the disc's
-    centre. With the board→image homography ``H`` (fitted to the current centres), each disc is
-    measured by the grey-level (ink) centroid within its mapped outline grown by a ring of
-    paper; the centroid of the ink of a disc maps through ``H`` as that of the projected disc,
-    whose offset from ``H(centre)`` is computed from the disc's outline and subtracted.
+    centre, and it drifts with the lighting. With the board→image homography ``H`` (fitted to
+    the current centres) each disc is measured again: the paper's brightness is fitted as a
+    plane in ``x, y`` to a ring of pixels around the disc's mapped outline (between 1.25 and
+    1.6 radii), the ink fraction ``1 − I / paper`` (clipped to ``[0, 1]``) is summed within
+    1.2 radii, and its centroid (the area centroid of the projected disc, edges weighted by
+    their coverage) is moved by the offset between the mapped outline's area centroid and
+    ``H(centre)``.
     """
     obj = board.object_points()[indices, :2]
     img = img8.astype(np.float64)
@@ -707,25 +719,31 @@ def _refine_circles(img8, board, indices, xy, *, iterations: int = 2):
         hom = _homography(obj, current)
         out = current.copy()
         for k, centre in enumerate(obj):
-            outline = _apply(hom, centre + r * unit)
-            grown = _apply(hom, centre + 1.6 * r * unit)
-            x0, y0 = np.floor(grown.min(axis=0)).astype(int)
-            x1, y1 = np.ceil(grown.max(axis=0)).astype(int)
+            outer = _apply(hom, centre + 1.6 * r * unit)
+            x0, y0 = np.floor(outer.min(axis=0)).astype(int)
+            x1, y1 = np.ceil(outer.max(axis=0)).astype(int)
             if x0 < 0 or y0 < 0 or x1 >= width or y1 >= height:
                 continue
             patch = img[y0:y1 + 1, x0:x1 + 1]
             gy, gx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-            # ink weight against the local paper level: the brightest ring around the disc
-            paper = np.percentile(patch, 90)
-            weight = np.clip(paper - patch, 0, None)
-            inside = _in_polygon(np.column_stack([gx.ravel(), gy.ravel()]),
-                                 _apply(hom, centre + 1.3 * r * unit)).reshape(patch.shape)
-            weight = weight * inside
-            total = weight.sum()
+            pts = np.column_stack([gx.ravel(), gy.ravel()])
+            in_outer = _in_polygon(pts, outer)
+            in_gap = _in_polygon(pts, _apply(hom, centre + 1.25 * r * unit))
+            in_disc = _in_polygon(pts, _apply(hom, centre + 1.2 * r * unit)).reshape(patch.shape)
+            ring = in_outer & ~in_gap
+            if np.count_nonzero(ring) < 6:
+                continue
+            design = np.column_stack([np.ones(np.count_nonzero(ring)), pts[ring]])
+            coef, *_ = np.linalg.lstsq(design, patch.ravel()[ring], rcond=None)
+            paper = coef[0] + coef[1] * gx + coef[2] * gy
+            if not np.all(paper[in_disc] > 0):
+                continue
+            ink = np.clip(1.0 - patch / paper, 0.0, 1.0) * in_disc
+            total = ink.sum()
             if not total > 0:
                 continue
-            centroid = np.array([(weight * gx).sum(), (weight * gy).sum()]) / total
-            # the ellipse's area centroid vs the image of the disc's centre
+            centroid = np.array([(ink * gx).sum(), (ink * gy).sum()]) / total
+            outline = _apply(hom, centre + r * unit)
             bias = _polygon_centroid(outline) - _apply(hom, centre[None])[0]
             out[k] = centroid - bias
         if not np.all(np.isfinite(out)):

@@ -243,16 +243,25 @@ class BoardScene(Scene):
     ``capture.json`` (``scene``).
 
     The sheet (pattern plus white margin, :meth:`Board.extent`) is opaque from both sides; rays
-    beyond it miss. The albedo is the printed board's (:meth:`Board.albedo`) box-filtered over
-    `footprint` mm (about one camera pixel's footprint, so that the point-sampling renderer
-    integrates each pixel's area; :func:`make_scene` takes it from the rig). Surface parameters:
-    the board coordinates ``x``, ``y`` (mm) of every hit (``truth/<cam>.npz``
-    ``param_x``, ``param_y``).
+    beyond it miss. Surface parameters: the board coordinates ``x``, ``y`` (mm) of every hit
+    (``truth/<cam>.npz`` ``param_x``, ``param_y``).
+
+    Anti-aliasing: the renderer samples one point per camera pixel, so the albedo is the
+    printed board's (:meth:`Board.albedo`) box-filtered over a pixel's footprint on the board.
+    With `viewers` (``((x, y, z), focal_px)`` of each camera; :func:`make_scene` takes them
+    from the rig) the box's side at a point is the largest, over the cameras, of the long side
+    of that camera's pixel footprint there, ``distance / (focal · cos(obliquity))`` (obliquity
+    capped at 75°), and at least `footprint` mm; without, it is `footprint`. So an oblique
+    camera integrates its pixels' area (point samples of an under-filtered board leave
+    aliasing, 0.1–0.2 px of corner noise at 60° obliquity), while a camera facing the board
+    sees it blurred by up to ``1 / cos`` of the most oblique camera's angle (2.3 pixels at
+    64°; detection there stays within 0.02 px).
     """
 
     board: Board = field(default_factory=_default_board)
     pose: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 3.175, 0.0)
     footprint: float = 0.03
+    viewers: tuple = ()
     name = "board"
 
     def __post_init__(self):
@@ -269,6 +278,24 @@ class BoardScene(Scene):
         self._R = _rotation_from_vector(pose[:3]) @ BOARD_REST_ROTATION
         self._t = pose[3:] - self._R @ self.board.center
         self._n = -self._R[:, 2]  # the printed face looks towards -z of the board
+        try:
+            self.viewers = tuple((tuple(float(v) for v in c), float(f)) for c, f in self.viewers)
+        except (TypeError, ValueError):
+            raise ValueError(f"viewers: expected ((x, y, z), focal_px) pairs, got "
+                             f"{self.viewers!r}") from None
+        if any(len(c) != 3 or not f > 0 for c, f in self.viewers):
+            raise ValueError("viewers: expected ((x, y, z), focal_px > 0) pairs")
+
+    def pixel_footprint(self, xyz) -> np.ndarray:
+        """Side ``(N,)`` of the albedo's box filter at world points ``(N, 3)`` on the board, mm."""
+        xyz = np.asarray(xyz, dtype=float)
+        size = np.full(len(xyz), float(self.footprint))
+        for centre, focal in self.viewers:
+            view = np.asarray(centre) - xyz
+            distance = np.linalg.norm(view, axis=-1)
+            cos = np.abs(view @ self._n) / distance
+            size = np.maximum(size, distance / (focal * np.maximum(cos, np.cos(np.radians(75)))))
+        return size
 
     @property
     def R_world_board(self) -> np.ndarray:
@@ -307,7 +334,8 @@ class BoardScene(Scene):
         xyz = np.asarray(xyz, dtype=float)
         local = self.board_from_world(xyz)
         normal = np.broadcast_to(self._n, xyz.shape).copy()
-        albedo = self.board.albedo(local[:, 0], local[:, 1], footprint=self.footprint)
+        albedo = self.board.albedo(local[:, 0], local[:, 1],
+                                   footprint=self.pixel_footprint(xyz))
         return SurfaceInfo(normal, albedo, {"x": local[:, 0].copy(), "y": local[:, 1].copy()})
 
     def to_dict(self):
@@ -315,7 +343,8 @@ class BoardScene(Scene):
                 "pose": {"rotation_vector_deg": list(self.pose[:3]),
                          "center_mm": list(self.pose[3:])},
                 "R_world_board": self._R.tolist(), "t_world_board": self._t.tolist(),
-                "footprint_mm": self.footprint}
+                "footprint_mm": self.footprint,
+                "viewers": [{"center": list(c), "focal_px": f} for c, f in self.viewers]}
 
 
 def board_footprint(rig, point) -> float:
@@ -880,7 +909,8 @@ def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
         For the plane's default pose: facing the projector (normal towards its centre), through
         the axis point ``(0, 3.175, 0)``, so that it fills the projector's view (distortion
         estimation). Without a rig the plane faces ``+Z``. For the board, the default
-        `footprint` (:func:`board_footprint`: one camera pixel at the board's centre).
+        `footprint` (:func:`board_footprint`: one camera pixel at the board's centre) and
+        `viewers` (the rig's cameras, :class:`BoardScene`).
     seed : int
         Fingerprint seed (finger).
     **options
@@ -905,6 +935,10 @@ def make_scene(name: str, *, rig=None, seed: int = 0, **options) -> Scene:
         if rig is not None and "footprint" not in options:
             pose = options.get("pose", BoardScene.pose)
             options["footprint"] = board_footprint(rig, np.asarray(pose, dtype=float)[3:])
+        if rig is not None and "viewers" not in options:
+            options["viewers"] = tuple((tuple(float(v) for v in cam.center),
+                                        float(min(cam.K[0, 0], cam.K[1, 1])))
+                                       for cam in rig.cameras)
         return BoardScene(**options)
     if name == "plane":
         if rig is not None and "normal" not in options:
