@@ -3,14 +3,14 @@
 A :class:`Board` describes a printed planar target of one of four kinds, with the command-line
 options ``--board KIND --rows R --cols C --spacing MM [--marker MM]``:
 
-==================== ============================== ==================== ======================
-kind                 ``rows`` × ``cols`` count       ``spacing``           ``marker``
-==================== ============================== ==================== ======================
-``checkerboard``     squares (``R + C`` odd)        square side, mm      (unused)
-``charuco``          squares                        square side, mm      ArUco marker side, mm
-``circles``          circles                        centre distance, mm  circle diameter, mm
-``asymmetric-circles`` circles: rows, circles a row rows' distance, mm  circle diameter, mm
-==================== ============================== ==================== ======================
+========================== ========================= =================== ====================
+kind                       ``rows`` × ``cols`` count ``spacing``         ``marker``
+========================== ========================= =================== ====================
+``checkerboard``           squares (``R + C`` odd)   square side, mm     (unused)
+``charuco``                squares                   square side, mm     marker side, mm
+``circles``                circles                   centre distance, mm circle diameter, mm
+``asymmetric-circles``     rows; circles in a row    row distance, mm    circle diameter, mm
+========================== ========================= =================== ====================
 
 OpenCV's pattern size ``(points per row, points per column)`` is ``(C − 1, R − 1)`` (the inner
 corners) for the checkerboard and ChArUco boards, ``(C, R)`` for both circle grids.

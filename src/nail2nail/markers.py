@@ -12,7 +12,10 @@ Mark design (chosen so that software identifies every mark from the image alone)
   grey surface, small enough that its image centroid sits within a fraction of a pixel of the
   projection of its centre;
 - one **key mark** at ``(row 2, col 5)`` (``Y = 0``, +8.53°), visible to all three cameras, is a
-  ring (outer diameter 1.6 mm, hole 0.8 mm).
+  ring (outer diameter 1.6 mm, hole 0.8 mm);
+- the marks are **bright on a dark cylinder** (dark marks are not found); the cylinder is 95 mm
+  long (``y_range``, ``Y = −45 … 50`` mm). ``nail2nail print-target cylinder`` prints its wrap
+  (:func:`nail2nail.boards.target_wrap_sheet`, ``docs/real-scanner.md``).
 
 :func:`find_target_marks` thresholds the image against a local background (grey opening),
 measures sub-pixel centroids, recognises the key by its hole, groups the marks into rows (by
