@@ -52,8 +52,8 @@ def add_parser(sub) -> None:
     board.add_argument("--spacing", type=float, metavar="MM",
                        help="square side or circle spacing, mm (default 2.5)")
     board.add_argument("--marker", type=float, metavar="MM",
-                       help="ChArUco marker side or circle diameter, mm (default 0.7 or 0.5 "
-                       "spacing)")
+                       help="ChArUco marker side or circle diameter, mm (default 0.7 x "
+                       "spacing; circles 0.5 x spacing)")
     board.add_argument("--dictionary", default=None,
                        help="ChArUco ArUco dictionary (default DICT_5X5_100)")
     board.add_argument("--pose", type=float, nargs=6,
