@@ -114,6 +114,15 @@ def test_print_cylinder_wrap(tmp_path):
     v = g.y_range[1] - (float(key[0].get("cy")) - top)
     assert u == pytest.approx(g.radius * np.radians(g.column_angles_deg[col]), abs=1e-3)
     assert v == pytest.approx(g.row_y[row], abs=1e-3)
+    # every mark where the simulator's target has it (arc length, Y)
+    centres = np.array([[float(c.get("cx")) - left - np.pi * g.radius,
+                         g.y_range[1] - (float(c.get("cy")) - top)] for c in white])
+    _, xyz = g.all_marks()
+    expected = np.column_stack([g.radius * np.arctan2(xyz[:, 0], xyz[:, 2]), xyz[:, 1]])
+    order = np.lexsort((centres[:, 0], centres[:, 1]))
+    np.testing.assert_allclose(centres[order], expected[np.lexsort((expected[:, 0],
+                                                                    expected[:, 1]))],
+                               atol=1e-3)
     for needed in ("bright (white) discs of 1.2 mm", "dark marks", "outer diameter 1.6 mm",
                    "hole 0.8 mm", "height 95 mm", "circumference 67.508 mm", "50 mm"):
         assert needed in text
