@@ -105,8 +105,7 @@ def test_detect_board_subpixel(kind, angle):
     assert np.all(np.diff(indices) > 0)
     assert len(indices) == board.n_points
     err = np.linalg.norm(xy - _truth(board, hom, indices), axis=1)
-    limit = 0.1 if kind == "charuco" else 0.05
-    assert np.sqrt(np.mean(err**2)) < limit and err.max() < 2.5 * limit
+    assert np.sqrt(np.mean(err**2)) < 0.02 and err.max() < 0.05  # measured <= 0.010, 0.024
 
 
 @pytest.mark.parametrize("kind", ["checkerboard", "charuco", "asymmetric-circles"])
@@ -115,7 +114,7 @@ def test_detect_board_upside_down(kind):
     board = BOARDS[kind]
     hom = _homography(board, 20.0, 180.0 + 20.0)
     indices, xy = detect_board(_render(board, hom, (480, 640)), board)
-    assert np.linalg.norm(xy - _truth(board, hom, indices), axis=1).max() < 0.25
+    assert np.linalg.norm(xy - _truth(board, hom, indices), axis=1).max() < 0.05
 
 
 @pytest.mark.parametrize("dtype", ["uint16", "float32", "uint8"])
@@ -141,7 +140,7 @@ def test_detect_board_any_bit_depth_warped(dtype):
         image = warped.astype(np.float32)
     indices, xy = detect_board(image, board)
     err = np.linalg.norm(xy - _truth(board, hom, indices), axis=1)
-    assert np.sqrt(np.mean(err**2)) < 0.1
+    assert np.sqrt(np.mean(err**2)) < 0.03  # measured 0.015 (INTER_AREA warp of the design)
 
 
 def test_detect_board_not_found():
@@ -155,7 +154,7 @@ def test_charuco_partial_view():
     hom = _homography(board, 40.0, 5.0)  # larger than the image: part of the board is cut
     indices, xy = detect_board(_render(board, hom, (480, 640)), board)
     assert 4 <= len(indices) < board.n_points
-    assert np.linalg.norm(xy - _truth(board, hom, indices), axis=1).max() < 0.3
+    assert np.linalg.norm(xy - _truth(board, hom, indices), axis=1).max() < 0.1
 
 
 def test_to_uint8():
@@ -205,3 +204,36 @@ def test_albedo_footprint_per_point(kind):
     np.testing.assert_allclose(board.albedo(x, y, footprint=widths), each.ravel(), atol=1e-12)
     with pytest.raises(ValueError, match="footprint"):
         board.albedo(x, y, footprint=-1.0)
+
+
+@pytest.mark.parametrize("kind", ["checkerboard", "charuco", "circles"])
+def test_detect_board_with_lens_distortion(kind):
+    """Barrel distortion (3-4 px at the board's outer points): points still within 0.08 px."""
+    board = BOARDS[kind]
+    hom = _homography(board, 20.0, 10.0)
+    k1 = -4e-7  # per px^2 about the image centre
+    centre = np.array([320.0, 240.0])
+
+    def distort(p):
+        d = p - centre
+        return centre + d * (1 + k1 * np.sum(d**2, axis=-1, keepdims=True))
+
+    h, w = 480, 640
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    inv = np.linalg.inv(hom)
+    acc = np.zeros((h, w))
+    for dy in (-1 / 3, 0, 1 / 3):
+        for dx in (-1 / 3, 0, 1 / 3):
+            pd = np.stack([xs + dx, ys + dy], -1)
+            pu = pd.copy()
+            for _ in range(10):  # undistort by fixed point
+                pu = centre + (pd - centre) / (1 + k1 * np.sum((pu - centre) ** 2, -1,
+                                                               keepdims=True))
+            q = np.concatenate([pu, np.ones((h, w, 1))], -1) @ inv.T
+            acc += board.albedo(q[..., 0] / q[..., 2], q[..., 1] / q[..., 2], footprint=1 / 60)
+    image = acc / 9 + 0.01 * np.random.default_rng(3).standard_normal((h, w))
+    indices, xy = detect_board(image, board)
+    truth = distort(_truth(board, hom, indices))
+    assert np.abs(truth - _truth(board, hom, indices)).max() > 3  # distortion is there
+    err = np.linalg.norm(xy - truth, axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.03 and err.max() < 0.08

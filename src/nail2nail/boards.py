@@ -47,6 +47,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.ndimage as ndi
 
 __all__ = [
     "BOARD_KINDS",
@@ -463,6 +464,12 @@ def to_uint8(image) -> np.ndarray:
     -------
     (H, W) uint8
     """
+    return np.rint(np.clip(_stretched(image), 0, 1) * 255).astype(np.uint8)
+
+
+def _stretched(image) -> np.ndarray:
+    """``(H, W)`` float64: `image` mapped linearly so that its 0.5 and 99.5 percentiles are 0
+    and 1 (not clipped; NaN to 0; all zeros for a flat image)."""
     img = np.asarray(image)
     if img.ndim == 3 and img.shape[2] in (3, 4):
         img = img[..., :3].mean(axis=2)
@@ -477,9 +484,8 @@ def to_uint8(image) -> np.ndarray:
         raise ValueError("image: no finite value")
     lo, hi = np.percentile(img[finite], [0.5, 99.5])
     if not hi > lo:
-        return np.zeros(img.shape, np.uint8)
-    out = np.where(finite, (img - lo) * (255.0 / (hi - lo)), 0.0)
-    return np.rint(np.clip(out, 0, 255)).astype(np.uint8)
+        return np.zeros(img.shape)
+    return np.where(finite, (img - lo) / (hi - lo), 0.0)
 
 
 def detect_board(image, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
@@ -502,18 +508,24 @@ def detect_board(image, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
 
     Notes
     -----
-    Checkerboard: ``cv2.findChessboardCornersSB`` (accuracy mode), falling back on
-    ``cv2.findChessboardCorners`` and ``cv2.cornerSubPix``. Circles: ``cv2.findCirclesGrid``
-    with a blob detector for dark discs of any size, then every centre refined to the centre of
-    its ellipse by a grey-level moment within the disc's homography-mapped outline (perspective
-    bias of the centroid corrected, see :func:`_refine_circles`). ChArUco:
-    ``cv2.aruco.CharucoDetector``. Labelling: module docstring.
+    Finding: checkerboard ``cv2.findChessboardCornersSB`` (accuracy mode), falling back on
+    ``cv2.findChessboardCorners`` and ``cv2.cornerSubPix``; circles ``cv2.findCirclesGrid``
+    with a blob detector for dark discs of any size; ChArUco ``cv2.aruco.CharucoDetector``.
+    Labelling: module docstring. Then every point is measured again on the image (in floating
+    point, not the 8-bit copy OpenCV gets): a corner as the crossing of the two edges through
+    it, each a line fitted to edge points measured on short profiles across its two halves
+    (:func:`_refine_checker_corners`); a circle as the ink centroid against a fitted local
+    paper level, corrected for perspective (the centroid of a disc's image is not the image of
+    its centre, :func:`_refine_circles`). On the virtual scanner this takes the RMS error
+    against the true projections from 0.02–0.08 px (OpenCV's) to 0.002–0.013 px at scale 0.5
+    up to 58° of obliquity (``docs/real-scanner.md``, "Measured").
     """
     if not isinstance(board, Board):
         raise TypeError(f"board: expected a Board, got {type(board).__name__}")
-    img8 = to_uint8(image)
+    img = _stretched(image)
+    img8 = np.rint(np.clip(img, 0, 1) * 255).astype(np.uint8)
     if board.kind == "charuco":
-        return _detect_charuco(img8, board)
+        return _detect_charuco(img8, img, board)
     if board.kind == "checkerboard":
         xy = _find_checkerboard(img8, board)
     else:
@@ -523,8 +535,10 @@ def detect_board(image, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
     indices = _label_grid(img8, board, xy)
     if indices is None:
         return None
-    if board.kind != "checkerboard":
-        xy = _refine_circles(img8, board, indices, xy)
+    if board.kind == "checkerboard":
+        xy = _refine_checker_corners(img, board, indices, xy)
+    else:
+        xy = _refine_circles(img, board, indices, xy)
         if xy is None:
             return None
     order = np.argsort(indices)
@@ -586,7 +600,7 @@ def _find_circles(img8, board):
     return None
 
 
-def _detect_charuco(img8, board):
+def _detect_charuco(img8, img, board):
     import cv2
 
     detector = cv2.aruco.CharucoDetector(board.opencv_charuco())
@@ -612,7 +626,9 @@ def _detect_charuco(img8, board):
                                (-1, -1), criteria).reshape(-1, 2).astype(np.float64)
     moved = np.linalg.norm(refined - xy, axis=1)
     xy = np.where((moved < 0.5 * half)[:, None], refined, xy)
-    return indices, xy
+    # then as checkerboard corners, with profiles short of the markers
+    return indices, _refine_checker_corners(img, board, indices, xy,
+                                            max_half_profile=0.6 * gap)
 
 
 def _homography(src, dst):
@@ -696,7 +712,104 @@ def _checker_contrast(img8, board, hom):
     return float(grey[~black].mean() - grey[black].mean())
 
 
-def _refine_circles(img8, board, indices, xy, *, iterations: int = 2):
+def _refine_checker_corners(img, board, indices, xy, *, max_half_profile: float = 0.3,
+                            iterations: int = 2):
+    """:func:`_refine_corners_once` `iterations` times (each anchored on the last).
+
+    Left as they are when the corners do not span the board in both directions (fewer than 6,
+    or all in one row or column of a partial ChArUco view): their homography is not defined.
+    """
+    obj = board.object_points()[indices, :2]
+    if (len(obj) < 6 or len(np.unique(np.round(obj[:, 0], 6))) < 2
+            or len(np.unique(np.round(obj[:, 1], 6))) < 2):
+        return xy
+    for _ in range(iterations):
+        xy = _refine_corners_once(img, board, indices, xy, max_half_profile=max_half_profile)
+    return xy
+
+
+def _refine_corners_once(img, board, indices, xy, *, t_range=(0.2, 0.45),
+                         max_half_profile: float = 0.3, profile_px: float = 5.0,
+                         n_t: int = 8, n_v: int = 41):
+    """Checkerboard corners refined as the crossing of the two edges through them.
+
+    For each corner, the edge along the board's ``x`` through it is measured on ``2 n_t``
+    profiles across it (along ``y``, ``±profile_px`` camera px long, between 0.08 and
+    `max_half_profile` squares: short profiles stay clear of lighting gradients and of a
+    ChArUco board's markers), placed at ``t_range``
+    squares on either side of the corner (away from the corner itself, where the other edge
+    blurs in), each profile sampled bilinearly at positions mapped by the board→image
+    homography ``H`` (fitted to all corners, anchored at the corner's current position); the
+    edge point is where the profile crosses the mean of its two ends' levels. A line fitted to
+    these points (total least squares) and the one of the edge along ``y`` meet at the refined
+    corner. The two halves of an edge have opposite polarities, so a non-linear response that
+    moves the mid-level crossing moves them oppositely and the line stays; straight edges are
+    assumed over one square (lens distortion bends them far less there). A corner whose
+    profiles do not show the edge keeps its position, as one the refinement moves by more
+    than a fifth of a square.
+
+    Measured on the virtual scanner (scale 0.5): 0.002–0.009 px RMS against the true corners
+    up to 58° of obliquity (0.04 px at 64°), against 0.02–0.08 px for
+    ``findChessboardCornersSB`` and OpenCV's ChArUco corners.
+    """
+    s = float(board.spacing)
+    obj = board.object_points()[indices, :2]
+    hom = _homography(obj, xy)
+    offsets = xy - _apply(hom, obj)
+    ts = np.concatenate([-np.linspace(*t_range, n_t), np.linspace(*t_range, n_t)]) * s
+    here = _apply(hom, obj)
+    step = np.minimum(np.linalg.norm(_apply(hom, obj + np.array([s, 0.0])) - here, axis=1),
+                      np.linalg.norm(_apply(hom, obj + np.array([0.0, s])) - here, axis=1))
+    half = np.clip(profile_px / np.maximum(step, 1e-9), 0.08, max_half_profile)
+    end = max(2, n_v // 6)
+    out = xy.copy()
+    height, width = img.shape
+    for k, (x0, y0) in enumerate(obj):
+        vs = np.linspace(-half[k], half[k], n_v) * s
+        lines = []
+        for along_x in (True, False):
+            if along_x:  # the edge y = y0, profiles along y
+                px, py = np.broadcast_arrays(x0 + ts[:, None], y0 + vs[None, :])
+            else:
+                px, py = np.broadcast_arrays(x0 + vs[None, :], y0 + ts[:, None])
+            pix = _apply(hom, np.column_stack([px.ravel(), py.ravel()])) + offsets[k]
+            if (pix.min() < 0 or pix[:, 0].max() > width - 1
+                    or pix[:, 1].max() > height - 1):
+                break
+            prof = ndi.map_coordinates(img, [pix[:, 1], pix[:, 0]], order=1).reshape(
+                len(ts), n_v)
+            lo = prof[:, :end].mean(axis=1)
+            hi = prof[:, -end:].mean(axis=1)
+            d = prof - 0.5 * (lo + hi)[:, None]
+            crossing = np.sign(d[:, :-1]) * np.sign(d[:, 1:]) < 0
+            # the crossing nearest the profile's middle
+            distance = np.where(crossing, np.abs(np.arange(n_v - 1) - (n_v - 1) / 2), np.inf)
+            c = np.argmin(distance, axis=1)
+            good = np.isfinite(distance[np.arange(len(ts)), c]) & (np.abs(hi - lo) > 0.1)
+            if np.count_nonzero(good) < 4:
+                break
+            rows = np.arange(len(ts))[good]
+            c = c[good]
+            frac = d[rows, c] / (d[rows, c] - d[rows, c + 1])
+            v = vs[c] + frac * (vs[1] - vs[0])
+            board_pts = (np.column_stack([x0 + ts[rows], y0 + v]) if along_x
+                         else np.column_stack([x0 + v, y0 + ts[rows]]))
+            edge = _apply(hom, board_pts) + offsets[k]
+            centre = edge.mean(axis=0)
+            normal = np.linalg.svd(edge - centre)[2][1]
+            lines.append((normal, normal @ centre))
+        if len(lines) != 2:
+            continue
+        a = np.array([lines[0][0], lines[1][0]])
+        if abs(np.linalg.det(a)) < 0.1:
+            continue
+        corner = np.linalg.solve(a, np.array([lines[0][1], lines[1][1]]))
+        if np.linalg.norm(corner - xy[k]) < 0.2 * step[k]:
+            out[k] = corner
+    return out
+
+
+def _refine_circles(img, board, indices, xy, *, iterations: int = 2):
     """Circle centres refined to the projection of the true circle centres.
 
     The blob detector's centroid of a disc seen in perspective is not the image of the disc's
@@ -709,7 +822,7 @@ def _refine_circles(img8, board, indices, xy, *, iterations: int = 2):
     ``H(centre)``.
     """
     obj = board.object_points()[indices, :2]
-    img = img8.astype(np.float64)
+    img = np.asarray(img, dtype=np.float64)
     height, width = img.shape
     r = board.marker_mm / 2
     angles = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
