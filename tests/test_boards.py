@@ -237,3 +237,15 @@ def test_detect_board_with_lens_distortion(kind):
     assert np.abs(truth - _truth(board, hom, indices)).max() > 3  # distortion is there
     err = np.linalg.norm(xy - truth, axis=1)
     assert np.sqrt(np.mean(err**2)) < 0.03 and err.max() < 0.08
+
+
+def test_symmetric_circles_half_turn_labelled_upright():
+    """A symmetric grid turned by 180 degrees looks the same: labelled with +x to the right."""
+    board = BOARDS["circles"]
+    hom = _homography(board, 20.0, 185.0)
+    indices, xy = detect_board(_render(board, hom, (480, 640)), board)
+    mirrored = board.n_points - 1 - indices  # the same circles counted from the other corner
+    assert np.linalg.norm(xy - _truth(board, hom, mirrored), axis=1).max() < 0.05
+    first = xy[np.argmin(indices)]
+    last = xy[np.argmax(indices)]
+    assert first[0] < last[0] and first[1] < last[1]  # origin top-left in the image
