@@ -55,7 +55,7 @@ def process_capture(
     unroll: bool = True,
     method: str | None = None,
     ppi: float = 500.0,
-    tip_direction=(0.0, 1.0, 0.0),
+    tip_direction=None,
     length_mm: float | None = None,
     wsq: bool = True,
     progress: bool = False,

@@ -35,9 +35,10 @@ def add_unroll_options(p) -> None:
     p.add_argument("--ppi", type=float, default=500.0,
                    help="resolution, pixels per inch (default 500; 1000 writes JPEG 2000 "
                    "instead of WSQ)")
-    p.add_argument("--tip-direction", type=_vector, default=(0.0, 1.0, 0.0),
-                   help="rough direction of the fingertip in the world frame, X,Y,Z "
-                   "(default 0,1,0: +Y, docs/conventions.md)")
+    p.add_argument("--tip-direction", type=_vector, default=None,
+                   help="rough direction of the fingertip in the scans' frame, X,Y,Z (default: "
+                   "up in the cameras' images, measured on the scans, whatever the frame: give "
+                   "it when the fingertip does not point to the top of the images)")
     p.add_argument("--length", type=float, default=None, metavar="MM",
                    help="keep only the skin within MM below the fingertip, as a rolled-print "
                    "card does (about 25 reaches the distal crease; default: all that was seen)")

@@ -28,7 +28,7 @@ from .render import (
 )
 from .ridges import camera_layer, scan_valid
 
-__all__ = ["DEFAULT_METHOD", "RolledPrint", "unroll_scans"]
+__all__ = ["DEFAULT_METHOD", "RolledPrint", "image_up_direction", "unroll_scans"]
 
 #: The default unrolling method: the one with the least length and area distortion (README).
 DEFAULT_METHOD = "rolled"
@@ -171,12 +171,56 @@ def _cut_length(grid: PrintGrid, value, mask, share, length_mm: float):
     return PrintGrid(grid.s0, grid.t0, grid.pitch, mask.shape), value, mask, share
 
 
+def image_up_direction(scans, *, step: int = 4) -> np.ndarray:
+    """The world direction that is *up* in the cameras' images, measured on their scans.
+
+    For each scan, the mean world displacement from a valid pixel to the valid pixel above it
+    (row ``r`` to ``r - 1``), on every `step`-th row and column, made unit; then the mean of
+    the cameras' unit vectors. It depends on no world frame and no calibration: a finger whose
+    tip points to the top of the images (the thesis's and the virtual scanner's layout, and
+    the legacy print's "fingertip up") has its tip along this direction.
+
+    Parameters
+    ----------
+    scans : sequence of Scan
+        Scans on their camera's pixel grid (``xyz (H, W, 3)``, world mm).
+    step : int
+        Sampling of rows and columns, camera px.
+
+    Returns
+    -------
+    (3,) float64
+        Unit vector, world frame.
+
+    Raises
+    ------
+    ValueError
+        When no scan has two valid pixels one above the other.
+    """
+    total = np.zeros(3)
+    for s in scans:
+        xyz = np.asarray(s.xyz)[::step, ::step].astype(np.float64)
+        valid = np.asarray(s.mask)[::step, ::step] & np.all(np.isfinite(xyz), axis=-1)
+        both = valid[:-1] & valid[1:]
+        if not both.any():
+            continue
+        up = np.mean((xyz[:-1] - xyz[1:])[both], axis=0)
+        norm = np.linalg.norm(up)
+        if norm > 0:
+            total += up / norm
+    norm = np.linalg.norm(total)
+    if not norm > 0:
+        raise ValueError("scans: cannot tell the images' up direction (no two valid pixels one "
+                         "above the other); give tip_direction")
+    return total / norm
+
+
 def unroll_scans(
     scans,
     *,
     method: str = DEFAULT_METHOD,
     ppi: float = 500.0,
-    tip_direction=(0.0, 1.0, 0.0),
+    tip_direction=None,
     pad_direction=None,
     ridge_options: dict | None = None,
     feather_px: float = 40.0,
@@ -195,8 +239,11 @@ def unroll_scans(
         the smallest geometric error against the true skin coordinates (``docs/unroll.md``).
     ppi : float
         Resolution of the print, pixels per inch (500 is the FBI's rolled-print standard).
-    tip_direction : (3,) float
-        Rough direction of the fingertip in the world frame (``+Y``, ``docs/conventions.md``).
+    tip_direction : (3,) float, optional
+        Rough direction of the fingertip in the world frame (only its sign along the finger's
+        axis matters). Default: up in the cameras' images (:func:`image_up_direction`), i.e.
+        the fingertip points to the top of the images, whatever the world frame (world ``+Y``
+        on the virtual scanner and the thesis's rig).
     pad_direction : (3,) float, optional
         Rough direction from the finger towards the viewer of the pad. Default: the mean
         direction from the points to the cameras' centres (the scanner faces the pad), else
@@ -244,6 +291,8 @@ def unroll_scans(
         xyz = np.asarray(s.xyz).reshape(-1, 3)
         points.append(xyz[np.flatnonzero(v)[::4]].astype(np.float64))
     points = np.concatenate(points)
+    if tip_direction is None:
+        tip_direction = image_up_direction(scans)
     if pad_direction is None:
         centers = [np.asarray(s.camera_center, float) for s in scans if s.camera_center is not None]
         if centers:
