@@ -15,13 +15,14 @@ grey and binary prints), :mod:`~nail2nail.unroll.quality` (ridge period and clar
 """
 
 from .flatten import METHODS, fit_flattening, map_distortion
-from .rolled import DEFAULT_METHOD, RolledPrint, unroll_scans
+from .rolled import DEFAULT_METHOD, RolledPrint, image_up_direction, unroll_scans
 
 __all__ = [
     "DEFAULT_METHOD",
     "METHODS",
     "RolledPrint",
     "fit_flattening",
+    "image_up_direction",
     "map_distortion",
     "unroll_scans",
 ]
