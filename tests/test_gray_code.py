@@ -245,3 +245,24 @@ def test_cli_patterns_scheme(tmp_path, capsys):
     assert "leave out --scheme" in capsys.readouterr().err
     assert main(["patterns", "--periods", "32", "--out", str(tmp_path / "y")]) == 2
     assert not (tmp_path / "y").exists()
+
+
+def test_cli_simulate_records_the_pattern_directory_scheme(tmp_path, capsys):
+    """``simulate --patterns DIR`` of a ``nail2nail patterns`` directory records its pattern set,
+    so that ``scan`` decodes the capture without further input."""
+    import json
+
+    from nail2nail.cli import main
+
+    assert main(["patterns", "--scheme", "gray-phase", "--out", str(tmp_path / "p")]) == 0
+    assert main(["simulate", "--patterns", str(tmp_path / "p"), "--scale", "0.2", "--out",
+                 str(tmp_path / "c")]) == 0
+    manifest = json.loads((tmp_path / "c" / "capture.json").read_text())
+    assert manifest["pattern_set"]["scheme"] == "gray-phase"
+    assert manifest["n_frames"] == 22
+    capsys.readouterr()
+    assert main(["scan", str(tmp_path / "c"), "--calib",
+                 str(tmp_path / "c" / "truth" / "calibration.json"), "--out",
+                 str(tmp_path / "s"), "--no-mat5", "--no-ply", "--json"]) == 0
+    cameras = json.loads(capsys.readouterr().out)["cameras"]
+    assert all(c["valid_pixels"] > 10_000 for c in cameras.values())

@@ -26,8 +26,10 @@ def add_parser(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="capture directory to write")
     p.add_argument("--rig", type=Path, help="rig JSON (default: the thesis-like default rig)")
     p.add_argument("--patterns", type=Path,
-                   help="directory of panel PNGs to project, sorted by name (default: the "
-                   "default pattern set of nail2nail.patterns)")
+                   help="directory of panel PNGs to project: one written by `nail2nail "
+                   "patterns` (its frames and pattern set, any scheme, recorded in capture.json "
+                   "so that scan decodes it), or any PNGs, sorted by name, recorded without a "
+                   "pattern set (default: the default pattern set of nail2nail.patterns)")
     p.add_argument("--projector-distortion", choices=["thesis", "none"],
                    help="projector radial distortion (default: the rig's; thesis for the "
                    "default rig)")
@@ -69,7 +71,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..simulation.capture import load_pattern_dir, simulate_capture
+    from ..simulation.capture import read_pattern_dir, simulate_capture
     from ..simulation.rig import load_rig
 
     if args.scale is not None and not args.scale > 0:
@@ -87,12 +89,12 @@ def run(args: argparse.Namespace) -> int:
         print_image, file_ppi = read_print_image(args.print_image)
         print_ppi = print_ppi or file_ppi or 500.0
     rig = load_rig(args.rig) if args.rig else None
-    patterns = names = None
-    if args.patterns:
-        patterns, names = load_pattern_dir(args.patterns)
+    patterns = names = pattern_set = None
+    if args.patterns:  # a `nail2nail patterns` directory carries its pattern set (any scheme)
+        patterns, names, pattern_set = read_pattern_dir(args.patterns)
     start = time.perf_counter()
     if args.poses is not None:
-        return _run_poses(args, board, rig, patterns, names, start)
+        return _run_poses(args, board, rig, patterns, names, start, pattern_set)
     scene = args.scene
     if board is not None:
         from ..simulation.capture import _configure_rig
@@ -108,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
     manifest = simulate_capture(
         args.out, scene, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, patterns=patterns, pattern_names=names,
-        seed=args.seed, write_truth=not args.no_truth, progress=sys.stderr.isatty(),
+        pattern_set=pattern_set, seed=args.seed, write_truth=not args.no_truth,
+        progress=sys.stderr.isatty(),
         print_image=print_image, print_ppi=print_ppi or 500.0,
     )
     elapsed = time.perf_counter() - start
@@ -160,13 +163,13 @@ def _board_from_args(args):
                          f"{options['cols']} --spacing {options['spacing']:g}: {exc}") from None
 
 
-def _run_poses(args, board, rig, patterns, names, start) -> int:
+def _run_poses(args, board, rig, patterns, names, start, pattern_set) -> int:
     from ..simulation.board_poses import simulate_board_captures
 
     summary = simulate_board_captures(
         args.out, args.poses, board=board, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, seed=args.seed, patterns=patterns,
-        pattern_names=names, write_truth=not args.no_truth)
+        pattern_set=pattern_set, pattern_names=names, write_truth=not args.no_truth)
     elapsed = time.perf_counter() - start
     if args.json:
         print(dumps_json({"out": str(args.out), "scene": "board", "board": summary["board"],
