@@ -669,8 +669,9 @@ def target_observations(
         if diameter is None:
             if "rig" not in capture.manifest:
                 raise ValueError(
-                    f"{capture.path}: no nominal rig in the manifest; give the mark diameter in px"
-                )
+                    f"{capture.path}: no nominal rig in the manifest to predict the marks' "
+                    "size from; give the mark diameter in px (mark_diameter_px=, "
+                    "`nail2nail calibrate --mark-diameter-px`)")
             rig = capture.rig()
             diameter = nominal_diameter(rig.cameras[rig.camera_names.index(name)])
         try:
