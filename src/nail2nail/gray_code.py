@@ -282,9 +282,8 @@ def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: f
         OUT_OF_PANEL,
         SATURATED,
         SHADOW,
-        Decoded,
         _full_scale,
-        neighbourhood_reasons,
+        finish_decoded,
     )
 
     if pattern_set.scheme not in ("gray-phase", "gray"):
@@ -311,19 +310,5 @@ def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: f
         reason[(amplitude < min_modulation) | (contrast < cue)] |= LOW_MODULATION
         np.minimum(fine_amplitude, amplitude, out=fine_amplitude)
         coords[direction] = u
-    reason = neighbourhood_reasons(reason, list(coords.values()), erode=erode,
-                                   max_gradient=max_gradient)
-    mask = reason == 0
-    if not keep_invalid:
-        for u in coords.values():
-            u[~mask] = np.nan
-    intensity = np.where(mask, np.float32(2.0) * fine_amplitude, np.float32(0.0))
-    return Decoded(
-        xp=coords.get("x"),
-        yp=coords.get("y"),
-        modulation=fine_amplitude,
-        albedo=albedo,
-        intensity=np.minimum(intensity, np.float32(1.0)).astype(np.float32),
-        mask=mask,
-        reason=reason,
-    )
+    return finish_decoded(reason, coords, fine_amplitude, albedo, erode=erode,
+                          max_gradient=max_gradient, keep_invalid=keep_invalid)

@@ -424,18 +424,37 @@ def _decode_numpy(frames, pattern_set, *, min_modulation, cue_modulation, min_al
         reason[outside] |= OUT_OF_PANEL
         coords[direction] = u
     reason[(finest_amplitude < min_modulation) | (min_amplitude < cue)] |= LOW_MODULATION
+    return finish_decoded(reason, coords, finest_amplitude, albedo, erode=erode,
+                          max_gradient=max_gradient, keep_invalid=keep_invalid)
+
+
+def finish_decoded(reason, coords: dict, modulation, albedo, *, erode: int,
+                   max_gradient: float | None, keep_invalid: bool) -> Decoded:
+    """The :class:`Decoded` of any scheme from its per-pixel reasons: the neighbourhood checks
+    (:func:`neighbourhood_reasons`), the mask, NaN outside it (unless `keep_invalid`) and the
+    lit intensity ``2 B`` (``B`` = `modulation`, the finest fringe's amplitude).
+
+    Parameters
+    ----------
+    reason : (H, W) uint8
+        Per-pixel reasons so far.
+    coords : dict of str to (H, W) float32
+        Decoded panel coordinate per direction (``"x"``, ``"y"``), modified in place.
+    modulation, albedo : (H, W) float
+        Fringe amplitude and mean intensity, fractions of full scale.
+    """
     reason = neighbourhood_reasons(reason, list(coords.values()), erode=erode,
                                    max_gradient=max_gradient)
     mask = reason == 0
     if not keep_invalid:
         for u in coords.values():
             u[~mask] = np.nan
-    intensity = np.where(mask, np.float32(2.0) * finest_amplitude, np.float32(0.0))
+    intensity = np.where(mask, np.float32(2.0) * modulation, np.float32(0.0))
     return Decoded(
         xp=coords.get("x"),
         yp=coords.get("y"),
-        modulation=finest_amplitude,
-        albedo=albedo.astype(np.float32),
+        modulation=modulation.astype(np.float32, copy=False),
+        albedo=albedo.astype(np.float32, copy=False),
         intensity=np.minimum(intensity, np.float32(1.0)).astype(np.float32),
         mask=mask,
         reason=reason,
