@@ -29,32 +29,15 @@ Steps, each written under ``out``:
 from __future__ import annotations
 
 import os
-import sys
 import time
 from pathlib import Path
+
+from ._progress import Stages
 
 __all__ = ["CONFIGURATIONS", "best_calibration", "plane_distortion", "run_demo"]
 
 #: Merge configurations compared by the demo (issue 5's table).
 CONFIGURATIONS = ("before", "thesis_lut", "model_dlt", "best")
-
-
-class _Progress:
-    """One line per step on stderr, with the elapsed time (quiet when `enabled` is False)."""
-
-    def __init__(self, enabled: bool, n_steps: int):
-        self.enabled, self.n_steps, self.step = enabled, n_steps, 0
-        self.start = time.perf_counter()
-
-    def __call__(self, message: str) -> None:
-        self.step += 1
-        if self.enabled:
-            elapsed = time.perf_counter() - self.start
-            print(
-                f"[{self.step:2d}/{self.n_steps}] {elapsed:6.1f}s  {message}",
-                file=sys.stderr,
-                flush=True,
-            )
 
 
 def _merge_summary(stats: dict) -> dict:
@@ -147,7 +130,8 @@ def run_demo(
     seed : int
         Fingerprint and noise seed.
     progress : bool
-        Step lines on stderr.
+        Step lines on stderr (also when it is not a terminal; none inside
+        :func:`nail2nail._progress.quiet`).
     super_scan, figures : bool
         Build the super scan / write the figures.
 
@@ -180,7 +164,8 @@ def run_demo(
     # summary.json goes first and comes back last: without it the directory is visibly
     # incomplete; every sub-directory is replaced as a whole (atomic_directory)
     (out / "summary.json").unlink(missing_ok=True)
-    step = _Progress(progress, 16)
+    # one line per step on stderr with the elapsed time, also into a log file; not with --quiet
+    step = Stages(16, enabled=progress, terminal_only=False)
     pattern_set = default_pattern_set()
     patterns = make_patterns(pattern_set)
     captures = {}

@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import sys
 
+from ._progress import Stages
 from ._timing import StepClock
 
 __all__ = ["peak_rss_mb", "process_capture"]
@@ -96,7 +97,8 @@ def process_capture(
         :func:`nail2nail.io.rolled.write_rolled_print`); `method` defaults to
         :data:`nail2nail.unroll.DEFAULT_METHOD`.
     progress : bool
-        One line per stage on stderr.
+        One line per stage and progress bars (scan, merge) on stderr; a terminal only, and
+        not inside :func:`nail2nail._progress.quiet`.
     calibration_name : str
         How errors name the calibration (its file, when given as an object).
     frame : str
@@ -147,9 +149,7 @@ def process_capture(
     out = check_output_directory(out, marker="process.json")
     times = StepClock()
 
-    def say(text: str) -> None:
-        if progress:
-            print(f"process: {text}", file=sys.stderr, flush=True)
+    say = Stages(enabled=progress, prefix="process: ")  # stderr, a terminal only, not quiet
 
     if isinstance(calibration, (str, os.PathLike)):
         calibration_name = str(calibration)
@@ -164,7 +164,7 @@ def process_capture(
         scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
                              min_modulation=min_modulation, allow_mirrored=allow_mirrored,
                              calibration_name=calibration_name, timings=scan_parts,
-                             masks=masks, **(decode_options or {}))
+                             masks=masks, progress=progress, **(decode_options or {}))
     if len(scans) < 2:
         raise ValueError(f"{capture.path}: need at least two cameras to merge, got "
                          f"{len(scans)}")
@@ -195,7 +195,7 @@ def process_capture(
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
-                                 transform=transform)
+                                 transform=transform, progress=progress)
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()

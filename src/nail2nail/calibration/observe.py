@@ -181,7 +181,7 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
     decode_options : dict, optional
         Passed to :func:`nail2nail.phase.decode`.
     progress : bool
-        Show a progress bar.
+        Show a progress bar on stderr (a terminal only: :mod:`nail2nail._progress`).
 
     Returns
     -------
@@ -199,8 +199,8 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
         For each camera and pose where the board is not found (the view is skipped).
     """
     import cv2
-    from tqdm.auto import tqdm
 
+    from .._progress import progress_bar
     from ..boards import detect_board
     from ..io.capture import read_capture
     from ..phase import decode
@@ -211,7 +211,7 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
     views, refused, sizes, poses = [], [], {}, []
     projector_size = None
     jobs = [(k, os.fspath(d)) for k, d in enumerate(capture_dirs)]
-    for k, path in tqdm(jobs, desc="poses", unit="pose", disable=not progress):
+    for k, path in progress_bar(jobs, desc="poses", unit="pose", enabled=progress):
         capture = read_capture(path, load=False)
         ps = capture.pattern_set
         if ps is None:

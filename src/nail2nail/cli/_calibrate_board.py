@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--window: expected a positive number of pixels, got {args.window}")
     if args.output.is_dir():
         raise ValueError(f"{args.output}: is a directory; give the calibration file to write")
-    captures = board_views(args.poses, board, window_px=args.window, progress=not args.json)
+    captures = board_views(args.poses, board, window_px=args.window, progress=True)
     result = calibrate_board(
         captures.views, board.object_points(), captures.camera_sizes,
         projector_size=captures.projector_size, projector_model=args.projector_model,

@@ -33,7 +33,7 @@ def run_capture(args: argparse.Namespace) -> int:
     joint = args.model == "joint"
     # the joint model predicts each mark's projected disc on the cylinder: it takes the marks
     # re-measured against their local background (unbiased centroids)
-    observations = target_observations(capture, progress=not args.json, refine_marks=joint,
+    observations = target_observations(capture, progress=True, refine_marks=joint,
                                        mark_diameter_px=diameter)
     surface = TargetGeometry().signed_distance if joint else None
     calib, summary = calibrate_from_observations(

@@ -5,7 +5,9 @@ setting ``func``. Exit codes (``docs/conventions.md``, "Errors"): 0 success; 2 b
 (``ValueError``, ``TypeError``, ``OSError``, ``KeyError`` from the library, and argparse's usage
 errors), one line on stderr naming the file or argument; 130 interrupted (Ctrl-C); 1 any other
 exception, an internal error, one line asking for a report. No traceback unless the environment
-variable ``NAIL2NAIL_DEBUG`` is set to a non-empty value other than ``0``.
+variable ``NAIL2NAIL_DEBUG`` is set to a non-empty value other than ``0``. ``-q``/``--quiet``
+(before or after the subcommand) silences progress (``nail2nail._progress``) and informational
+lines on stderr.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import sys
 import traceback
 import warnings
 
+from .._progress import quiet
 from .._validation import describe_error, one_line
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "build_parser", "main"]
@@ -25,6 +28,8 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1
 EXIT_INTERRUPTED = 130
 REPORT_URL = "the nail2nail issue tracker"
+QUIET_HELP = ("no progress bars or stage lines on stderr (shown only when stderr is a terminal) "
+              "and no informational lines; errors and warnings are still printed")
 
 # Subcommand modules, in pipeline order.
 COMMANDS = [
@@ -51,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 success, 2 bad input, 130 interrupted, 1 internal error. "
         "NAIL2NAIL_DEBUG=1 prints the traceback of an error.",
     )
+    parser.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
@@ -60,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue  # subcommand not built yet
         module.add_parser(sub)
+    for p in sub.choices.values():  # also after the subcommand; SUPPRESS keeps a leading -q
+        p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                       help=QUIET_HELP)
     return parser
 
 
@@ -87,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         command = f"nail2nail {args.command}"
-        return _run_with_warnings(args, command)
+        with quiet(args.quiet):
+            return _run_with_warnings(args, command)
     except KeyboardInterrupt:
         if _debug():
             traceback.print_exc()

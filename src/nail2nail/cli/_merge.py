@@ -7,7 +7,6 @@ calls :func:`nail2nail.merge.report.write_merge` and prints the summary.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from .._validation import as_int
@@ -61,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     summary = write_merge(
         scans, args.out, pairs=pairs, stride=args.stride, max_residual_px=args.max_residual,
         border_px=args.border, figures=args.figures, super_scan=not args.no_super,
-        progress=not args.json and sys.stderr.isatty(), frame=frame, transform=transform,
+        progress=True, frame=frame, transform=transform,
     )
     summary = {"scan_dir": str(args.scan_dir), **summary}
     if args.json:

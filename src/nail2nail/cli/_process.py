@@ -7,7 +7,6 @@ unroll, with per-stage timings); the options are those of ``scan``, ``merge`` an
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..io._json import dumps_json
@@ -64,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
         unroll=args.unroll, method=args.method, ppi=args.ppi, tip_direction=args.tip_direction,
         length_mm=args.length, wsq=not args.no_wsq, frame=args.frame,
-        progress=not args.json and sys.stderr.isatty())
+        progress=True)
     if args.json:
         print(dumps_json(summary))
         return 0

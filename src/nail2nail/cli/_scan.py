@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..frames import frame_transform
@@ -87,12 +86,12 @@ def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
     transform = frame_transform(calibration, args.frame)  # checked before the capture is read
     # frames are read (and checked) one camera at a time, while scanning: memory for one
-    # camera's frames; the progress bar only on a terminal, so that an error read from a file
-    # or pipe is its one line. Warnings (the kept fraction of a camera's lit pixels) become one
-    # line each in cli.main.
+    # camera's frames; the progress bar only on a terminal and without --quiet
+    # (nail2nail._progress), so that an error read from a file or pipe is its one line.
+    # Warnings (the kept fraction of a camera's lit pixels) become one line each in cli.main.
     capture = read_capture(args.capture, load=False)
     scans = scan_capture(capture, calibration, use=args.use,
-                         progress=not args.json and sys.stderr.isatty(),
+                         progress=True,
                          max_gradient=max_gradient(args), allow_mirrored=args.allow_mirrored,
                          calibration_name=str(args.calib), masks=user_masks, **options)
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -111,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         args.out, scene, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, patterns=patterns, pattern_names=names,
         pattern_set=pattern_set, seed=args.seed, write_truth=not args.no_truth,
-        progress=sys.stderr.isatty(),
+        progress=True,
         print_image=print_image, print_ppi=print_ppi or 500.0,
     )
     elapsed = time.perf_counter() - start
@@ -169,7 +168,8 @@ def _run_poses(args, board, rig, patterns, names, start, pattern_set) -> int:
     summary = simulate_board_captures(
         args.out, args.poses, board=board, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, seed=args.seed, patterns=patterns,
-        pattern_set=pattern_set, pattern_names=names, write_truth=not args.no_truth)
+        pattern_set=pattern_set, pattern_names=names, write_truth=not args.no_truth,
+        progress=True)
     elapsed = time.perf_counter() - start
     if args.json:
         print(dumps_json({"out": str(args.out), "scene": "board", "board": summary["board"],

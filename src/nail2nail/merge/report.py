@@ -14,8 +14,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
+from .._progress import progress_bar
 from .._timing import StepClock
 from .._validation import as_int
 from ..io._atomic import atomic_directory, write_npz
@@ -133,7 +133,8 @@ def write_merge(
         With `data`, also write the super mat5 (the legacy grid files: about 95 MB for three
         1280 × 1024 cameras; the PLY holds the same points in a third of that).
     progress : bool
-        Progress bar over the pairs (stderr).
+        Progress bar on stderr (a terminal only: :mod:`nail2nail._progress`): one step per
+        camera pair, then the fusion, writing the super scan and waiting for the figures.
     frame, transform
         The frame the super scan's PLY and mat5 are written in, and its ``T_frame_world``
         (:func:`nail2nail.frames.frame_transform`); everything is computed in the world frame
@@ -244,7 +245,10 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
     mat5_files: list[Path] = []
     cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
-    for i, j in tqdm(pairs, desc="merge", unit="pair", disable=not progress):
+    bar = progress_bar(desc="merge", unit="step", enabled=progress,
+                       total=len(pairs) + 2 * bool(super_scan) + 1)
+    for i, j in pairs:
+        bar.set_postfix_str(f"pair {i}-{j}", refresh=False)
         corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
                           border_px=border_px, cache=cache)
         key = f"{i}-{j}"
@@ -259,10 +263,14 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                 _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
         summary["merge"][key] = {**stats, "files": files}
         del corr
+        bar.update()
     del cache  # its images are not needed by the fusion: freed before it
     if super_scan:
+        bar.set_postfix_str("fuse")
         sup = fuse_scans(scans, max_residual_px=max_residual_px)
         lap("fuse")
+        bar.update()
+        bar.set_postfix_str("write")
         if drawing is not None:
             renders = {}
             for view, (elev, azim) in RENDER_VIEWS.items():
@@ -286,12 +294,16 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
             drawn.append((files, renders))
         del sup
         lap("write")
+        bar.update()
+    bar.set_postfix_str("figures" if drawing is not None else "done")
     for files, figures in drawn:  # wait for the figures, in order; a failure raises here
         if isinstance(figures, dict):
             files.update({k: str(f.result()) for k, f in figures.items()})
         else:
             files.update({k: str(v) for k, v in figures.result().items()})
     lap("figures")  # what is left of the drawing once the merge is done
+    bar.update()
+    bar.close()
     summary["seconds"] = {k: round(v, 3) for k, v in lap.seconds.items()}
     outputs = summary["outputs"]
     for m in summary["merge"].values():

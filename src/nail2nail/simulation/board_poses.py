@@ -207,6 +207,7 @@ def simulate_board_captures(
     pattern_names: list[str] | None = None,
     write_truth: bool = True,
     poses: list | None = None,
+    progress: bool = False,
 ) -> dict:
     """Simulate `n` captures of a board at :func:`board_poses` into ``OUT/pose00`` … .
 
@@ -232,12 +233,15 @@ def simulate_board_captures(
         Seed of the poses (:func:`board_poses`) and of the noise.
     poses : list of (6,) float, optional
         Explicit poses instead of :func:`board_poses`.
+    progress : bool
+        Show a progress bar of the poses on stderr (a terminal only: :mod:`nail2nail._progress`).
 
     Returns
     -------
     dict
         The content of ``board-poses.json``.
     """
+    from .._progress import progress_bar
     from ..io._atomic import atomic_directory, check_output_directory
     from ..io._json import write_json
     from .capture import _configure_rig, simulate, write_capture
@@ -250,7 +254,8 @@ def simulate_board_captures(
         poses = board_poses(n, rig, board=board, seed=seed)
     entries = []
     with atomic_directory(out_dir, marker="board-poses.json") as tmp:
-        for k, pose in enumerate(poses):
+        for k, pose in enumerate(progress_bar(poses, desc="simulate", unit="pose",
+                                              enabled=progress)):
             scene = make_scene("board", rig=rig, board=board, pose=tuple(pose))
             sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set,
                            seed=seed + k)

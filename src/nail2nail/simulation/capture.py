@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from .._progress import progress_bar
 from ..io._atomic import atomic_directory, check_output_directory, write_npz
 from ..io._json import write_json
 from ..io.capture import write_frame, write_manifest
@@ -160,7 +161,7 @@ def simulate(
     cameras : list of int, optional
         Camera indices to render (all by default).
     progress : bool
-        Show a progress bar.
+        Show a progress bar on stderr (a terminal only: :mod:`nail2nail._progress`).
     geometry : dict of str to CameraGeometry, optional
         The cameras' geometry from an earlier :func:`simulate` of the same `scene` object and
         `rig` (``SimulatedCapture.geometry``): the rays are not intersected again, only the
@@ -198,12 +199,7 @@ def simulate(
                                          if rig.camera_names[i] not in known]
     if missing:
         raise ValueError(f"geometry: no camera {missing[0]!r} (has {sorted(known)})")
-    iterator = indices
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(indices, desc="cameras", unit="cam")
-    for i in iterator:
+    for i in progress_bar(indices, desc="simulate", unit="camera", enabled=progress):
         name = rig.camera_names[i]
         geom = camera_geometry(rig, scene, i) if known is None else known[name]
         geometry[name] = geom
@@ -253,7 +249,8 @@ def simulate_capture(
         synthetic print the friction-ridge skin from nail edge to nail edge and from the tip
         to ``Finger.rolled_length_mm``, ``docs/capture-format.md``).
     progress : bool
-        Show a progress bar.
+        Show progress bars on stderr (rendering per camera, writing the frames; a terminal
+        only: :mod:`nail2nail._progress`).
     print_image : (H, W) uint8, optional
         Finger only (`scene` ``"finger"``): a real print in the legacy convention to wrap
         around the finger instead of the synthetic one (``Finger.print_image``); written back
@@ -276,25 +273,27 @@ def simulate_capture(
     sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
                    progress=progress)
     return write_capture(out_dir, sim, seed=seed, pattern_names=pattern_names,
-                         write_truth=write_truth)
+                         write_truth=write_truth, progress=progress)
 
 
 def write_capture(out_dir: str | os.PathLike, sim: SimulatedCapture, *, seed: int = 0,
-                  pattern_names: list[str] | None = None, write_truth: bool = True) -> dict:
+                  pattern_names: list[str] | None = None, write_truth: bool = True,
+                  progress: bool = False) -> dict:
     """Write a simulated capture as a capture directory (``docs/capture-format.md``).
 
     The second half of :func:`simulate_capture`, for a :class:`SimulatedCapture` already in
     memory; `seed` is recorded in the manifest. The directory is written as a whole
-    (:func:`nail2nail.io._atomic.atomic_directory`). Returns the manifest.
+    (:func:`nail2nail.io._atomic.atomic_directory`); `progress` shows a bar of the frames
+    written on stderr (a terminal only). Returns the manifest.
     """
     check_output_directory(out_dir, marker="capture.json")
     with atomic_directory(out_dir, marker="capture.json") as out:
         return _write_capture(out, sim, sim.rig, seed=seed, pattern_names=pattern_names,
-                              write_truth=write_truth)
+                              write_truth=write_truth, progress=progress)
 
 
 def _write_capture(out: Path, sim: SimulatedCapture, rig: Rig, *, seed, pattern_names,
-                   write_truth) -> dict:
+                   write_truth, progress=False) -> dict:
     bits = rig.photometry.bit_depth
     cameras = []
     jobs = []
@@ -305,7 +304,8 @@ def _write_capture(out: Path, sim: SimulatedCapture, rig: Rig, *, seed, pattern_
         cameras.append({"name": name, "size": [int(w), int(h)], "frames": files})
     # PNG encoding (zlib) releases the GIL: the frames are written on every core
     with ThreadPoolExecutor(min(os.cpu_count() or 1, 8)) as pool:
-        for done in pool.map(lambda job: write_frame(*job), jobs):
+        for done in progress_bar(pool.map(lambda job: write_frame(*job), jobs), desc="write",
+                                 unit="frame", total=len(jobs), enabled=progress):
             del done
     n_frames = len(next(iter(sim.frames.values())))
     manifest = {
