@@ -392,7 +392,7 @@ def scan_capture(
     use : {"xpyp", "yp", "xp"}
         Projector coordinates used for triangulation (:func:`scan_frames`).
     progress : bool
-        Show a progress bar.
+        Show a progress bar on stderr (a terminal only: :mod:`nail2nail._progress`).
     max_gradient : float or None
         Steep-pixel limit stated for a 1024 × 1280 camera (:func:`gradient_limit`).
     allow_mirrored : bool
@@ -425,8 +425,7 @@ def scan_capture(
         camera with no valid pixel; an unknown `use` or `method`; a mask of another size or
         for an unknown camera.
     """
-    from tqdm.auto import tqdm
-
+    from ._progress import progress_bar
     from .io.masks import check_mask_names
 
     _check_method(method)
@@ -450,7 +449,7 @@ def scan_capture(
             masks[name] = _user_mask(masks[name], name, size[::-1])
     clock("read_frames")
     scans = []
-    for name in tqdm(names, desc="scan", unit="camera", disable=not progress):
+    for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
                                   method=method, decode_options=decode_options, clock=clock))
         if name in masks:
@@ -526,7 +525,7 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
     capture : Capture
         From :func:`nail2nail.io.capture.read_capture` (``load=False`` is fine).
     progress : bool
-        Show a progress bar labelled `desc`.
+        Show a progress bar labelled `desc` on stderr (a terminal only).
     **decode_options
         Passed to :func:`nail2nail.phase.decode`; ``method`` is ``"numba"`` (the fused kernel
         the scan runs) unless given.
@@ -543,12 +542,12 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
     ValueError
         If the capture's manifest names no pattern set.
     """
-    from tqdm.auto import tqdm
+    from ._progress import progress_bar
 
     if capture.pattern_set is None:
         raise ValueError(f"{capture.path}: the manifest names no pattern set")
     options = {"method": "numba", **decode_options}
-    for name in tqdm(capture.camera_names, desc=desc, unit="camera", disable=not progress):
+    for name in progress_bar(capture.camera_names, desc=desc, unit="camera", enabled=progress):
         if name in capture.frames:  # cached as floats in [0, 1]
             decoded = decode(capture.frames.pop(name), capture.pattern_set, **options)
         else:  # the frames' integer values, not cached: a quarter of the floats' memory
