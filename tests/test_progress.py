@@ -186,3 +186,20 @@ def test_process_stages_and_bars_on_a_terminal(capture, tmp_path, terminal, caps
     assert main(["--quiet", *args]) == 0
     assert _only_errors_and_warnings(terminal.getvalue())
     _json(capsys.readouterr().out)
+
+
+def test_unroll_stages_on_a_terminal(capture, tmp_path, terminal, capsys):
+    terminal = terminal()
+    with quiet():
+        assert main(_scan_args(capture, tmp_path / "scans")) == 0
+    capsys.readouterr()
+    args = ["unroll", str(tmp_path / "scans"), "--out", str(tmp_path / "print"), "--no-wsq",
+            "--json"]
+    assert main(args) == 0
+    err = terminal.getvalue()
+    lines = [line for line in err.splitlines() if ": warning: " not in line]
+    assert len(lines) == 3, err
+    stages = ["read the scans", "unroll (", "write the print"]
+    for k, (line, stage) in enumerate(zip(lines, stages, strict=True)):
+        assert line.startswith(f"unroll: [ {k + 1}/3]") and stage in line, err
+    _json(capsys.readouterr().out)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import Stages
 from ..calibration.board import CAMERA_DISTORTION, PROJECTOR_MODELS, calibrate_board
 from ..calibration.observe import board_views
 from ..io._json import dumps_json
@@ -68,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     if args.output.is_dir():
         raise ValueError(f"{args.output}: is a directory; give the calibration file to write")
     captures = board_views(args.poses, board, window_px=args.window, progress=True)
+    Stages(prefix="calibrate-board: ")(  # stderr, a terminal only, not with --quiet
+        f"fit the cameras and the projector ({len(captures.views)} views)")
     result = calibrate_board(
         captures.views, board.object_points(), captures.camera_sizes,
         projector_size=captures.projector_size, projector_model=args.projector_model,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import Stages
 from ..calibration import calibrate_from_observations
 from ..io._atomic import atomic_files
 from ..io._json import dumps_json
@@ -36,6 +37,7 @@ def run_capture(args: argparse.Namespace) -> int:
     observations = target_observations(capture, progress=True, refine_marks=joint,
                                        mark_diameter_px=diameter)
     surface = TargetGeometry().signed_distance if joint else None
+    Stages(prefix="calibrate: ")(f"fit the {args.model} model")  # stderr, a terminal only
     calib, summary = calibrate_from_observations(
         observations, model=args.model, method=args.method, use=args.use, surface=surface,
         **({"target": TargetGeometry()} if joint else {}))

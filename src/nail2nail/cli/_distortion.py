@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from .._progress import Stages
 from .._validation import as_int
 from ..distortion import (
     ProjectorDistortion,
@@ -58,7 +59,7 @@ def _load(capture_dir: Path):
             f"{capture_dir}: captured with pre-distorted patterns; estimate from plain patterns"
         )
     views, albedo = {}, {}
-    for name, decoded in decode_cameras(capture):
+    for name, decoded in decode_cameras(capture, progress=True):
         if decoded.xp is None or decoded.yp is None:
             raise ValueError(f"{capture_dir}: the patterns must encode both xp and yp")
         views[name] = (decoded.xp, decoded.yp, decoded.mask)
@@ -83,12 +84,15 @@ def run(args: argparse.Namespace) -> int:
                                  ("--line-width", args.line_width, 1)):
         if value is not None:
             as_int(value, flag, minimum=minimum)
+    step = Stages(prefix="distortion: ")  # stderr, a terminal only, not with --quiet
     views, albedo, models, truth, panel_size = _load(args.capture_dir)
+    step("fit the projector distortion")
     report = estimate_from_decoded(views, primary=args.camera, cameras=models,
                                    stride=args.stride)
     result = report.to_dict(truth=truth)
 
     if args.out is not None:
+        step("draw the grids")
         images = {}
         for name, (xp, yp, mask) in views.items():
             plain = grid_from_decoded(xp, yp, mask, panel_size=panel_size, spacing=args.spacing,

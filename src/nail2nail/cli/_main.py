@@ -19,7 +19,7 @@ import sys
 import traceback
 import warnings
 
-from .._progress import quiet
+from .._progress import is_quiet, quiet
 from .._validation import describe_error, one_line
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "build_parser", "main"]
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         command = f"nail2nail {args.command}"
-        with quiet(args.quiet):
+        with quiet(args.quiet or is_quiet()):  # a caller's quiet() holds too
             return _run_with_warnings(args, command)
     except KeyboardInterrupt:
         if _debug():

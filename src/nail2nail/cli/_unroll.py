@@ -11,6 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
+from .._progress import Stages
 from ..io._json import dumps_json
 from ..unroll import DEFAULT_METHOD, METHODS
 
@@ -77,10 +78,14 @@ def run(args: argparse.Namespace) -> int:
     from ..unroll import unroll_scans
 
     check_unroll_options(args)
+    step = Stages(3, prefix="unroll: ")  # stderr, a terminal only, not with --quiet
+    step("read the scans")
     scans = load_scans(args.scan_dir)
     start = time.perf_counter()
+    step(f"unroll ({args.method})")
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
                           tip_direction=args.tip_direction, length_mm=args.length)
+    step("write the print")
     meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,
                               extra={"scan_dir": str(args.scan_dir),
                                      "seconds": round(time.perf_counter() - start, 3)})
