@@ -134,3 +134,29 @@ def test_scan_capture_of_one_direction_with_distortion(tmp_path):
         scan_capture(capture, calib, use="xp")
     with pytest.raises(ValueError, match="use='xpyp' needs both"):
         scan_capture(capture, calib)
+
+
+def test_ill_conditioned_coordinate_warns(tmp_path):
+    """The centre camera's rays lie within 0.4° of the projector's column planes on the default
+    rig (5.3 mm along the ray per projector px): scanning it from xp alone warns, naming the
+    camera; the side cameras (46°) and every camera from yp (17-25°) do not."""
+    import warnings
+
+    from nail2nail.reconstruction import one_coordinate_conditioning
+
+    rig = default_rig(0.2, projector_distortion="none")
+    simulate_capture(tmp_path / "cap", "finger", rig=rig, seed=4)
+    capture = read_capture(tmp_path / "cap", load=False)
+    calib = RigCalibration.from_dict(ideal_calibration(rig))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scan_capture(capture, calib, use="xp")
+    messages = [str(w.message) for w in caught if "ill-conditioned" in str(w.message)]
+    assert len(messages) == 1 and messages[0].startswith("camera 'cam1'"), messages
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scans = scan_capture(capture, calib, use="yp")
+    cam = calib.camera("cam1")
+    angle, mm = one_coordinate_conditioning(cam.camera, cam.projector,
+                                            scans[1].xyz[scans[1].mask][::50], "xp")
+    assert np.median(angle) < 1.0 and np.median(mm) > 2.0

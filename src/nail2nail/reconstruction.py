@@ -31,6 +31,7 @@ __all__ = [
     "TriangulationTable",
     "band_rows",
     "model_matrix",
+    "one_coordinate_conditioning",
     "pixel_grid",
     "ray_table",
     "reconstruct_image",
@@ -324,6 +325,49 @@ def model_matrix(model) -> np.ndarray:
     if isinstance(model, Pinhole):
         return projection_matrix(model)
     return as_matrix(model, "model", (3, 4))
+
+
+def one_coordinate_conditioning(camera, projector, xyz, use: str):
+    """How well one projector coordinate fixes points along their camera rays.
+
+    Triangulating from ``xp`` (or ``yp``) alone intersects each camera ray with the plane of
+    constant ``xp`` (``yp``) through the point. When the ray nearly lies in that plane, a
+    small error of the coordinate moves the point far along the ray: on the default rig the
+    centre camera's rays lie within a fraction of a degree of the projector's column planes.
+
+    Parameters
+    ----------
+    camera, projector : (3, 4) float or Pinhole
+        Models of one camera's calibration (lens distortion ignored: a local estimate).
+    xyz : (N, 3) float
+        Points on the surface, world mm.
+    use : {"xp", "yp"}
+        The coordinate triangulated from.
+
+    Returns
+    -------
+    angle_deg : (N,) float64
+        Angle between each camera ray and the plane of constant coordinate through its point,
+        degrees (90: the best case).
+    mm_per_px : (N,) float64
+        Displacement of the point along its ray per projector pixel of the coordinate, mm.
+    """
+    if use not in ("xp", "yp"):
+        raise ValueError(f"use: expected 'xp' or 'yp', got {use!r}")
+    M = model_matrix(camera)
+    centre = -np.linalg.solve(M[:, :3], M[:, 3])
+    P = model_matrix(projector)
+    X = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    d = X - centre
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    row = P[0] if use == "xp" else P[1]
+    w = X @ P[2, :3] + P[2, 3]
+    c = (X @ row[:3] + row[3]) / w
+    grad = (row[:3][None, :] - c[:, None] * P[2, :3][None, :]) / w[:, None]  # dc/dX, px / mm
+    along = np.abs(np.sum(grad * d, axis=1))  # dc/dt along the ray
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sine = along / np.linalg.norm(grad, axis=1)
+        return np.degrees(np.arcsin(np.clip(sine, 0.0, 1.0))), 1.0 / along
 
 
 def reconstruct_image(

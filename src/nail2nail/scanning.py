@@ -454,6 +454,8 @@ def scan_capture(
                                   method=method, decode_options=decode_options, clock=clock))
         if name in masks:
             _apply_user_mask(scans[-1], masks[name])
+        if use in ("xp", "yp"):
+            _warn_ill_conditioned(scans[-1], calibration.camera(name), use)
         kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
@@ -464,6 +466,30 @@ def scan_capture(
         for key, seconds in clock.seconds.items():
             timings[key] = timings.get(key, 0.0) + seconds
     return scans
+
+
+#: Smallest median angle between camera rays and the projector's planes of constant ``xp``
+#: (``yp``) below which one-coordinate triangulation gets a warning: at 3° a point moves 19×
+#: the coordinate's error along its ray (1 / sin 3°) instead of 1-2× in a well-built rig.
+MIN_PLANE_ANGLE_DEG = 3.0
+
+
+def _warn_ill_conditioned(scan: Scan, camera: CameraCalibration, use: str) -> None:
+    """Warn when the camera's rays nearly lie in the planes of the one coordinate used."""
+    from .reconstruction import one_coordinate_conditioning
+
+    points = scan.xyz[scan.mask][::97]  # a sample is enough for a median
+    if len(points) == 0:
+        return
+    angle, mm_per_px = one_coordinate_conditioning(camera.camera, camera.projector, points, use)
+    angle, mm_per_px = float(np.nanmedian(angle)), float(np.nanmedian(mm_per_px))
+    if angle < MIN_PLANE_ANGLE_DEG:
+        other = "yp" if use == "xp" else "xp"
+        warnings.warn(
+            f"camera {scan.name!r}: triangulating from {use} alone is ill-conditioned: its rays "
+            f"lie within {angle:.2f}° of the projector's planes of constant {use} (median), so "
+            f"0.1 px of error in {use} moves a point by {0.1 * mm_per_px:.3g} mm; use {other} "
+            "or both", UserWarning, stacklevel=3)
 
 
 def _user_mask(mask, name: str, shape) -> np.ndarray:
