@@ -8,6 +8,7 @@ after the other, with the seconds of every stage in ``process.json``.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,6 +66,11 @@ def test_outputs_and_stage_times(processed):
     files = summary["print"]["files"]
     assert all((out / "print" / name).exists() for name in files.values())
     assert str(out) in summary["out"] and ".tmp" not in json.dumps(summary)
+    merged = json.loads((out / "merge" / "merge.json").read_text())
+    assert ".tmp" not in json.dumps(merged)
+    named = [*merged["super_scan"]["files"].values(),
+             *(f for m in merged["merge"].values() for f in m["files"].values())]
+    assert named and all(Path(f).exists() and Path(f).is_relative_to(out) for f in named)
 
 
 def test_same_result_as_the_separate_commands(capture, processed, tmp_path, capsys):

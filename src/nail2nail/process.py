@@ -131,7 +131,7 @@ def process_capture(
     """
     from .frames import frame_transform
     from .io._atomic import atomic_directory, check_output_directory
-    from .io._json import write_json
+    from .io._json import read_json, write_json
     from .io.calibration import load_calibration
     from .io.capture import read_capture
     from .io.scans import save_scans
@@ -196,6 +196,10 @@ def process_capture(
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
                                  transform=transform, progress=progress)
+        # merge.json names its files under this job's temporary directory: name them where
+        # the job directory will be once renamed
+        merge_json = tmp / "merge" / "merge.json"
+        write_json(merge_json, _relocate(read_json(merge_json), str(tmp), str(out)))
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
