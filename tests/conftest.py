@@ -21,3 +21,20 @@ def thesis_table_path(camera: int) -> Path:
 @pytest.fixture
 def table_paths() -> tuple[Path, Path]:
     return thesis_table_path(0), thesis_table_path(1)
+
+
+@pytest.fixture(scope="session")
+def processed_finger(tmp_path_factory) -> Path:
+    """``process --figures`` of a small virtual finger (scale 0.25, its ideal calibration,
+    the thesis's projector distortion): the output directory, for the report's tests. The
+    capture and calibration stay where process.json names them."""
+    from nail2nail.cli import main
+
+    root = tmp_path_factory.mktemp("processed_finger")
+    capture, out = root / "capture", root / "out"
+    assert main(["-q", "simulate", "--scene", "finger", "--scale", "0.25", "--out",
+                 str(capture)]) == 0
+    calib = capture / "truth" / "calibration.json"
+    assert main(["-q", "process", str(capture), "--calib", str(calib), "--out", str(out),
+                 "--figures"]) == 0
+    return out

@@ -1,0 +1,101 @@
+"""The scan report: one self-contained HTML page for an output directory (issue 13).
+
+``nail2nail report OUT_DIR`` (and ``--report`` on ``process``; ``demo`` writes one by default)
+builds ``OUT_DIR/report.html`` from the files the pipeline wrote there
+(:func:`~nail2nail.report.inputs.find_inputs`): the capture (frame thumbnails, decode quality
+and coverage), the calibration (per-camera geometry and residuals), the projector distortion,
+the merge (heat maps, histograms and statistics per camera pair), an interactive 3D viewer of
+the super scan (plotly.js, WebGL) and the rolled-equivalent print. Every image and script is
+embedded: the page opens offline, from ``file://``, and weighs a few MB (plotly.js is 4.7 MB of
+it).
+
+The page's JavaScript contract, for scripts and tests: ``<div id="viewer">`` holds the WebGL
+canvas, and ``window.nail2nailReport`` is ``{ready, rotate(degrees), colorBy(name)}``:
+``ready`` a promise resolved once the 3D view has drawn, ``rotate`` turns the view about the
+finger axis, ``colorBy`` recolours it by ``"albedo"``, ``"camera"`` or ``"error"``; both
+return promises resolved after the redraw.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from .._progress import Stages
+from .inputs import ReportInputs, find_inputs
+
+__all__ = ["ReportInputs", "build_report", "find_inputs", "write_report"]
+
+
+def build_report(out_dir: str | os.PathLike, *, max_points: int = 150_000,
+                 progress: bool = False) -> str:
+    """The HTML report of a nail2nail output directory, as a string.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Output directory of ``process``, ``demo``, ``scan`` or ``merge``
+        (:func:`~nail2nail.report.inputs.find_inputs`).
+    max_points : int
+        Most super-scan vertices sent to the 3D viewer (evenly decimated above; the PLY in
+        the directory keeps every point).
+    progress : bool
+        Stage lines on stderr (a terminal only, not under :func:`nail2nail._progress.quiet`).
+
+    Returns
+    -------
+    str
+        The page.
+
+    Raises
+    ------
+    ValueError
+        `out_dir` is not an output directory, or a file in it cannot be read.
+    """
+    from . import calibration, capture, distortion, merge, overview, prints, viewer
+    from ._html import page_html
+
+    inputs = find_inputs(out_dir)
+    say = Stages(enabled=progress, prefix="report: ")
+    sections = []
+    for name, module in (("overview", overview), ("capture", capture),
+                         ("calibration", calibration), ("projector distortion", distortion),
+                         ("merge", merge), ("3D viewer", viewer), ("print", prints)):
+        say(name)
+        if module is viewer:
+            sections.append(module.section(inputs, max_points=max_points))
+        else:
+            sections.append(module.section(inputs))
+    from .. import __version__
+
+    title = f"nail2nail scan report: {inputs.root.resolve().name}"
+    subtitle = (f"{inputs.kind} directory {inputs.root.resolve()} · written "
+                f"{time.strftime('%Y-%m-%d %H:%M')} by nail2nail {__version__}")
+    return page_html(title, subtitle, sections, head_scripts=viewer.libraries(),
+                     footer="Self-contained page: every image and script is embedded; it "
+                     "needs no network. Units: mm and µm in the world frame of the scan, "
+                     "pixels with (0, 0) the centre of the top-left pixel (docs/conventions.md).")
+
+
+def write_report(out_dir: str | os.PathLike, path: str | os.PathLike | None = None, *,
+                 max_points: int = 150_000, progress: bool = False) -> Path:
+    """Write :func:`build_report` of `out_dir` to `path` (default ``out_dir/report.html``).
+
+    The file is written under a temporary name and renamed: a failed report leaves no partial
+    file and keeps an earlier one.
+
+    Returns
+    -------
+    Path
+        The report written.
+    """
+    from ..io._atomic import atomic_path
+
+    path = Path(out_dir) / "report.html" if path is None else Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a directory; give the report's file name")
+    text = build_report(out_dir, max_points=max_points, progress=progress)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return path

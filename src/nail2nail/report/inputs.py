@@ -1,0 +1,148 @@
+"""What the report is made of: the files of one nail2nail output directory, found by name.
+
+Four kinds of directory are recognised, by the summary file they hold:
+
+========== ============================ ===================================================
+kind       marker                       layout
+========== ============================ ===================================================
+process    ``process.json``             ``nail2nail process``: ``scans/``, ``merge/``,
+                                        ``print/``; capture and calibration named in the
+                                        summary (read where they are, when they still exist)
+demo       ``summary.json``             ``nail2nail demo``: the finger of the best
+                                        configuration (``scans/best/finger``,
+                                        ``merge/best/finger``), ``print/``, ``calib/``,
+                                        ``distortion/``, ``captures/``
+scans      ``scan.json``                ``nail2nail scan``; ``merge/`` beside it if present
+merge      ``merge.json``               ``nail2nail merge``
+========== ============================ ===================================================
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..io._json import read_json
+
+__all__ = ["ReportInputs", "find_inputs"]
+
+
+@dataclass
+class ReportInputs:
+    """Paths of the parts of one output directory (``None``: not there).
+
+    Attributes
+    ----------
+    root : Path
+        The output directory.
+    kind : str
+        ``"process"``, ``"demo"``, ``"scans"`` or ``"merge"``.
+    summary : dict
+        The directory's summary file (``process.json``, ``summary.json``, ``scan.json`` or
+        ``merge.json``).
+    capture : Path or None
+        The capture directory (``capture.json``) the scans were decoded from.
+    calibration : Path or None
+        The calibration JSON the scans were reconstructed with.
+    scans, merge, print : Path or None
+        The scan directory (``scan.json``), merge directory (``merge.json``) and print
+        directory (``print.json``).
+    distortion : Path or None
+        ``projector_distortion.json`` of a distortion estimate (demo).
+    comparison : dict
+        Demo only: merge directories of the other calibration configurations,
+        ``{"before/target": Path, …}``.
+    notes : list of str
+        What was looked for and not found (shown in the report).
+    """
+
+    root: Path
+    kind: str
+    summary: dict
+    capture: Path | None = None
+    calibration: Path | None = None
+    scans: Path | None = None
+    merge: Path | None = None
+    print: Path | None = None
+    distortion: Path | None = None
+    comparison: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+
+def _dir_with(path: Path, marker: str) -> Path | None:
+    return path if (path / marker).is_file() else None
+
+
+def _named(value, root: Path, marker: str, what: str, notes: list) -> Path | None:
+    """A path named in a summary, if it still exists (as given, or relative to `root`)."""
+    if not value:
+        return None
+    for candidate in (Path(value), root / value, root.parent / value):
+        target = candidate / marker if marker else candidate
+        if target.is_file():
+            return candidate
+    notes.append(f"the {what} {value} named in the summary is not there any more")
+    return None
+
+
+def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
+    """The parts of a nail2nail output directory, for :func:`nail2nail.report.build_report`.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Output of ``nail2nail process``, ``nail2nail demo``, ``nail2nail scan`` or
+        ``nail2nail merge``.
+
+    Returns
+    -------
+    ReportInputs
+
+    Raises
+    ------
+    ValueError
+        `out_dir` is not a directory, or holds none of the summary files above.
+    """
+    root = Path(out_dir)
+    if not root.is_dir():
+        raise ValueError(f"{root}: not a directory")
+    notes: list[str] = []
+    if (root / "process.json").is_file():
+        summary = read_json(root / "process.json")
+        inputs = ReportInputs(root, "process", summary,
+                              scans=_dir_with(root / "scans", "scan.json"),
+                              merge=_dir_with(root / "merge", "merge.json"),
+                              print=_dir_with(root / "print", "print.json"))
+        inputs.capture = _named(summary.get("capture"), root, "capture.json", "capture", notes)
+        inputs.calibration = _named(summary.get("calibration"), root, "", "calibration", notes)
+    elif (root / "summary.json").is_file():
+        summary = read_json(root / "summary.json")
+        inputs = ReportInputs(root, "demo", summary,
+                              scans=_dir_with(root / "scans" / "best" / "finger", "scan.json"),
+                              merge=_dir_with(root / "merge" / "best" / "finger", "merge.json"),
+                              print=_dir_with(root / "print", "print.json"))
+        inputs.capture = _dir_with(root / "captures" / "finger", "capture.json")
+        best = root / "calib" / "rig_best.json"
+        inputs.calibration = best if best.is_file() else None
+        dist = root / "distortion" / "projector_distortion.json"
+        inputs.distortion = dist if dist.is_file() else None
+        inputs.comparison = {
+            f"{m.parent.parent.name}/{m.parent.name}": m.parent
+            for m in sorted((root / "merge").glob("*/*/merge.json"))
+        }
+    elif (root / "scan.json").is_file():
+        summary = read_json(root / "scan.json")
+        inputs = ReportInputs(root, "scans", summary, scans=root,
+                              merge=_dir_with(root / "merge", "merge.json"))
+        inputs.capture = _named(summary.get("capture"), root, "capture.json", "capture", notes)
+        inputs.calibration = _named(summary.get("calibration"), root, "", "calibration", notes)
+    elif (root / "merge.json").is_file():
+        summary = read_json(root / "merge.json")
+        inputs = ReportInputs(root, "merge", summary, merge=root)
+    else:
+        raise ValueError(
+            f"{root}: not a nail2nail output directory (no process.json, summary.json, "
+            "scan.json or merge.json in it)")
+    inputs.notes = notes
+    return inputs
