@@ -12,7 +12,10 @@ Steps, each written under ``out``:
    patterns ("before"), the same on LUT-corrected patterns ("thesis_lut"), the same on plain
    patterns with the estimated distortion compensated in the model ("model_dlt"), and the
    joint calibration with one shared projector whose distortion is modelled, the marks'
-   projected discs modelled on the cylinder, refined on the target's surface ("best").
+   projected discs modelled on the cylinder, refined on the target's surface ("best"):
+   ``rig_CONFIG.json``, and beside each the observations it was fitted to as points tables
+   ``rig_CONFIG_points_CAMERA.tsv`` (as ``nail2nail calibrate`` writes them; the report's
+   calibration residuals).
 5. ``merge/``: per configuration and object, the merge error of camera pairs in projector
    space (thesis chapter four: ``merge.json`` and figures); ``scans/best/finger`` holds the
    best configuration's finger scans (.npz, PLY) and its merge directory the data files
@@ -72,7 +75,7 @@ def plane_distortion(plane_capture):
         {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane_capture)})
 
 
-def best_calibration(target_capture, *, center, rho, panel_size):
+def best_calibration(target_capture, *, center, rho, panel_size, observations=None):
     """The demo's "best" calibration of a rig from a capture of the cylindrical target.
 
     All cameras and one shared projector are fitted jointly, the projector's radial
@@ -90,6 +93,10 @@ def best_calibration(target_capture, *, center, rho, panel_size):
         Initial distortion parameter (thesis eq. 3.15).
     panel_size : (int, int)
         Projector panel ``(width, height)``, px.
+    observations : list of TargetObservations, optional
+        The capture's observations with re-measured marks
+        (``target_observations(target_capture, refine_marks=True)``, computed when not given;
+        the demo computes them once, to write them as points tables too).
 
     Returns
     -------
@@ -100,7 +107,8 @@ def best_calibration(target_capture, *, center, rho, panel_size):
     from .scanning import target_observations
 
     target = TargetGeometry()
-    observations = target_observations(target_capture, refine_marks=True)
+    if observations is None:
+        observations = target_observations(target_capture, refine_marks=True)
     return calibrate_from_observations(
         observations, model="joint", surface=target.signed_distance,
         projector_size=panel_size, initial_distortion={"center": list(center), "rho": rho},
@@ -148,6 +156,7 @@ def run_demo(
     from .io._json import write_json
     from .io.calibration import save_calibration
     from .io.capture import read_capture
+    from .io.points import PointsTable, write_points
     from .io.scans import save_scans
     from .merge.report import write_merge
     from .patterns import default_pattern_set, make_patterns
@@ -199,21 +208,31 @@ def run_demo(
     step("calibrate: per-camera DLT (before, thesis_lut, model_dlt) and joint (best)")
     obs_plain = target_observations(read_capture(captures["target"], load=False))
     obs_lut = target_observations(read_capture(captures["target_lut"], load=False))
+    target_capture = read_capture(captures["target"], load=False)
+    obs_best = target_observations(target_capture, refine_marks=True)
     calibs = {
         "before": calibrate_from_observations(obs_plain, model="dlt")[0],
         "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
         "model_dlt": calibrate_from_observations(
             obs_plain, model="dlt", projector_distortion={"center": list(center), "rho": rho}
         )[0],
-        "best": best_calibration(read_capture(captures["target"], load=False), center=center,
-                                 rho=rho, panel_size=pattern_set.panel_size),
+        "best": best_calibration(target_capture, center=center, rho=rho,
+                                 panel_size=pattern_set.panel_size, observations=obs_best),
     }
+    # the observations each calibration was fitted to, as `nail2nail calibrate` writes them
+    observed = {"before": obs_plain, "thesis_lut": obs_lut, "model_dlt": obs_plain,
+                "best": obs_best}
     calib_paths = {}
     names = [f"rig_{name}.json" for name in calibs]
     with atomic_directory(out / "calib", marker=tuple(names)) as tmp:
         for name, calib in calibs.items():
             save_calibration(tmp / f"rig_{name}.json", calib)
             calib_paths[name] = str(out / "calib" / f"rig_{name}.json")
+            for obs in observed[name]:
+                extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
+                                                         "grid_col": obs.grid[:, 1]}
+                write_points(tmp / f"rig_{name}_points_{obs.name}.tsv", PointsTable.from_arrays(
+                    obs.xyz_world, obs.xy_camera, obs.xy_projector, extra=extra))
 
     comparison: dict = {}
     merges: dict = {}
