@@ -11,6 +11,7 @@ from ..calibration import calibrate_points, crosscheck
 from ..io._json import dumps_json
 from ..io.points import thesis_table
 from ._calibrate import format_table
+from ._report import add_report_options, check_report_options
 
 __all__ = ["add_parser", "run", "thesis_part"]
 
@@ -25,6 +26,9 @@ def add_parser(sub) -> None:
     p.add_argument("--out", type=Path, default=Path("demo-output"), help="output directory")
     p.add_argument("--scale", type=float, default=1.0, help="camera resolution scale")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    p.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
+                   help="write OUT/report.html, the HTML report of the finger (default: on)")
+    add_report_options(p)
     p.set_defaults(func=run)
 
 
@@ -57,13 +61,21 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.scale > 0:
         raise ValueError(f"--scale: expected a positive number, got {args.scale}")
+    check_report_options(args)
     thesis = thesis_part(args.json)
     if not args.json:
         print(f"\n== Virtual scanner: the whole pipeline (scale {args.scale}) -> {args.out} ==")
     result = run_demo(args.out, scale=args.scale, progress=True)
     result["thesis"] = thesis
+    if args.report:
+        from ..report import write_report
+
+        result["report"] = str(write_report(args.out, max_points=args.report_points,
+                                            progress=True))
     if args.json:
         print(dumps_json(result, default=float))
     else:
         print(format_summary(result))
+        if args.report:
+            print(f"report: {result['report']}")
     return 0

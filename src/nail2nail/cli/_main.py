@@ -44,6 +44,7 @@ COMMANDS = [
     "distortion",
     "merge",
     "unroll",
+    "report",
     "process",
     "demo",
 ]

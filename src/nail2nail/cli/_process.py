@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from ..io._json import dumps_json
+from ._report import add_report_options, check_report_options
 from ._scan import add_scan_options, decode_options, masks, max_gradient
 from ._unroll import add_unroll_options, check_unroll_options
 
@@ -43,6 +44,9 @@ def add_parser(sub) -> None:
                    help="unroll the finger into the rolled-equivalent print (default: on)")
     add_unroll_options(p)
     p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
+    p.add_argument("--report", action="store_true",
+                   help="also write OUT/report.html, the HTML report (`nail2nail report`)")
+    add_report_options(p)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
 
@@ -52,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from ..process import process_capture
 
     check_unroll_options(args)
+    check_report_options(args)
     options = decode_options(args)
     min_modulation = options.pop("min_modulation")
     if args.pairs is not None:
@@ -64,6 +69,11 @@ def run(args: argparse.Namespace) -> int:
         unroll=args.unroll, method=args.method, ppi=args.ppi, tip_direction=args.tip_direction,
         length_mm=args.length, wsq=not args.no_wsq, frame=args.frame,
         progress=True)
+    if args.report:
+        from ..report import write_report
+
+        summary["report"] = str(write_report(args.out, max_points=args.report_points,
+                                             progress=True))
     if args.json:
         print(dumps_json(summary))
         return 0
@@ -81,4 +91,6 @@ def run(args: argparse.Namespace) -> int:
     stages = ", ".join(f"{k} {v:.2f} s" for k, v in summary["seconds"].items())
     print(f"seconds: {stages}; peak memory {summary['peak_rss_mb']} MB")
     print(f"wrote {Path(args.out) / 'process.json'}")
+    if args.report:
+        print(f"wrote {summary['report']}")
     return 0

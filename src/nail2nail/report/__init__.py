@@ -28,7 +28,7 @@ from .inputs import ReportInputs, find_inputs
 __all__ = ["ReportInputs", "build_report", "find_inputs", "write_report"]
 
 
-def build_report(out_dir: str | os.PathLike, *, max_points: int = 150_000,
+def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
                  progress: bool = False) -> str:
     """The HTML report of a nail2nail output directory, as a string.
 
@@ -79,7 +79,7 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 150_000,
 
 
 def write_report(out_dir: str | os.PathLike, path: str | os.PathLike | None = None, *,
-                 max_points: int = 150_000, progress: bool = False) -> Path:
+                 max_points: int = 60_000, progress: bool = False) -> Path:
     """Write :func:`build_report` of `out_dir` to `path` (default ``out_dir/report.html``).
 
     The file is written under a temporary name and renamed: a failed report leaves no partial

@@ -1,0 +1,152 @@
+"""The report's merge section: the merge error per camera pair (thesis chapter four).
+
+Per pair: the statistics of ``merge.json`` (pairs kept, distance median … max in µm, the share
+below the thesis's 0.05 mm, the pairs rejected and why), a heat map of the error over the
+parent camera's image and its histogram, drawn from the pair's mapping file
+(``merge_P-C_mapping.npz``) where it was written, else the PNG figures the merge wrote. Then
+the super scan's bookkeeping (vertices, each camera's share, points removed) and, for the
+demo, the comparison of calibration configurations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..io._json import read_json
+from ._html import Section, figure_html, image_html, note_html, table_html
+from .inputs import ReportInputs
+
+__all__ = ["THRESHOLD_MM", "section"]
+
+#: The thesis's threshold on the merge error (0.05 mm, chapter four).
+THRESHOLD_MM = 0.05
+
+
+def _um(value_mm) -> str:
+    return "" if value_mm is None else f"{1e3 * float(value_mm):.2f}"
+
+
+def _pair_rows(merge: dict) -> list[list]:
+    rows = []
+    for key, m in merge.items():
+        d = m["distance_mm"]
+        rejected = m.get("rejected", {})
+        rows.append([
+            key, m.get("parent", ""), m.get("child", ""), f"{m['pairs']:,}",
+            _um(d["median"]), _um(d["mean"]), _um(d.get("rms")), _um(d.get("p90")),
+            _um(d["p95"]), _um(d["max"]), f"{100 * d['frac_below_0_05']:.2f}",
+            ", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none",
+        ])
+    return rows
+
+
+def _heatmap_figure(mapping_path, key: str, parent: str, child: str):
+    """Heat map of the error over the parent image and its histogram (one figure)."""
+    from matplotlib.figure import Figure
+
+    with np.load(mapping_path) as data:
+        shape = data["mapping"].shape[:2]
+        rc = data["parent_rc"]
+        error = data["distance_mm"].astype(float) * 1e3
+    image = np.full(shape, np.nan)
+    image[rc[:, 0], rc[:, 1]] = error
+    top = float(np.percentile(error, 99)) if error.size else 1.0
+    fig = Figure(figsize=(10, 4.2), dpi=90)
+    ax, hist = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.1, 1]})
+    # the finger's rows and columns only: the rest of the image is background
+    rows, cols = np.nonzero(np.isfinite(image))
+    if rows.size:
+        image = image[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+        extent = (cols.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5, rows.min() - 0.5)
+    else:
+        extent = None
+    shown = ax.imshow(image, cmap="viridis", vmin=0, vmax=top, interpolation="nearest",
+                      extent=extent)
+    fig.colorbar(shown, ax=ax, label="merge error (µm)", shrink=0.85)
+    ax.set_title(f"{key}: error over {parent}'s image (px)", fontsize=10)
+    ax.set_xlabel("column")
+    ax.set_ylabel("row")
+    if error.size:
+        hist.hist(error, bins=80, range=(0, max(top, 1e-3)), color="#3b528b")
+        for value, label, style in ((np.median(error), "median", "-"),
+                                    (np.percentile(error, 95), "p95", "--")):
+            hist.axvline(value, color="#d62728", ls=style, lw=1,
+                         label=f"{label} {value:.1f} µm")
+        hist.legend(fontsize=8)
+    hist.set_xlabel("merge error (µm)")
+    hist.set_ylabel("pairs")
+    hist.set_title(f"{key}: {error.size:,} pairs ({parent} → {child})", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _super_scan(info: dict) -> str:
+    cams = info.get("cameras", {})
+    rejected = info.get("points_rejected", {})
+    dups = info.get("duplicates_removed", {})
+    rows = [[name, f"{c.get('owned', 0):,}", f"{c.get('fused', 0):,}", f"{dups.get(name, 0):,}",
+             ", ".join(f"{k} {v}" for k, v in rejected.get(name, {}).items()) or "none"]
+            for name, c in cams.items()]
+    head = (f"<p>{info.get('vertices', 0):,} vertices, {info.get('faces', 0):,} triangles; "
+            f"priority {' > '.join(info.get('priority', []))}; frame "
+            f"{info.get('frame', 'world')}.</p>")
+    return head + table_html(rows, ["camera", "points owned", "fused with a partner",
+                                    "duplicates removed", "points rejected"],
+                             caption="Each camera's share of the super scan")
+
+
+def _comparison(summary: dict) -> str:
+    comparison = summary.get("comparison") or {}
+    rows = []
+    for config, objects in comparison.items():
+        for obj, pairs in objects.items():
+            for key, m in pairs.items():
+                d = m["distance_mm"]
+                rows.append([config, obj, key, f"{m['pairs']:,}", _um(d["median"]),
+                             _um(d["p95"]), _um(d["max"]), f"{100 * d['frac_below_0_05']:.1f}"])
+    if not rows:
+        return ""
+    return "<h3>Calibration configurations compared (demo)</h3>" + table_html(
+        rows, ["configuration", "object", "pair", "pairs", "median µm", "p95 µm", "max µm",
+               "% < 50 µm"],
+        caption="The merge error of every configuration the demo ran (README, issue 5)")
+
+
+def section(inputs: ReportInputs) -> Section:
+    """The merge section of the report."""
+    if inputs.merge is None:
+        return Section("merge", "Merge", note_html(
+            f"No merge: no merge.json under {inputs.root} (nail2nail merge or process "
+            "writes it).", "missing"), status="missing")
+    summary = read_json(inputs.merge / "merge.json")
+    merge = summary.get("merge", {})
+    status = "ok"
+    parts = []
+    worst = [k for k, m in merge.items() if m["distance_mm"]["median"] > THRESHOLD_MM]
+    if worst:
+        status = "warn"
+        parts.append(note_html(
+            f"Median merge error above the thesis's {1e3 * THRESHOLD_MM:.0f} µm for "
+            f"{', '.join(worst)}: the cameras disagree (calibration, distortion or motion).",
+            "warn"))
+    parts.append(table_html(
+        _pair_rows(merge),
+        ["pair", "parent", "child", "pairs", "median µm", "mean µm", "RMS µm", "p90 µm",
+         "p95 µm", "max µm", "% < 50 µm", "rejected"],
+        caption="Merge error per camera pair: 3D distance between a parent pixel's point and "
+        "the child's point at the same projector coordinates (thesis chapter four)"))
+    for key, m in merge.items():
+        mapping = inputs.merge / f"merge_{key}_mapping.npz"
+        if mapping.is_file():
+            parts.append(figure_html(_heatmap_figure(mapping, key, m.get("parent", "parent"),
+                                                     m.get("child", "child"))))
+            continue
+        pngs = [inputs.merge / f"merge_{key}_{kind}.png" for kind in ("heatmap", "histogram")]
+        shown = [image_html(p, p.name, max_size=640) for p in pngs if p.is_file()]
+        parts.append('<div class="row">' + "".join(shown) + "</div>" if shown else note_html(
+            f"{key}: neither the mapping file nor the figures were written.", "missing"))
+    if "super_scan" in summary:
+        parts.append("<h3>Super scan</h3>" + _super_scan(summary["super_scan"]))
+    if inputs.kind == "demo":
+        parts.append(_comparison(inputs.summary))
+    return Section("merge", "Merge", "".join(parts), status=status)

@@ -1,0 +1,385 @@
+"""The report's interactive 3D viewer of the super scan (plotly.js, WebGL).
+
+The super scan (``merge/super.ply``) is decimated for the browser by vertex clustering
+(:func:`cluster_vertices`: one vertex per occupied cube of a regular grid, the triangles
+re-indexed, degenerate ones dropped; Rossignac & Borrel 1993), to at most ``max_points``
+vertices. Each vertex carries three colourings:
+
+- ``albedo``: the PLY's vertex colour (the decoded albedo, grey);
+- ``camera``: which camera's scan the vertex comes from (nearest scan point of every camera,
+  in the world frame);
+- ``error``: the merge error (µm) of the camera pair whose corresponding points lie at the
+  vertex (nearest point of the pairs' mapping files within two vertex spacings), grey where
+  no two cameras overlap.
+
+The page shows them as points or as a shaded mesh (buttons), orbit/zoom/pan with the mouse.
+Full detail stays in the PLY: the browser gets the decimated copy, so that the page opens in a
+few seconds on a machine without a GPU.
+
+JavaScript contract (tests and scripts): ``<div id="viewer">`` holds the WebGL canvas;
+``window.nail2nailReport = {ready, rotate(degrees), colorBy(name), show(kind)}``, every
+method returning a promise resolved after the redraw.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ._html import Section, escape, note_html
+from .inputs import ReportInputs
+
+__all__ = ["cluster_vertices", "libraries", "section", "viewer_data"]
+
+#: Camera colours (index order of the scans), also in the legend.
+CAMERA_COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b")
+
+
+def libraries() -> list[str]:
+    """Inline JavaScript the viewer needs in the page head: plotly.js (minified, offline)."""
+    import plotly
+
+    path = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
+    return [path.read_text(encoding="utf-8")]
+
+
+def cluster_vertices(points, faces=None, *, max_vertices: int, attributes=()):
+    """Decimate a mesh (or a point cloud) by vertex clustering on a regular grid.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Vertex positions, mm.
+    faces : (M, 3) int, optional
+        Triangles (vertex indices).
+    max_vertices : int
+        Most vertices kept: the cube size grows (×1.25 per step, from the cloud's mean
+        spacing) until at most this many cubes are occupied. ``N <= max_vertices``: nothing is
+        merged.
+    attributes : sequence of (N,) or (N, k) float arrays
+        Per-vertex values averaged per cube (NaN ignored: a cube of NaN stays NaN).
+
+    Returns
+    -------
+    points : (K, 3) float64
+        Mean position of each occupied cube.
+    faces : (L, 3) int64 or None
+        Triangles whose three vertices fell into three different cubes, re-indexed; each
+        distinct triangle once.
+    attributes : list of arrays
+        Per-cube means of `attributes`.
+    labels : (N,) int64
+        The cube (output vertex) of every input vertex.
+    """
+    points = np.asarray(points, dtype=float)
+    n = len(points)
+    if max_vertices < 1:
+        raise ValueError(f"max_vertices: expected a positive count, got {max_vertices}")
+    if n <= max_vertices:
+        labels = np.arange(n)
+    else:
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        extent = np.maximum(hi - lo, 1e-9)
+        # a surface of N points over this box: spacing ~ sqrt(area / N), area ~ the box's
+        # two largest faces; start below the answer and grow
+        size = float(np.sqrt(np.sort(extent)[1:].prod() / max_vertices)) * 0.5
+        while True:
+            cells = np.floor((points - lo) / size).astype(np.int64)
+            dims = cells.max(axis=0) + 1
+            key = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+            _, labels = np.unique(key, return_inverse=True)
+            if labels.max() + 1 <= max_vertices:
+                break
+            size *= 1.25
+    k = int(labels.max()) + 1 if n else 0
+    counts = np.bincount(labels, minlength=k).astype(float)
+    out_points = np.stack([np.bincount(labels, points[:, i], k) / counts for i in range(3)], 1)
+    out_attributes = [_cluster_mean(labels, np.asarray(a, dtype=float), k) for a in attributes]
+    out_faces = None
+    if faces is not None:
+        f = labels[np.asarray(faces, dtype=np.int64)]
+        keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+        f = f[keep]
+        # the same triangle from several fine ones: once (orientation kept of the first)
+        rolled = np.sort(f, axis=1)
+        _, first = np.unique(rolled, axis=0, return_index=True)
+        out_faces = f[np.sort(first)]
+    return out_points, out_faces, out_attributes, labels
+
+
+def _cluster_mean(labels: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+    flat = values.reshape(len(values), -1)
+    out = np.empty((k, flat.shape[1]))
+    for j in range(flat.shape[1]):  # a few columns, not pixels
+        finite = np.isfinite(flat[:, j])
+        total = np.bincount(labels[finite], flat[finite, j], k)
+        count = np.bincount(labels[finite], minlength=k)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[:, j] = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return out.reshape((k, *values.shape[1:]))
+
+
+def _world_points(inputs: ReportInputs, points: np.ndarray) -> np.ndarray:
+    """Super-scan vertices (written in ``super_scan.frame``) in the world frame."""
+    from ..frames import invert_transform
+
+    info = _merge_summary(inputs).get("super_scan", {})
+    transform = np.asarray(info.get("T_frame_world", np.eye(4)), dtype=float)
+    if np.allclose(transform, np.eye(4)):
+        return points
+    back = invert_transform(transform)
+    return points @ back[:3, :3].T + back[:3, 3]
+
+
+def _merge_summary(inputs: ReportInputs) -> dict:
+    from ..io._json import read_json
+
+    return read_json(inputs.merge / "merge.json") if inputs.merge is not None else {}
+
+
+def _vertex_cameras(points: np.ndarray, inputs: ReportInputs) -> tuple[np.ndarray, list[str]]:
+    """Index of the camera whose scan point is nearest to each vertex; the camera names."""
+    from scipy.spatial import cKDTree
+
+    from ..io.scans import load_scans
+
+    if inputs.scans is None:
+        return np.full(len(points), -1), []
+    scans = load_scans(inputs.scans)
+    best = np.full(len(points), np.inf)
+    camera = np.full(len(points), -1)
+    for i, scan in enumerate(scans):
+        xyz = scan.xyz[scan.mask]
+        if len(xyz) == 0:
+            continue
+        d, _ = cKDTree(xyz).query(points, workers=-1)
+        closer = d < best
+        best[closer], camera[closer] = d[closer], i
+    return camera, [s.name for s in scans]
+
+
+def _vertex_errors(points: np.ndarray, inputs: ReportInputs, spacing: float) -> np.ndarray:
+    """Merge error (µm) of the pair points within 2 spacings of each vertex; NaN elsewhere."""
+    from scipy.spatial import cKDTree
+
+    xyz, error = [], []
+    for pair in sorted(inputs.merge.glob("merge_*_mapping.npz")) if inputs.merge else []:
+        with np.load(pair) as data:
+            d = data["distance_mm"].astype(float) * 1e3
+            xyz += [data["xyz_parent"], data["xyz_child"]]
+            error += [d, d]
+    if not xyz:
+        return np.full(len(points), np.nan)
+    d, index = cKDTree(np.concatenate(xyz)).query(points, workers=-1,
+                                                  distance_upper_bound=2 * spacing)
+    values = np.concatenate(error)
+    found = np.isfinite(d)
+    out = np.full(len(points), np.nan)
+    out[found] = values[index[found]]
+    return out
+
+
+def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000) -> dict | None:
+    """The decimated super scan and its colourings, as the page's JavaScript reads them.
+
+    Returns
+    -------
+    dict or None
+        ``{"n_vertices", "n_faces", "source_vertices", "source_faces", "cameras", "xyz"
+        (base64 float32, (K, 3) mm, world), "faces" (base64 int32 (L, 3)), "albedo"
+        (base64 float32 0..1), "camera" (base64 float32 index, -1 none), "error" (base64
+        float32 µm, NaN none), "error_range" [0, p95]}``; ``None`` without a super scan.
+    """
+    from scipy.spatial import cKDTree
+
+    from ..io.ply import read_ply
+
+    if inputs.merge is None or not (inputs.merge / "super.ply").is_file():
+        return None
+    ply = read_ply(inputs.merge / "super.ply")
+    points = _world_points(inputs, ply.points.astype(float))
+    albedo = (ply.colors.astype(float).mean(axis=1) / 255 if ply.colors is not None
+              else np.full(len(points), 0.7))
+    camera, names = _vertex_cameras(points, inputs)
+    small, faces, (albedo_k, camera_hist), _ = cluster_vertices(
+        points, ply.faces, max_vertices=max_points,
+        attributes=(albedo, np.eye(max(len(names), 1))[np.maximum(camera, 0)]
+                    * (camera >= 0)[:, None]))
+    camera_k = np.where(camera_hist.max(axis=1) > 0, camera_hist.argmax(axis=1), -1)
+    # vertex spacing of the decimated cloud: the pairing radius of the merge errors
+    spacing = float(np.median(cKDTree(small).query(small[: 20_000], k=2)[0][:, 1]))
+    error = _vertex_errors(small, inputs, max(spacing, 1e-6))
+    finite = error[np.isfinite(error)]
+    return {
+        "n_vertices": len(small),
+        "n_faces": 0 if faces is None else len(faces),
+        "source_vertices": len(points),
+        "source_faces": 0 if ply.faces is None else len(ply.faces),
+        "spacing_mm": spacing,
+        "cameras": names,
+        "xyz": _b64(small, np.float32),
+        "faces": _b64(np.zeros((0, 3)) if faces is None else faces, np.int32),
+        "albedo": _b64(albedo_k, np.float32),
+        "camera": _b64(camera_k, np.float32),
+        "error": _b64(error, np.float32),
+        # the albedo's grey scale stretched over its 1st..99th percentile, for contrast
+        "albedo_range": np.nanpercentile(albedo_k, [1, 99]).tolist(),
+        "error_range": [0.0, float(np.percentile(finite, 95)) if finite.size else 1.0],
+        "error_coverage": float(finite.size / max(len(error), 1)),
+    }
+
+
+def _b64(array, dtype) -> str:
+    return base64.b64encode(np.ascontiguousarray(array, dtype=dtype).tobytes()).decode("ascii")
+
+
+def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
+    """The 3D viewer section (``<div id="viewer">`` and its script)."""
+    data = viewer_data(inputs, max_points=max_points)
+    if data is None:
+        where = inputs.merge / "super.ply" if inputs.merge else inputs.root / "merge/super.ply"
+        body = note_html(f"No super scan: {where} not found (merge writes it).", "missing")
+        # the contract holds on every page: `ready` resolves, the methods exist
+        stub = ("window.nail2nailReport = {ready: Promise.resolve(), rotate: () => "
+                "Promise.resolve(), colorBy: () => Promise.resolve(), show: () => "
+                "Promise.resolve()};")
+        return Section("view3d", "3D viewer", body, status="missing", scripts=[stub])
+    legend = " ".join(
+        f'<span style="color:{CAMERA_COLOURS[i % len(CAMERA_COLOURS)]}">■ {escape(n)}</span>'
+        for i, n in enumerate(data["cameras"]))
+    decimated = (f"{data['n_vertices']:,} of {data['source_vertices']:,} vertices, "
+                 f"{data['n_faces']:,} of {data['source_faces']:,} triangles (vertex "
+                 f"clustering, {1e3 * data['spacing_mm']:.0f} µm apart)")
+    body = (
+        '<div class="controls">Colour by: '
+        '<button data-color="albedo" class="active">albedo</button>'
+        '<button data-color="camera">camera</button>'
+        '<button data-color="error">merge error</button>'
+        ' &nbsp; Show: <button data-show="mesh" class="active">mesh</button>'
+        '<button data-show="points">points</button>'
+        ' &nbsp; <button data-reset="1">reset view</button></div>'
+        '<div id="viewer"></div>'
+        f'<p class="note">Drag to orbit, scroll to zoom, right-drag to pan. {decimated}; the '
+        "full scan is merge/super.ply. Cameras: " + legend + ". Merge error: distance between "
+        "the corresponding points of two cameras (µm, colour scale to its 95th percentile) on "
+        f"{100 * data['error_coverage']:.0f}% of the vertices; grey where one camera alone "
+        "sees the finger.</p>"
+    )
+    payload = json.dumps({**data, "colours": list(CAMERA_COLOURS)})
+    script = _VIEWER_JS.replace("__DATA__", payload)
+    return Section("view3d", "3D viewer", body, scripts=[script])
+
+
+_VIEWER_JS = r"""
+(() => {
+"use strict";
+const data = __DATA__;
+const decode = (b64, Type) => {
+  const s = atob(b64), bytes = new Uint8Array(s.length);
+  for (let i = 0; i < s.length; i++) bytes[i] = s.charCodeAt(i);
+  return new Type(bytes.buffer);
+};
+const xyz = decode(data.xyz, Float32Array), n = data.n_vertices;
+const x = new Float32Array(n), y = new Float32Array(n), z = new Float32Array(n);
+for (let i = 0; i < n; i++) { x[i] = xyz[3 * i]; y[i] = xyz[3 * i + 1]; z[i] = xyz[3 * i + 2]; }
+const faces = decode(data.faces, Int32Array), m = data.n_faces;
+const fi = new Int32Array(m), fj = new Int32Array(m), fk = new Int32Array(m);
+for (let t = 0; t < m; t++) {
+  fi[t] = faces[3 * t]; fj[t] = faces[3 * t + 1]; fk[t] = faces[3 * t + 2];
+}
+const NONE = "#b8bcc4";
+const nc = Math.max(data.cameras.length, 1);
+// every colouring is a scalar per vertex and a colour scale; "none" values sit in a grey
+// band below the scale (plotly draws NaN inconsistently)
+const schemes = {
+  albedo: () => ({values: decode(data.albedo, Float32Array), cmin: data.albedo_range[0],
+    cmax: Math.max(data.albedo_range[1], data.albedo_range[0] + 1e-3),
+    colorscale: [[0, "#000000"], [1, "#ffffff"]], title: "albedo"}),
+  camera: () => {
+    const v = decode(data.camera, Float32Array), scale = [[0, NONE], [1 / (nc + 1), NONE]];
+    for (let c = 0; c < nc; c++) {
+      const col = data.colours[c % data.colours.length];
+      scale.push([(c + 1) / (nc + 1), col], [(c + 2) / (nc + 1), col]);
+    }
+    return {values: v, cmin: -1, cmax: nc - 1 + 1e-6, colorscale: scale, title: "camera",
+      showscale: false};
+  },
+  error: () => {
+    const v = decode(data.error, Float32Array), top = data.error_range[1] || 1;
+    const low = -top / 40;
+    for (let i = 0; i < v.length; i++) if (!Number.isFinite(v[i])) v[i] = low;
+    const f = (1 / 41) * 0.999, viridis = ["#440154", "#3b528b", "#21918c", "#5ec962", "#fde725"];
+    const scale = [[0, NONE], [f, NONE]];
+    viridis.forEach((c, i) => scale.push([f + 1e-4 + (1 - f - 1e-4) * i / 4, c]));
+    return {values: v, cmin: low, cmax: top, colorscale: scale, title: "merge error (µm)"};
+  },
+};
+const div = document.getElementById("viewer");
+let current = "albedo", shown = m > 0 ? "mesh" : "points", angle = 0;
+const eye0 = {x: 0, y: 0.3, z: 2.5};
+const eye = () => {
+  const a = angle * Math.PI / 180;
+  return {x: eye0.x * Math.cos(a) + eye0.z * Math.sin(a), y: eye0.y,
+          z: -eye0.x * Math.sin(a) + eye0.z * Math.cos(a)};
+};
+const colourbar = (s) => ({title: {text: s.title}, len: 0.6, thickness: 14});
+const traces = (name) => {
+  const s = schemes[name]();
+  const common = {cmin: s.cmin, cmax: s.cmax, colorscale: s.colorscale,
+                  showscale: s.showscale !== false, colorbar: colourbar(s)};
+  // only the trace shown: plotly converts hidden traces too
+  if (shown === "mesh") {
+    return [{type: "mesh3d", x, y, z, i: fi, j: fj, k: fk, intensity: s.values, ...common,
+      flatshading: false, hoverinfo: "skip",
+      lighting: {ambient: 0.45, diffuse: 0.75, specular: 0.15, roughness: 0.6},
+      lightposition: {x: 0, y: 200, z: 1000}}];
+  }
+  return [{type: "scatter3d", mode: "markers", x, y, z, hoverinfo: "skip",
+    marker: {size: 1.6, color: s.values, ...common}}];
+};
+const layout = {
+  margin: {l: 0, r: 0, t: 0, b: 0}, paper_bgcolor: "#ffffff", showlegend: false,
+  scene: {aspectmode: "data", dragmode: "orbit",
+          xaxis: {visible: false}, yaxis: {visible: false}, zaxis: {visible: false},
+          camera: {up: {x: 0, y: 1, z: 0}, eye: eye(), center: {x: 0, y: 0, z: 0},
+                   projection: {type: "perspective"}}},
+};
+const frame = () => new Promise((resolve) => requestAnimationFrame(() =>
+  requestAnimationFrame(resolve)));
+const redraw = () => Plotly.react(div, traces(current), layout).then(frame);
+const mark = () => document.querySelectorAll(".controls button").forEach((b) => {
+  b.classList.toggle("active", b.dataset.color === current || b.dataset.show === shown);
+});
+const report = {
+  ready: Plotly.newPlot(div, traces(current), layout,
+                        {responsive: true, displaylogo: false}).then(frame),
+  rotate: (degrees) => {
+    angle += Number(degrees);
+    layout.scene.camera = {...(div._fullLayout.scene.camera || {}), eye: eye()};
+    return redraw();
+  },
+  colorBy: (name) => {
+    if (!(name in schemes)) return Promise.reject(new Error("colorBy: unknown " + name));
+    current = name; mark();
+    layout.scene.camera = div._fullLayout.scene.camera;
+    return redraw();
+  },
+  show: (kind) => {
+    if (kind !== "mesh" && kind !== "points") return Promise.reject(new Error("show: " + kind));
+    shown = kind === "mesh" && m === 0 ? "points" : kind; mark();
+    layout.scene.camera = div._fullLayout.scene.camera;
+    return redraw();
+  },
+};
+document.querySelectorAll(".controls button").forEach((b) => b.addEventListener("click", () => {
+  if (b.dataset.color) report.colorBy(b.dataset.color);
+  if (b.dataset.show) report.show(b.dataset.show);
+  if (b.dataset.reset) { angle = 0; layout.scene.camera = {...layout.scene.camera, eye: eye(),
+    center: {x: 0, y: 0, z: 0}}; redraw(); }
+}));
+window.nail2nailReport = report;
+})();
+"""
