@@ -46,6 +46,7 @@ COMMANDS = [
     "unroll",
     "report",
     "process",
+    "batch",
     "demo",
 ]
 
