@@ -1,0 +1,165 @@
+"""Many captures at once: the whole job of ``nail2nail process`` for each, on Dask.
+
+:func:`process_batch` runs :func:`nail2nail.process.process_capture` for every capture as one
+task of a ``dask.distributed`` cluster (a :func:`local_client` or any existing one), writing
+``OUT/<capture name>`` exactly as ``nail2nail process CAPTURE --out OUT/<capture name>`` would,
+and the results table ``OUT/batch.csv`` and ``OUT/batch.json``.
+
+- Resumable: a capture whose job directory is complete (``process.json``) and whose inputs hash
+  (:func:`nail2nail.batch.hashing.inputs_hash`: the capture's files, the calibration, the
+  options) equals the one recorded in ``OUT/<capture>/batch.json`` is skipped; a changed one is
+  redone, its old directory replaced as a whole.
+- Isolated: a capture's error is its ``failed`` row, the others go on; an error is not retried.
+- Robust to lost workers: a task whose worker dies is run again elsewhere (the scheduler's
+  ``distributed.scheduler.allowed-failures``, 3 by default; the nanny restarts the worker), and
+  since a job directory is renamed into place only once complete, no half-written output is
+  ever a result; the dead attempt's hidden ``.NAME.tmp-*`` directory is removed at the end.
+- Memory: :mod:`nail2nail.batch.memory`.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from pathlib import Path
+
+from .hashing import inputs_hash
+from .memory import capture_memory_mb, default_workers
+from .results import result_row, write_results
+from .tasks import clean_stale, run_capture
+
+__all__ = ["capture_memory_mb", "default_workers", "find_captures", "inputs_hash",
+           "local_client", "process_batch", "result_row", "write_results"]
+
+RETRIES = 2
+
+
+def find_captures(pattern: str | os.PathLike) -> list[Path]:
+    """The capture directories (holding ``capture.json``) that the glob `pattern` matches.
+
+    Raises
+    ------
+    ValueError
+        No capture matched, or two captures share a name (their outputs would collide).
+    """
+    matched = sorted(Path(p) for p in glob.glob(os.fspath(pattern)))
+    captures = [p for p in matched if (p / "capture.json").is_file()]
+    if not captures:
+        raise ValueError(f"{pattern}: no capture directory (with capture.json) matches "
+                         f"({len(matched)} paths matched)")
+    names = [p.name for p in captures]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"{pattern}: captures share the names {twice}; their outputs "
+                         "OUT/<name> would collide")
+    return captures
+
+
+def local_client(n_workers: int, *, memory_limit: int | str | None = None):
+    """A :class:`dask.distributed.Client` on a new local cluster of `n_workers` processes.
+
+    One thread per worker (the job is single-threaded NumPy and numba, and one capture per
+    worker at a time bounds the memory), each worker's memory limit ``total / n_workers``
+    (`memory_limit` to override, bytes or ``"4GB"``), no dashboard. Close the client and its
+    cluster (``client.close(); client.cluster.close()``, or use both as context managers).
+    """
+    from distributed import Client, LocalCluster
+
+    if n_workers < 1:
+        raise ValueError(f"n_workers: expected at least 1, got {n_workers}")
+    if memory_limit is None:
+        import psutil
+
+        memory_limit = int(psutil.virtual_memory().total // n_workers)
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                           memory_limit=memory_limit, dashboard_address=None)
+    return Client(cluster)
+
+
+def _attempts(client, keys: list[str]) -> dict[str, int]:
+    """1 + the workers lost while each task ran (the scheduler's count of 'suspicious' runs)."""
+
+    def count(dask_scheduler, keys):
+        return {k: 1 + dask_scheduler.tasks[k].suspicious for k in keys
+                if k in dask_scheduler.tasks}
+
+    return client.run_on_scheduler(count, keys=keys)
+
+
+def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLike, client, *,
+                  progress: bool = False, **options) -> list[dict]:
+    """Process every capture on the Dask cluster of `client`; write the results table.
+
+    Parameters
+    ----------
+    captures : str or sequence of path-like
+        A glob pattern (:func:`find_captures`) or the capture directories; each capture's
+        output is ``OUT/<its directory name>``.
+    calibration : path-like
+        The rig's calibration JSON (read by each task).
+    out : path-like
+        Output directory; created if needed. The workers must see it (and the captures) at
+        the same paths: a local cluster, or a shared file system.
+    client : dask.distributed.Client
+        The cluster's client (:func:`local_client`, or ``Client("tcp://host:8786")``).
+    progress : bool
+        A progress bar over the captures on stderr (a terminal only, not inside ``quiet``).
+    **options
+        Keyword arguments of :func:`nail2nail.process.process_capture` (``use``, ``ppi`` …;
+        not ``progress``); they are part of the inputs hash.
+
+    Returns
+    -------
+    list of dict
+        The rows of ``OUT/batch.json`` (:func:`result_row`), in the order of `captures`.
+
+    Raises
+    ------
+    ValueError
+        No capture matched, two share a name, or the calibration file is missing.
+    """
+    from distributed import as_completed
+
+    from .._progress import progress_bar
+    from .._validation import describe_error
+
+    if isinstance(captures, (str, os.PathLike)):
+        captures = find_captures(captures)
+    captures = [Path(c).resolve() for c in captures]
+    if not captures:
+        raise ValueError("captures: no capture given")
+    calibration = Path(calibration).resolve()
+    if not calibration.is_file():
+        raise ValueError(f"{calibration}: calibration file not found")
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    for c in captures:
+        clean_stale(out, c.name)
+    futures = {}
+    for c in captures:
+        # pure=False: the same inputs may change on disk between two calls; the key names it
+        future = client.submit(run_capture, str(c), str(calibration), str(out / c.name),
+                               options, key=f"nail2nail-batch-{c.name}-{time.time_ns()}",
+                               pure=False, retries=RETRIES)
+        futures[future] = c
+    records: dict[Path, dict] = {}
+    bar = progress_bar(desc="batch", unit="capture", total=len(captures), enabled=progress)
+    with bar:
+        for future in as_completed(futures):
+            c = futures[future]
+            attempts = _attempts(client, [future.key]).get(future.key, 1)
+            if future.status == "finished":
+                record = future.result()
+            else:  # a worker lost too often (KilledWorker), a task that could not run
+                exc = future.exception()
+                record = {"capture": str(c), "out": str(out / c.name), "status": "failed",
+                          "error": f"{type(exc).__name__}: {describe_error(exc)}",
+                          "worker": None}
+            records[c] = result_row(record, attempts=attempts)
+            bar.update()
+    for c in captures:  # every task has ended: what a lost attempt left is garbage
+        clean_stale(out, c.name)
+    rows = [records[c] for c in captures]
+    write_results(out, rows)
+    return rows

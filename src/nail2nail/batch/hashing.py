@@ -1,0 +1,66 @@
+"""Content hash of a batch task's inputs: the capture's files, the calibration and the options.
+
+A capture whose output holds the same hash (``OUT/<capture>/batch.json``) is skipped by
+:func:`nail2nail.batch.process_batch`; any changed byte, renamed file or changed option redoes it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+__all__ = ["inputs_hash"]
+
+_CHUNK = 1 << 20
+
+
+def _update_with_file(digest, path: Path) -> None:
+    with open(path, "rb") as f:
+        while chunk := f.read(_CHUNK):
+            digest.update(chunk)
+
+
+def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
+                options: dict | None = None) -> str:
+    """SHA-256 of every file under `capture` (relative path and content), of `calibration`'s
+    content and of `options` (as sorted JSON); hex string.
+
+    Parameters
+    ----------
+    capture : path-like
+        Capture directory; hidden files (names starting with ``.``) are ignored.
+    calibration : path-like
+        Calibration JSON file.
+    options : dict, optional
+        The processing options (JSON-serialisable values, else their ``repr``).
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+
+    Raises
+    ------
+    ValueError
+        `capture` is not a directory or `calibration` not a file.
+    """
+    capture, calibration = Path(capture), Path(calibration)
+    if not capture.is_dir():
+        raise ValueError(f"{capture}: not a capture directory")
+    if not calibration.is_file():
+        raise ValueError(f"{calibration}: calibration file not found")
+    digest = hashlib.sha256()
+    files = sorted(p for p in capture.rglob("*") if p.is_file()
+                   and not any(part.startswith(".") for part in p.relative_to(capture).parts))
+    for path in files:
+        # the name and size first, so that moving bytes between files changes the hash
+        digest.update(f"{path.relative_to(capture).as_posix()}\0{path.stat().st_size}\0"
+                      .encode())
+        _update_with_file(digest, path)
+    digest.update(b"\0calibration\0")
+    _update_with_file(digest, calibration)
+    digest.update(b"\0options\0")
+    digest.update(json.dumps(options or {}, sort_keys=True, default=repr).encode())
+    return digest.hexdigest()

@@ -1,0 +1,61 @@
+"""How many captures fit in memory at once: a per-capture estimate and the default worker count.
+
+The rule (README, "Batch processing on Dask"): one capture's job peaks at about
+:data:`BASE_MB` (the interpreter, NumPy, SciPy, numba and their kernels) plus three float32
+copies of all its frames (the frames read, the decoded phase planes and their working copies).
+Measured with ``process.json``'s ``peak_rss_mb``: 556 MB for the simulated finger at scale 0.25
+and at 0.5 (3 cameras, 24 frames of 256 × 320 and 512 × 640 px), which the rule bounds at 666
+and 883 MB; at full scale (1280 × 1024) the rule gives 1.7 GB. A local cluster of N workers
+gives each ``total memory / N`` as its Dask memory limit, and the default N is the CPU count
+capped so that N estimated captures fit in 80 % of the memory available now.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+__all__ = ["BASE_MB", "capture_memory_mb", "default_workers"]
+
+BASE_MB = 600.0
+COPIES = 3  # float32 copies of every frame held at the peak
+
+
+def capture_memory_mb(capture: str | os.PathLike) -> float:
+    """Estimated peak memory (MB) of processing the capture directory `capture`.
+
+    ``BASE_MB + COPIES * 4 bytes * frames * height * width`` summed over the cameras of its
+    ``capture.json``.
+    """
+    from ..io.capture import read_capture
+
+    manifest = read_capture(capture, load=False).manifest
+    n_frames = int(manifest.get("n_frames", 0))
+    pixels = sum(int(c["size"][0]) * int(c["size"][1]) * (len(c.get("frames", [])) or n_frames)
+                 for c in manifest["cameras"])
+    return BASE_MB + COPIES * 4 * pixels / 2**20
+
+
+def default_workers(captures: Sequence[str | os.PathLike], *,
+                    memory_mb: float | None = None) -> int:
+    """The default number of local workers for `captures`.
+
+    Parameters
+    ----------
+    captures : sequence of path-like
+        The capture directories (the largest estimate counts).
+    memory_mb : float, optional
+        Peak memory of one capture, MB (default :func:`capture_memory_mb` of the largest).
+
+    Returns
+    -------
+    int
+        ``min(CPU count, captures, 80 % of available memory // memory_mb)``, at least 1.
+    """
+    import psutil
+
+    if memory_mb is None:
+        memory_mb = max(capture_memory_mb(c) for c in captures)
+    available = psutil.virtual_memory().available / 2**20
+    fit = int(0.8 * available // memory_mb)
+    return max(1, min(os.cpu_count() or 1, len(captures), fit))

@@ -1,0 +1,91 @@
+"""The batch results table: one row per capture, from the task records and the job's files.
+
+:func:`result_row` completes a task record with what ``OUT/<capture>/process.json`` and
+``print/print.json`` hold; :func:`write_results` writes ``OUT/batch.json`` (the rows as a list)
+and ``OUT/batch.csv`` (the same, nested fields flattened), each atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+__all__ = ["result_row", "write_results"]
+
+
+def result_row(record: dict, *, attempts: int = 1) -> dict:
+    """A results row from a task record (:func:`nail2nail.batch.tasks.run_capture`).
+
+    Parameters
+    ----------
+    record : dict
+        The task's record.
+    attempts : int
+        How many times the task ran (1 + the workers lost while it ran).
+
+    Returns
+    -------
+    dict
+        ``{"capture", "status", "error", "seconds": {stage: s}, "merge_median_um": {pair: µm},
+        "valid_pixels": {camera: n}, "super_vertices", "clarity_median", "peak_rss_mb",
+        "worker", "attempts", "out"}``; the job's figures are ``None``/empty when it failed.
+    """
+    from ..io._json import read_json
+
+    row = {"capture": Path(record["capture"]).name, "status": record["status"],
+           "error": record["error"], "seconds": {}, "merge_median_um": {}, "valid_pixels": {},
+           "super_vertices": None, "clarity_median": None, "peak_rss_mb": None,
+           "worker": record.get("worker"), "attempts": int(attempts), "out": record["out"]}
+    job = Path(record["out"])
+    if record["status"] == "failed" or not (job / "process.json").is_file():
+        return row
+    summary = read_json(job / "process.json")
+    row["seconds"] = dict(summary.get("seconds", {}))
+    row["merge_median_um"] = {pair: round(1e3 * m["distance_mm"]["median"], 3)
+                              for pair, m in summary.get("merge", {}).items()
+                              if m["distance_mm"].get("median") is not None}
+    row["valid_pixels"] = dict(summary.get("cameras", {}))
+    row["super_vertices"] = summary.get("super_scan", {}).get("vertices")
+    row["peak_rss_mb"] = summary.get("peak_rss_mb")
+    if (job / "print" / "print.json").is_file():
+        quality = read_json(job / "print" / "print.json").get("quality", {})
+        row["clarity_median"] = quality.get("clarity_median")
+    return row
+
+
+def _flat(row: dict) -> dict:
+    flat = {}
+    for key, value in row.items():
+        if isinstance(value, dict):
+            prefix = {"seconds": "seconds", "merge_median_um": "merge_median_um",
+                      "valid_pixels": "valid_pixels"}[key]
+            flat.update({f"{prefix}_{k}": v for k, v in value.items()})
+        else:
+            flat[key] = value
+    return flat
+
+
+def write_results(out: str | os.PathLike, rows: list[dict]) -> tuple[Path, Path]:
+    """Write `rows` as ``OUT/batch.json`` and ``OUT/batch.csv`` (atomically); return both paths.
+
+    The CSV has one column per scalar field and per stage, pair and camera
+    (``seconds_scan``, ``merge_median_um_0-1``, ``valid_pixels_cam0`` …), in order of first
+    appearance; a capture without a value has an empty cell.
+    """
+    from ..io._atomic import atomic_path
+    from ..io._json import write_json
+
+    out = Path(out)
+    json_path, csv_path = out / "batch.json", out / "batch.csv"
+    write_json(json_path, rows)
+    flat = [_flat(r) for r in rows]
+    columns = list(dict.fromkeys(k for r in flat for k in r))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(flat)
+    with atomic_path(csv_path) as tmp:
+        tmp.write_text(text.getvalue(), encoding="utf-8")
+    return json_path, csv_path

@@ -1,0 +1,115 @@
+"""``nail2nail batch``: the whole job of ``nail2nail process`` for many captures, on Dask.
+
+Thin command layer over :func:`nail2nail.batch.process_batch`: the processing options are
+those of ``process``; a local cluster (``--workers``) or an existing one (``--scheduler``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..io._json import dumps_json
+from ._scan import add_scan_options, decode_options, masks, max_gradient
+from ._unroll import add_unroll_options, check_unroll_options
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "batch",
+        help="the whole job (`process`) for many captures, on a Dask cluster",
+        description="Run `nail2nail process CAPTURE --out OUT/<capture name>` for every "
+        "capture directory that CAPTURES (a glob, quoted) matches, one Dask task each, on a "
+        "local cluster or an existing one; skip a capture whose output is complete and whose "
+        "inputs (files, calibration, options) are unchanged; write OUT/batch.csv and "
+        "OUT/batch.json, one row per capture.",
+    )
+    p.add_argument("captures", help="glob of capture directories, e.g. 'captures/*' (quoted)")
+    p.add_argument("--calib", type=Path, required=True, help="calibration JSON")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--scheduler", default=None,
+                   help="address of a running Dask scheduler, e.g. tcp://host:8786 (default: "
+                   "a local cluster)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local cluster: worker processes (default: the CPU count, capped so "
+                   "that as many captures fit in 80%% of the available memory)")
+    p.add_argument("--memory-per-capture", type=float, default=None, metavar="MB",
+                   help="peak memory of one capture, MB, for the default --workers (default: "
+                   "estimated from the frames; process.json's peak_rss_mb measures it)")
+    add_scan_options(p)
+    p.add_argument("--pairs", default=None,
+                   help="merge report camera pairs PARENT-CHILD, comma separated "
+                   "(default: 0-1,1-2,…)")
+    p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
+                   help="write the merge figures (default: off, the data only)")
+    p.add_argument("--mat5", action="store_true", help="also write the legacy mat5 sets")
+    p.add_argument("--ply", action="store_true",
+                   help="also write each camera's PLY point cloud")
+    p.add_argument("--unroll", action=argparse.BooleanOptionalAction, default=True,
+                   help="unroll the finger into the rolled-equivalent print (default: on)")
+    add_unroll_options(p)
+    p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.set_defaults(func=run)
+
+
+def process_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :func:`nail2nail.process.process_capture` from `args`."""
+    from ..merge.report import parse_pairs
+
+    check_unroll_options(args)
+    options = decode_options(args)
+    min_modulation = options.pop("min_modulation")
+    if args.pairs is not None:
+        parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
+    return dict(use=args.use, max_gradient=max_gradient(args), min_modulation=min_modulation,
+                decode_options=options, masks=masks(args), allow_mirrored=args.allow_mirrored,
+                pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
+                unroll=args.unroll, method=args.method, ppi=args.ppi,
+                tip_direction=args.tip_direction, length_mm=args.length, wsq=not args.no_wsq,
+                frame=args.frame)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..batch import default_workers, find_captures, local_client, process_batch
+
+    options = process_options(args)
+    captures = find_captures(args.captures)
+    if not args.calib.is_file():
+        raise ValueError(f"{args.calib}: calibration file not found")
+    if args.scheduler is not None:
+        from distributed import Client
+
+        client = Client(args.scheduler)
+    else:
+        n = args.workers or default_workers(captures, memory_mb=args.memory_per_capture)
+        client = local_client(n)
+    try:
+        rows = process_batch(captures, args.calib, args.out, client, progress=True, **options)
+    finally:
+        cluster = client.cluster if args.scheduler is None else None
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed")}
+    if args.json:
+        print(dumps_json(rows))
+        return 2 if counts["failed"] else 0
+    for row in rows:
+        line = f"{row['capture']}: {row['status']}"
+        if row["status"] == "failed":
+            line += f": {row['error']}"
+        elif row["seconds"]:
+            line += f" ({row['seconds'].get('total', 0):.2f} s, {row['worker']}"
+            line += f", {row['attempts']} attempts)" if row["attempts"] > 1 else ")"
+        print(line)
+    print(", ".join(f"{n} {s}" for s, n in counts.items()))
+    print(f"wrote {Path(args.out) / 'batch.csv'} and batch.json")
+    if counts["failed"]:  # a capture's bad input: exit 2 as for one capture, the rest written
+        print(f"nail2nail batch: error: {counts['failed']} of {len(rows)} captures failed "
+              f"(their errors: {Path(args.out) / 'batch.csv'})", file=sys.stderr)
+        return 2
+    return 0
