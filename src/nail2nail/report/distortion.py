@@ -61,7 +61,40 @@ def section(inputs: ReportInputs) -> Section:
             table_html(rows, ["estimate", "centre x px", "centre y px", "ρ", "std x px",
                               "std y px", "std ρ", "fit RMS px"]),
             _grid_figure(center, rho)]
+    plane = inputs.root / "captures" / "plane"
+    if (plane / "capture.json").is_file():
+        body.append(_plane_grids(plane, est.get("primary_camera"), center, rho))
     return Section(ID, TITLE, "".join(body))
+
+
+def _plane_grids(plane, camera: str | None, center: np.ndarray, rho: float) -> str:
+    """The thesis's Figures 19 and 20 drawn from the decoded plane capture (one camera):
+    the plain grid as projected, and the grid of the ideal coordinates (LUT-corrected)."""
+    from ..distortion import grid_from_decoded
+    from ..io.capture import read_capture
+    from ..phase import decode
+    from ._html import image_html
+
+    try:
+        capture = read_capture(plane, load=False)
+        names = capture.camera_names
+        name = camera if camera in names else names[len(names) // 2]
+        decoded = decode(capture.load_frames(name, raw=True), capture.pattern_set,
+                         full_scale=2**capture.bit_depth - 1, method="numba")
+    except (ValueError, TypeError) as exc:
+        return note_html(f"{plane}: the plane capture cannot be decoded ({exc}).", "warn")
+    if decoded.xp is None or decoded.yp is None:
+        return ""
+    panel = capture.pattern_set.panel_size
+    images = [grid_from_decoded(decoded.xp, decoded.yp, decoded.mask, panel_size=panel,
+                                spacing=SPACING, background=decoded.albedo, **extra)
+              for extra in ({}, {"center": center, "rho": rho})]
+    return ('<div class="row">'
+            + image_html(images[0], f"{name}: the plain {SPACING}-px grid on the plane, from "
+                                    "the decoded coordinates (thesis Figure 19)", max_size=400)
+            + image_html(images[1], f"{name}: the LUT-corrected grid (ideal coordinates of the "
+                                    "estimate; thesis Figure 20)", max_size=400)
+            + "</div>")
 
 
 def _grid_figure(center: np.ndarray, rho: float) -> str:
