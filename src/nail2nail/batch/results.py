@@ -30,14 +30,16 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
     dict
         ``{"capture", "status", "error", "seconds": {stage: s}, "merge_median_um": {pair: µm},
         "valid_pixels": {camera: n}, "super_vertices", "clarity_median", "peak_rss_mb",
-        "worker", "attempts", "out"}``; the job's figures are ``None``/empty when it failed.
+        "worker", "attempts", "task_seconds", "out"}`` (``task_seconds``: the task's wall time
+        on its worker, hashing included); the job's figures are ``None``/empty when it failed.
     """
     from ..io._json import read_json
 
     row = {"capture": Path(record["capture"]).name, "status": record["status"],
            "error": record["error"], "seconds": {}, "merge_median_um": {}, "valid_pixels": {},
            "super_vertices": None, "clarity_median": None, "peak_rss_mb": None,
-           "worker": record.get("worker"), "attempts": int(attempts), "out": record["out"]}
+           "worker": record.get("worker"), "attempts": int(attempts),
+           "task_seconds": record.get("wall_seconds"), "out": record["out"]}
     job = Path(record["out"])
     if record["status"] == "failed" or not (job / "process.json").is_file():
         return row
