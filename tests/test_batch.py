@@ -221,3 +221,29 @@ def test_bad_input(inputs, tmp_path, capsys):
     assert main(["batch", f"{captures}/*", "--calib", str(tmp_path / "missing.json"),
                  "--out", str(tmp_path / "o")]) == 2
     assert "missing.json" in capsys.readouterr().err
+
+
+def test_cli_resumes_and_reports(inputs, first_run, capsys):
+    _, captures, calib, _ = inputs
+    out, _, _ = first_run
+    code = main(["batch", f"{captures}/*", "--calib", str(calib), "--out", str(out),
+                 "--workers", "1", "--json"])
+    assert code == 2  # the corrupt capture: bad input, the others written
+    captured = capsys.readouterr()
+    rows = json.loads(captured.out)
+    assert {r["capture"]: r["status"] for r in rows} == {**dict.fromkeys(GOOD, "skipped"),
+                                                         "corrupt": "failed"}
+    assert "1 of 6 captures failed" in captured.err
+
+
+def test_memory_rule(inputs):
+    from nail2nail.batch import capture_memory_mb, default_workers
+    from nail2nail.batch.memory import BASE_MB, COPIES
+
+    _, captures, _, _ = inputs
+    capture = captures / GOOD[0]
+    manifest = json.loads((capture / "capture.json").read_text())
+    pixels = sum(c["size"][0] * c["size"][1] * len(c["frames"]) for c in manifest["cameras"])
+    assert capture_memory_mb(capture) == pytest.approx(BASE_MB + COPIES * 4 * pixels / 2**20)
+    assert default_workers([capture] * 4, memory_mb=1e9) == 1  # nothing fits: still one
+    assert 1 <= default_workers([capture] * 4) <= min(4, os.cpu_count())

@@ -72,8 +72,11 @@ def local_client(n_workers: int, *, memory_limit: int | str | None = None):
         import psutil
 
         memory_limit = int(psutil.virtual_memory().total // n_workers)
+    # no dashboard; the scheduler's plain HTTP server (health checks) on a free port, so that
+    # two clusters never compete for 8787 (dashboard_address=None would still take it)
     cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                           memory_limit=memory_limit, dashboard_address=None)
+                           memory_limit=memory_limit, dashboard_address=":0",
+                           scheduler_kwargs={"dashboard": False})
     return Client(cluster)
 
 

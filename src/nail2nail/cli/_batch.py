@@ -97,7 +97,16 @@ def run(args: argparse.Namespace) -> int:
     counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed")}
     if args.json:
         print(dumps_json(rows))
-        return 2 if counts["failed"] else 0
+    else:
+        _print_rows(rows, counts, args.out)
+    if counts["failed"]:  # a capture's bad input: exit 2 as for one capture, the rest written
+        print(f"nail2nail batch: error: {counts['failed']} of {len(rows)} captures failed "
+              f"(their errors: {Path(args.out) / 'batch.csv'})", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _print_rows(rows: list[dict], counts: dict[str, int], out: Path) -> None:
     for row in rows:
         line = f"{row['capture']}: {row['status']}"
         if row["status"] == "failed":
@@ -107,9 +116,4 @@ def run(args: argparse.Namespace) -> int:
             line += f", {row['attempts']} attempts)" if row["attempts"] > 1 else ")"
         print(line)
     print(", ".join(f"{n} {s}" for s, n in counts.items()))
-    print(f"wrote {Path(args.out) / 'batch.csv'} and batch.json")
-    if counts["failed"]:  # a capture's bad input: exit 2 as for one capture, the rest written
-        print(f"nail2nail batch: error: {counts['failed']} of {len(rows)} captures failed "
-              f"(their errors: {Path(args.out) / 'batch.csv'})", file=sys.stderr)
-        return 2
-    return 0
+    print(f"wrote {Path(out) / 'batch.csv'} and batch.json")
