@@ -4,8 +4,10 @@ The rule (README, "Batch processing on Dask"): one capture's job peaks at about
 :data:`BASE_MB` (the interpreter, NumPy, SciPy, numba and their kernels) plus three float32
 copies of all its frames (the frames read, the decoded phase planes and their working copies).
 Measured with ``process.json``'s ``peak_rss_mb``: 556 MB for the simulated finger at scale 0.25
-and at 0.5 (3 cameras, 24 frames of 256 × 320 and 512 × 640 px), which the rule bounds at 666
-and 883 MB; at full scale (1280 × 1024) the rule gives 1.7 GB. A local cluster of N workers
+and at 0.5 (3 cameras, 24 frames of 256 × 320 and 512 × 640 px) in a fresh ``nail2nail
+process``, 307 MB at scale 0.25 on a Dask worker, which the rule bounds at 666 and 883 MB; at
+full scale (1280 × 1024) the rule gives 1.7 GB, against 868 MB measured for ``process`` in a
+fresh process (README, "Speed"): the rule errs on the safe side. A local cluster of N workers
 gives each ``total memory / N`` as its Dask memory limit, and the default N is the CPU count
 capped so that N estimated captures fit in 80 % of the memory available now.
 """
