@@ -87,6 +87,9 @@ def _kill_first_busy_worker(client, done: threading.Event) -> str | None:
 def first_run(inputs, client):
     root, captures, calib, _ = inputs
     out = root / "out"
+    # what a worker killed inside atomic_directory leaves: a hidden, half-written sibling
+    (out / ".finger0.tmp-killed" / "scans").mkdir(parents=True)
+    (out / ".finger0.tmp-killed" / "scans" / "scan.json").write_text("{")
     done, result = threading.Event(), {}
 
     def batch():
