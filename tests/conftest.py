@@ -25,9 +25,10 @@ def table_paths() -> tuple[Path, Path]:
 
 @pytest.fixture(scope="session")
 def processed_finger(tmp_path_factory) -> Path:
-    """``process --figures`` of a small virtual finger (scale 0.25, its ideal calibration,
-    the thesis's projector distortion): the output directory, for the report's tests. The
-    capture and calibration stay where process.json names them."""
+    """``process --figures --report`` of a small virtual finger (scale 0.25, its ideal
+    calibration, the thesis's projector distortion): the output directory, with its
+    report.html, for the report's tests. The capture and calibration stay where process.json
+    names them. Read only: a test that changes it works on a copy."""
     from nail2nail.cli import main
 
     root = tmp_path_factory.mktemp("processed_finger")
@@ -36,5 +37,5 @@ def processed_finger(tmp_path_factory) -> Path:
                  str(capture)]) == 0
     calib = capture / "truth" / "calibration.json"
     assert main(["-q", "process", str(capture), "--calib", str(calib), "--out", str(out),
-                 "--figures"]) == 0
+                 "--figures", "--report"]) == 0
     return out

@@ -182,19 +182,30 @@ def _vertex_errors(points: np.ndarray, inputs: ReportInputs, spacing: float) -> 
     return out
 
 
-def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000) -> dict | None:
+def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000,
+                detail_points: int | None = None) -> dict | None:
     """The decimated super scan and its colourings, as the page's JavaScript reads them.
+
+    Parameters
+    ----------
+    inputs : ReportInputs
+    max_points : int
+        Vertices of the mesh the page opens with.
+    detail_points : int, optional
+        Vertices of the "full detail" point cloud the page switches to on a click or when the
+        user zooms in (default ``4 * max_points``; the whole scan when it has fewer; 0: none).
+        Decoded only when shown, so it costs the page's size, not its opening time.
 
     Returns
     -------
     dict or None
-        ``{"n_vertices", "n_faces", "source_vertices", "source_faces", "cameras", "xyz"
-        (base64 float32, (K, 3) mm, world), "faces" (base64 int32 (L, 3)), "albedo"
-        (base64 float32 0..1), "camera" (base64 float32 index, -1 none), "error" (base64
-        float32 µm, NaN none), "error_range" [0, p95]}``; ``None`` without a super scan.
+        ``{"source_vertices", "source_faces", "cameras", "levels": {"base": level,
+        ["detail": level]}}``, each level ``{"n_vertices", "n_faces", "spacing_mm", "xyz"
+        (base64 float32 (K, 3), mm, world frame), "faces" (base64 int32 (L, 3)), "albedo"
+        (base64 float32, 0..1), "camera" (base64 float32 index, -1 none), "error" (base64
+        float32 µm, NaN where no pair), "albedo_range", "error_range", "error_coverage"}``;
+        ``None`` without a super scan.
     """
-    from scipy.spatial import cKDTree
-
     from ..io.ply import read_ply
 
     if inputs.merge is None or not (inputs.merge / "super.ply").is_file():
@@ -204,24 +215,36 @@ def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000) -> dict | Non
     albedo = (ply.colors.astype(float).mean(axis=1) / 255 if ply.colors is not None
               else np.full(len(points), 0.7))
     camera, names = _vertex_cameras(points, inputs)
-    small, faces, (albedo_k, camera_hist), _ = cluster_vertices(
-        points, ply.faces, max_vertices=max_points,
-        attributes=(albedo, np.eye(max(len(names), 1))[np.maximum(camera, 0)]
-                    * (camera >= 0)[:, None]))
+    one_hot = np.eye(max(len(names), 1))[np.maximum(camera, 0)] * (camera >= 0)[:, None]
+    levels = {"base": _level(points, ply.faces, albedo, one_hot, inputs, max_points)}
+    detail = 4 * max_points if detail_points is None else detail_points
+    if detail > max_points and len(points) > max_points:
+        levels["detail"] = _level(points, None, albedo, one_hot, inputs, detail)
+    return {
+        "source_vertices": len(points),
+        "source_faces": 0 if ply.faces is None else len(ply.faces),
+        "cameras": names,
+        "levels": levels,
+    }
+
+
+def _level(points, faces, albedo, one_hot, inputs: ReportInputs, max_vertices: int) -> dict:
+    """One level of detail of the viewer: vertices, triangles and the three colourings."""
+    from scipy.spatial import cKDTree
+
+    small, small_faces, (albedo_k, camera_hist), _ = cluster_vertices(
+        points, faces, max_vertices=max_vertices, attributes=(albedo, one_hot))
     camera_k = np.where(camera_hist.max(axis=1) > 0, camera_hist.argmax(axis=1), -1)
     # vertex spacing of the decimated cloud: the pairing radius of the merge errors
-    spacing = float(np.median(cKDTree(small).query(small[: 20_000], k=2)[0][:, 1]))
+    spacing = float(np.median(cKDTree(small).query(small[:20_000], k=2)[0][:, 1]))
     error = _vertex_errors(small, inputs, max(spacing, 1e-6))
     finite = error[np.isfinite(error)]
     return {
         "n_vertices": len(small),
-        "n_faces": 0 if faces is None else len(faces),
-        "source_vertices": len(points),
-        "source_faces": 0 if ply.faces is None else len(ply.faces),
+        "n_faces": 0 if small_faces is None else len(small_faces),
         "spacing_mm": spacing,
-        "cameras": names,
         "xyz": _b64(small, np.float32),
-        "faces": _b64(np.zeros((0, 3)) if faces is None else faces, np.int32),
+        "faces": _b64(np.zeros((0, 3)) if small_faces is None else small_faces, np.int32),
         "albedo": _b64(albedo_k, np.float32),
         "camera": _b64(camera_k, np.float32),
         "error": _b64(error, np.float32),
@@ -247,26 +270,33 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
                 "Promise.resolve(), colorBy: () => Promise.resolve(), show: () => "
                 "Promise.resolve()};")
         return Section("view3d", "3D viewer", body, status="missing", scripts=[stub])
+    base, detail = data["levels"]["base"], data["levels"].get("detail")
     legend = " ".join(
         f'<span style="color:{CAMERA_COLOURS[i % len(CAMERA_COLOURS)]}">■ {escape(n)}</span>'
         for i, n in enumerate(data["cameras"]))
-    decimated = (f"{data['n_vertices']:,} of {data['source_vertices']:,} vertices, "
-                 f"{data['n_faces']:,} of {data['source_faces']:,} triangles (vertex "
-                 f"clustering, {1e3 * data['spacing_mm']:.0f} µm apart)")
+    decimated = (f"The mesh shows {base['n_vertices']:,} of the scan's "
+                 f"{data['source_vertices']:,} vertices and {base['n_faces']:,} of its "
+                 f"{data['source_faces']:,} triangles (vertex clustering, "
+                 f"{1e3 * base['spacing_mm']:.0f} µm apart)")
+    if detail is not None:
+        decimated += (f"; 'detail' (or zooming in) shows {detail['n_vertices']:,} points, "
+                      f"{1e3 * detail['spacing_mm']:.0f} µm apart")
+    detail_button = ('<button data-show="detail">detail</button>' if detail is not None
+                     else "")
     body = (
         '<div class="controls">Colour by: '
         '<button data-color="albedo" class="active">albedo</button>'
         '<button data-color="camera">camera</button>'
         '<button data-color="error">merge error</button>'
         ' &nbsp; Show: <button data-show="mesh" class="active">mesh</button>'
-        '<button data-show="points">points</button>'
+        '<button data-show="points">points</button>' + detail_button +
         ' &nbsp; <button data-reset="1">reset view</button></div>'
         '<div id="viewer"></div>'
         f'<p class="note">Drag to orbit, scroll to zoom, right-drag to pan. {decimated}; the '
-        "full scan is merge/super.ply. Cameras: " + legend + ". Merge error: distance between "
-        "the corresponding points of two cameras (µm, colour scale to its 95th percentile) on "
-        f"{100 * data['error_coverage']:.0f}% of the vertices; grey where one camera alone "
-        "sees the finger.</p>"
+        "full scan is merge/super.ply (--report-points sets the mesh's size). Cameras: "
+        + legend + ". Merge error: distance between the corresponding points of two cameras "
+        f"(µm, colour scale to its 95th percentile) on {100 * base['error_coverage']:.0f}% of "
+        "the vertices; grey where one camera alone sees the finger.</p>"
     )
     payload = json.dumps({**data, "colours": list(CAMERA_COLOURS)})
     script = _VIEWER_JS.replace("__DATA__", payload)
@@ -282,43 +312,54 @@ const decode = (b64, Type) => {
   for (let i = 0; i < s.length; i++) bytes[i] = s.charCodeAt(i);
   return new Type(bytes.buffer);
 };
-const xyz = decode(data.xyz, Float32Array), n = data.n_vertices;
-const x = new Float32Array(n), y = new Float32Array(n), z = new Float32Array(n);
-for (let i = 0; i < n; i++) { x[i] = xyz[3 * i]; y[i] = xyz[3 * i + 1]; z[i] = xyz[3 * i + 2]; }
-const faces = decode(data.faces, Int32Array), m = data.n_faces;
-const fi = new Int32Array(m), fj = new Int32Array(m), fk = new Int32Array(m);
-for (let t = 0; t < m; t++) {
-  fi[t] = faces[3 * t]; fj[t] = faces[3 * t + 1]; fk[t] = faces[3 * t + 2];
-}
+// a level of detail, decoded when first shown (the detail level may never be)
+const cache = {};
+const level = (name) => {
+  if (cache[name]) return cache[name];
+  const L = data.levels[name], n = L.n_vertices, m = L.n_faces;
+  const xyz = decode(L.xyz, Float32Array), faces = decode(L.faces, Int32Array);
+  const out = {L, n, m, x: new Float32Array(n), y: new Float32Array(n), z: new Float32Array(n),
+    i: new Int32Array(m), j: new Int32Array(m), k: new Int32Array(m),
+    albedo: decode(L.albedo, Float32Array), camera: decode(L.camera, Float32Array),
+    error: decode(L.error, Float32Array)};
+  for (let v = 0; v < n; v++) {
+    out.x[v] = xyz[3 * v]; out.y[v] = xyz[3 * v + 1]; out.z[v] = xyz[3 * v + 2];
+  }
+  for (let t = 0; t < m; t++) {
+    out.i[t] = faces[3 * t]; out.j[t] = faces[3 * t + 1]; out.k[t] = faces[3 * t + 2];
+  }
+  // "no pair" sits in a grey band below the colour scale (plotly draws NaN inconsistently)
+  const top = L.error_range[1] || 1;
+  out.errorLow = -top / 40;
+  for (let v = 0; v < n; v++) if (!Number.isFinite(out.error[v])) out.error[v] = out.errorLow;
+  return (cache[name] = out);
+};
 const NONE = "#b8bcc4";
 const nc = Math.max(data.cameras.length, 1);
-// every colouring is a scalar per vertex and a colour scale; "none" values sit in a grey
-// band below the scale (plotly draws NaN inconsistently)
 const schemes = {
-  albedo: () => ({values: decode(data.albedo, Float32Array), cmin: data.albedo_range[0],
-    cmax: Math.max(data.albedo_range[1], data.albedo_range[0] + 1e-3),
+  albedo: (D) => ({values: D.albedo, cmin: D.L.albedo_range[0],
+    cmax: Math.max(D.L.albedo_range[1], D.L.albedo_range[0] + 1e-3),
     colorscale: [[0, "#000000"], [1, "#ffffff"]], title: "albedo"}),
-  camera: () => {
-    const v = decode(data.camera, Float32Array), scale = [[0, NONE], [1 / (nc + 1), NONE]];
+  camera: (D) => {
+    const scale = [[0, NONE], [1 / (nc + 1), NONE]];
     for (let c = 0; c < nc; c++) {
       const col = data.colours[c % data.colours.length];
       scale.push([(c + 1) / (nc + 1), col], [(c + 2) / (nc + 1), col]);
     }
-    return {values: v, cmin: -1, cmax: nc - 1 + 1e-6, colorscale: scale, title: "camera",
-      showscale: false};
+    return {values: D.camera, cmin: -1, cmax: nc - 1 + 1e-6, colorscale: scale,
+      title: "camera", showscale: false};
   },
-  error: () => {
-    const v = decode(data.error, Float32Array), top = data.error_range[1] || 1;
-    const low = -top / 40;
-    for (let i = 0; i < v.length; i++) if (!Number.isFinite(v[i])) v[i] = low;
+  error: (D) => {
     const f = (1 / 41) * 0.999, viridis = ["#440154", "#3b528b", "#21918c", "#5ec962", "#fde725"];
     const scale = [[0, NONE], [f, NONE]];
     viridis.forEach((c, i) => scale.push([f + 1e-4 + (1 - f - 1e-4) * i / 4, c]));
-    return {values: v, cmin: low, cmax: top, colorscale: scale, title: "merge error (µm)"};
+    return {values: D.error, cmin: D.errorLow, cmax: D.L.error_range[1] || 1, colorscale: scale,
+      title: "merge error (µm)"};
   },
 };
 const div = document.getElementById("viewer");
-let current = "albedo", shown = m > 0 ? "mesh" : "points", angle = 0;
+const base = level("base");
+let current = "albedo", shown = base.m > 0 ? "mesh" : "points", angle = 0;
 const eye0 = {x: 0, y: 0.3, z: 2.5};
 const eye = () => {
   const a = angle * Math.PI / 180;
@@ -326,19 +367,19 @@ const eye = () => {
           z: -eye0.x * Math.sin(a) + eye0.z * Math.cos(a)};
 };
 const colourbar = (s) => ({title: {text: s.title}, len: 0.6, thickness: 14});
-const traces = (name) => {
-  const s = schemes[name]();
+const traces = () => {
+  const D = shown === "detail" ? level("detail") : base, s = schemes[current](D);
   const common = {cmin: s.cmin, cmax: s.cmax, colorscale: s.colorscale,
                   showscale: s.showscale !== false, colorbar: colourbar(s)};
   // only the trace shown: plotly converts hidden traces too
   if (shown === "mesh") {
-    return [{type: "mesh3d", x, y, z, i: fi, j: fj, k: fk, intensity: s.values, ...common,
-      flatshading: false, hoverinfo: "skip",
+    return [{type: "mesh3d", x: D.x, y: D.y, z: D.z, i: D.i, j: D.j, k: D.k,
+      intensity: s.values, ...common, flatshading: false, hoverinfo: "skip",
       lighting: {ambient: 0.45, diffuse: 0.75, specular: 0.15, roughness: 0.6},
       lightposition: {x: 0, y: 200, z: 1000}}];
   }
-  return [{type: "scatter3d", mode: "markers", x, y, z, hoverinfo: "skip",
-    marker: {size: 1.6, color: s.values, ...common}}];
+  return [{type: "scatter3d", mode: "markers", x: D.x, y: D.y, z: D.z, hoverinfo: "skip",
+    marker: {size: shown === "detail" ? 1.2 : 1.6, color: s.values, ...common}}];
 };
 const layout = {
   margin: {l: 0, r: 0, t: 0, b: 0}, paper_bgcolor: "#ffffff", showlegend: false,
@@ -349,36 +390,50 @@ const layout = {
 };
 const frame = () => new Promise((resolve) => requestAnimationFrame(() =>
   requestAnimationFrame(resolve)));
-const redraw = () => Plotly.react(div, traces(current), layout).then(frame);
+const keepCamera = () => { layout.scene.camera = div._fullLayout.scene.camera; };
+const redraw = () => Plotly.react(div, traces(), layout).then(frame);
 const mark = () => document.querySelectorAll(".controls button").forEach((b) => {
   b.classList.toggle("active", b.dataset.color === current || b.dataset.show === shown);
 });
 const report = {
-  ready: Plotly.newPlot(div, traces(current), layout,
+  ready: Plotly.newPlot(div, traces(), layout,
                         {responsive: true, displaylogo: false}).then(frame),
   rotate: (degrees) => {
     angle += Number(degrees);
-    layout.scene.camera = {...(div._fullLayout.scene.camera || {}), eye: eye()};
+    layout.scene.camera = {...div._fullLayout.scene.camera, eye: eye()};
     return redraw();
   },
   colorBy: (name) => {
     if (!(name in schemes)) return Promise.reject(new Error("colorBy: unknown " + name));
-    current = name; mark();
-    layout.scene.camera = div._fullLayout.scene.camera;
+    current = name; mark(); keepCamera();
     return redraw();
   },
   show: (kind) => {
-    if (kind !== "mesh" && kind !== "points") return Promise.reject(new Error("show: " + kind));
-    shown = kind === "mesh" && m === 0 ? "points" : kind; mark();
-    layout.scene.camera = div._fullLayout.scene.camera;
+    if (!["mesh", "points", "detail"].includes(kind)) {
+      return Promise.reject(new Error("show: unknown " + kind));
+    }
+    if (kind === "detail" && !data.levels.detail) kind = "points";
+    if (kind === "mesh" && base.m === 0) kind = "points";
+    shown = kind; mark(); keepCamera();
     return redraw();
   },
 };
+// zooming in past twice the opening view shows the detail level (once; buttons go back)
+let zoomed = false;
+div.on("plotly_relayout", (change) => {
+  const cam = change["scene.camera"];
+  if (zoomed || !data.levels.detail || !cam || !cam.eye || shown === "detail") return;
+  const r = Math.hypot(cam.eye.x, cam.eye.y, cam.eye.z);
+  if (r < 0.5 * Math.hypot(eye0.x, eye0.y, eye0.z)) { zoomed = true; report.show("detail"); }
+});
 document.querySelectorAll(".controls button").forEach((b) => b.addEventListener("click", () => {
   if (b.dataset.color) report.colorBy(b.dataset.color);
   if (b.dataset.show) report.show(b.dataset.show);
-  if (b.dataset.reset) { angle = 0; layout.scene.camera = {...layout.scene.camera, eye: eye(),
-    center: {x: 0, y: 0, z: 0}}; redraw(); }
+  if (b.dataset.reset) {
+    angle = 0;
+    layout.scene.camera = {...layout.scene.camera, eye: eye(), center: {x: 0, y: 0, z: 0}};
+    redraw();
+  }
 }));
 window.nail2nailReport = report;
 })();

@@ -1,0 +1,198 @@
+"""The HTML report (issue 13): its inputs, the viewer's decimation, the command and its errors.
+
+The browser checks (WebGL draws, rotation, console) are in tests/test_report_browser.py; the
+capture, calibration and distortion sections in tests/test_report_sections.py.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nail2nail.cli import main
+from nail2nail.report import build_report, find_inputs
+from nail2nail.report.viewer import cluster_vertices, viewer_data
+
+SECTIONS = ("overview", "capture", "calibration", "distortion", "merge", "view3d", "print")
+
+
+# -- vertex clustering -------------------------------------------------------------------------
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 400), k=st.integers(1, 120), seed=st.integers(0, 2**16))
+def test_cluster_vertices_invariants(n, k, seed):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(n, 3)) * [10, 20, 3]
+    faces = rng.integers(0, n, size=(2 * n, 3))
+    value = rng.normal(size=n)
+    out, out_faces, (mean,), labels = cluster_vertices(points, faces, max_vertices=k,
+                                                       attributes=(value,))
+    assert len(out) <= max(k, 1) and labels.shape == (n,)
+    assert set(np.unique(labels)) == set(range(len(out)))  # every output vertex is used
+    # each output vertex is the mean of its cluster, and so is its attribute
+    for c in np.unique(labels)[:5]:
+        np.testing.assert_allclose(out[c], points[labels == c].mean(axis=0), atol=1e-9)
+        np.testing.assert_allclose(mean[c], value[labels == c].mean(), atol=1e-9)
+    if len(out_faces):
+        assert out_faces.min() >= 0 and out_faces.max() < len(out)
+        assert np.all(out_faces[:, 0] != out_faces[:, 1])
+        assert np.all(out_faces[:, 1] != out_faces[:, 2])
+        assert np.all(out_faces[:, 0] != out_faces[:, 2])
+        assert len(np.unique(np.sort(out_faces, axis=1), axis=0)) == len(out_faces)
+    if n <= k:  # nothing to merge: the mesh as it was, less its degenerate triangles
+        np.testing.assert_array_equal(out, points)
+        np.testing.assert_array_equal(labels, np.arange(n))
+
+
+def test_cluster_vertices_keeps_a_surface_connected():
+    # a 200 x 200 grid of a plane, two triangles per cell: decimated ~16x, still one sheet
+    i, j = np.meshgrid(np.arange(200), np.arange(200), indexing="ij")
+    points = np.stack([i.ravel() * 0.1, j.ravel() * 0.1, np.zeros(i.size)], axis=1)
+    v = (i[:-1, :-1] * 200 + j[:-1, :-1]).ravel()
+    faces = np.concatenate([np.stack([v, v + 1, v + 201], 1), np.stack([v, v + 201, v + 200], 1)])
+    out, out_faces, _, _ = cluster_vertices(points, faces, max_vertices=2_500)
+    assert 1_500 < len(out) <= 2_500
+    area = 0.5 * np.linalg.norm(np.cross(out[out_faces[:, 1]] - out[out_faces[:, 0]],
+                                         out[out_faces[:, 2]] - out[out_faces[:, 0]]), axis=1)
+    # no holes: the triangles cover the square the vertices span (cluster means sit up to half
+    # a cube inside the border, so that square is a little smaller than the plane)
+    span = np.ptp(out[:, :2], axis=0)
+    assert area.sum() == pytest.approx(span.prod(), rel=0.01)
+    assert span.min() > 19
+
+
+def test_cluster_vertices_bad_input():
+    with pytest.raises(ValueError, match="max_vertices"):
+        cluster_vertices(np.zeros((3, 3)), max_vertices=0)
+
+
+# -- inputs ------------------------------------------------------------------------------------
+
+def test_find_inputs_of_each_kind(processed_finger):
+    out = processed_finger
+    inputs = find_inputs(out)
+    assert inputs.kind == "process" and inputs.notes == []
+    assert inputs.scans == out / "scans" and inputs.merge == out / "merge"
+    assert inputs.print == out / "print"
+    assert (inputs.capture / "capture.json").is_file() and inputs.calibration.is_file()
+    assert find_inputs(out / "scans").kind == "scans"
+    assert find_inputs(out / "merge").kind == "merge"
+
+
+def test_find_inputs_bad_directory(tmp_path):
+    with pytest.raises(ValueError, match="not a directory"):
+        find_inputs(tmp_path / "absent")
+    with pytest.raises(ValueError, match="not a nail2nail output directory"):
+        find_inputs(tmp_path)
+
+
+# -- the viewer's data -------------------------------------------------------------------------
+
+def test_viewer_data_colourings(processed_finger):
+    import base64
+
+    inputs = find_inputs(processed_finger)
+    whole = viewer_data(inputs, max_points=5_000)
+    merged = json.loads((processed_finger / "merge" / "merge.json").read_text())
+    assert whole["source_vertices"] == merged["super_scan"]["vertices"]
+    assert whole["cameras"] == ["cam0", "cam1", "cam2"]
+    data, detail = whole["levels"]["base"], whole["levels"]["detail"]
+    assert data["n_vertices"] <= 5_000 and data["n_faces"] > data["n_vertices"]
+    assert 5_000 < detail["n_vertices"] <= 20_000 and detail["n_faces"] == 0
+    assert detail["spacing_mm"] < data["spacing_mm"]
+
+    def arr(key, dtype):
+        return np.frombuffer(base64.b64decode(data[key]), dtype=dtype)
+
+    xyz = arr("xyz", np.float32).reshape(-1, 3)
+    camera = arr("camera", np.float32)
+    error = arr("error", np.float32)
+    assert len(xyz) == len(camera) == len(error) == data["n_vertices"]
+    # every camera owns a share of the vertices, cam1 (front) the middle of the finger
+    assert set(np.unique(camera)) <= {-1, 0, 1, 2} and np.all(np.bincount(
+        camera[camera >= 0].astype(int), minlength=3) > 0.1 * len(camera))
+    assert np.median(xyz[camera == 0, 0]) < np.median(xyz[camera == 1, 0]) < np.median(
+        xyz[camera == 2, 0])
+    # merge errors where two cameras overlap, of the size merge.json reports
+    found = error[np.isfinite(error)]
+    assert 0.2 < data["error_coverage"] < 1 and len(found) == round(
+        data["error_coverage"] * len(error))
+    medians = [1e3 * m["distance_mm"]["median"] for m in merged["merge"].values()]
+    assert 0.5 * min(medians) < np.median(found) < 2 * max(medians)
+
+
+# -- the command -------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def report_html(processed_finger, tmp_path_factory) -> tuple[Path, str]:
+    path = tmp_path_factory.mktemp("report") / "r.html"
+    assert main(["-q", "report", str(processed_finger), "--out", str(path),
+                 "--report-points", "8000"]) == 0
+    return path, path.read_text()
+
+
+def test_report_has_every_section_and_is_self_contained(report_html, processed_finger):
+    path, html = report_html
+    for sid in SECTIONS:
+        assert f'<section id="{sid}">' in html, sid
+    assert html.count('id="viewer"') == 1
+    # nothing loaded from elsewhere: every src/href is a data: URI or an anchor
+    refs = re.findall(r'<(?:img|script|link|iframe)[^>]*\b(?:src|href)="([^"]*)"', html)
+    assert refs and all(r.startswith(("data:", "#")) for r in refs)
+    assert "window.nail2nailReport" in html and "Plotly.newPlot" in html
+    merged = json.loads((processed_finger / "merge" / "merge.json").read_text())
+    for key, m in merged["merge"].items():  # the table shows merge.json's figures
+        assert f"<td>{key}</td>" in html
+        assert f"<td>{1e3 * m['distance_mm']['median']:.2f}</td>" in html
+    meta = json.loads((processed_finger / "print" / "print.json").read_text())
+    assert f"{meta['shape'][1]} × {meta['shape'][0]} px" in html
+    assert html.count("data:image/png;base64,") >= 6
+    assert path.stat().st_size < 30e6
+
+
+def test_process_report_and_default_path(processed_finger, tmp_path, capsys):
+    out = tmp_path / "copy"
+    shutil.copytree(processed_finger, out)
+    assert main(["report", str(out)]) == 0
+    assert (out / "report.html").is_file()
+    assert f"wrote {out / 'report.html'}" in capsys.readouterr().out
+
+
+def test_partial_directories(processed_finger, tmp_path):
+    merge_only = tmp_path / "merge"
+    shutil.copytree(processed_finger / "merge", merge_only)
+    html = build_report(merge_only, max_points=2_000)
+    assert html.count('class="missing"') >= 3  # capture, calibration, print …
+    assert "window.nail2nailReport" in html
+    no_super = tmp_path / "scans"
+    shutil.copytree(processed_finger / "scans", no_super)
+    html = build_report(no_super)
+    # no super scan: the page still keeps its contract (ready resolves, methods exist)
+    assert "No super scan" in html and "window.nail2nailReport = {ready: Promise.resolve()" in html
+
+
+def test_bad_input_writes_nothing(processed_finger, tmp_path, capsys):
+    assert main(["report", str(tmp_path / "absent")]) == 2
+    assert "not a directory" in capsys.readouterr().err
+    assert main(["report", str(tmp_path)]) == 2
+    assert "not a nail2nail output directory" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+    # a corrupt merge.json: exit 2 naming it; an earlier report is kept, no temporary file
+    out = tmp_path / "job"
+    shutil.copytree(processed_finger, out, ignore=shutil.ignore_patterns("report.html"))
+    (out / "report.html").write_text("earlier")
+    (out / "merge" / "merge.json").write_text("{not json")
+    assert main(["report", str(out)]) == 2
+    assert "merge.json" in capsys.readouterr().err
+    assert (out / "report.html").read_text() == "earlier"
+    assert not [p for p in out.iterdir() if p.name.startswith(".report.html")]
+    assert main(["report", str(processed_finger), "--out", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+    assert main(["report", str(processed_finger), "--report-points", "5"]) == 2
