@@ -6,6 +6,8 @@ capture, calibration and distortion sections in tests/test_report_sections.py.
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import json
 import re
 import shutil
@@ -155,6 +157,30 @@ def test_report_has_every_section_and_is_self_contained(report_html, processed_f
     assert f"{meta['shape'][1]} × {meta['shape'][0]} px" in html
     assert html.count("data:image/png;base64,") >= 6
     assert path.stat().st_size < 30e6
+
+
+def test_detail_level_is_inert_json(report_html):
+    # the detail level rides as JSON the page parses only when shown (not in the opening time)
+    _, html = report_html
+    found = re.search(r'<script type="application/json" id="viewer-detail">(.*?)</script>', html,
+                      re.S)
+    assert found
+    detail = json.loads(found.group(1))
+    assert detail["n_faces"] == 0 and 8_000 < detail["n_vertices"] <= 32_000
+    xyz = np.frombuffer(base64.b64decode(detail["xyz"]), np.float32)
+    assert xyz.size == 3 * detail["n_vertices"] and np.isfinite(xyz).all()
+
+
+def test_vendored_plotly_is_the_recorded_release():
+    # report/vendor/README.md records package, version and checksum: the file is never edited
+    from nail2nail.report.viewer import PLOTLY_JS
+
+    text = PLOTLY_JS.read_bytes()
+    record = (PLOTLY_JS.parent / "README.md").read_text()
+    assert b"plotly.js (gl3d - minified) v3.3.1" in text[:200]
+    assert "| 3.3.1 |" in record
+    assert hashlib.sha256(text).hexdigest() in record
+    assert (PLOTLY_JS.parent / "plotly-gl3d.LICENSE").read_text().startswith("MIT License")
 
 
 def test_process_report_and_default_path(processed_finger, tmp_path, capsys):

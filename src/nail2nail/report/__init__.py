@@ -6,8 +6,9 @@ builds ``OUT_DIR/report.html`` from the files the pipeline wrote there
 and coverage), the calibration (per-camera geometry and residuals), the projector distortion,
 the merge (heat maps, histograms and statistics per camera pair), an interactive 3D viewer of
 the super scan (plotly.js, WebGL) and the rolled-equivalent print. Every image and script is
-embedded: the page opens offline, from ``file://``, and weighs a few MB (plotly.js is 4.7 MB of
-it).
+embedded: the page opens offline, from ``file://``, and weighs a few MB to a few tens of MB
+(plotly.js's 3D bundle, ``report/vendor/``, is 1.7 MB of it; the 3D viewer's two levels of
+detail most of the rest).
 
 The page's JavaScript contract, for scripts and tests: ``<div id="viewer">`` holds the WebGL
 canvas, and ``window.nail2nailReport`` is ``{ready, rotate(degrees), colorBy(name)}``:

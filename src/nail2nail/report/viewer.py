@@ -38,12 +38,13 @@ __all__ = ["cluster_vertices", "libraries", "section", "viewer_data"]
 CAMERA_COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b")
 
 
-def libraries() -> list[str]:
-    """Inline JavaScript the viewer needs in the page head: plotly.js (minified, offline)."""
-    import plotly
+#: plotly.js's 3D-only bundle (``vendor/README.md``: package, version, licence, checksum).
+PLOTLY_JS = Path(__file__).parent / "vendor" / "plotly-gl3d.min.js"
 
-    path = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
-    return [path.read_text(encoding="utf-8")]
+
+def libraries() -> list[str]:
+    """Inline JavaScript the viewer needs in the page head: plotly.js's 3D bundle (offline)."""
+    return [PLOTLY_JS.read_text(encoding="utf-8")]
 
 
 def cluster_vertices(points, faces=None, *, max_vertices: int, attributes=()):
@@ -298,7 +299,13 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
         f"(µm, colour scale to its 95th percentile) on {100 * base['error_coverage']:.0f}% of "
         "the vertices; grey where one camera alone sees the finger.</p>"
     )
-    payload = json.dumps({**data, "colours": list(CAMERA_COLOURS)})
+    # the detail level is inert JSON (not script): the browser only tokenises it at load and
+    # JavaScript parses it when first shown, which keeps it out of the opening time
+    levels = {"base": base}
+    if detail is not None:
+        body += ('<script type="application/json" id="viewer-detail">'
+                 + json.dumps(detail) + "</script>")
+    payload = json.dumps({**data, "levels": levels, "colours": list(CAMERA_COLOURS)})
     script = _VIEWER_JS.replace("__DATA__", payload)
     return Section("view3d", "3D viewer", body, scripts=[script])
 
@@ -313,10 +320,12 @@ const decode = (b64, Type) => {
   return new Type(bytes.buffer);
 };
 // a level of detail, decoded when first shown (the detail level may never be)
+const detailNode = document.getElementById("viewer-detail");
 const cache = {};
 const level = (name) => {
   if (cache[name]) return cache[name];
-  const L = data.levels[name], n = L.n_vertices, m = L.n_faces;
+  const L = name === "detail" ? JSON.parse(detailNode.textContent) : data.levels[name];
+  const n = L.n_vertices, m = L.n_faces;
   const xyz = decode(L.xyz, Float32Array), faces = decode(L.faces, Int32Array);
   const out = {L, n, m, x: new Float32Array(n), y: new Float32Array(n), z: new Float32Array(n),
     i: new Int32Array(m), j: new Int32Array(m), k: new Int32Array(m),
@@ -412,7 +421,7 @@ const report = {
     if (!["mesh", "points", "detail"].includes(kind)) {
       return Promise.reject(new Error("show: unknown " + kind));
     }
-    if (kind === "detail" && !data.levels.detail) kind = "points";
+    if (kind === "detail" && !detailNode) kind = "points";
     if (kind === "mesh" && base.m === 0) kind = "points";
     shown = kind; mark(); keepCamera();
     return redraw();
@@ -422,7 +431,7 @@ const report = {
 let zoomed = false;
 div.on("plotly_relayout", (change) => {
   const cam = change["scene.camera"];
-  if (zoomed || !data.levels.detail || !cam || !cam.eye || shown === "detail") return;
+  if (zoomed || !detailNode || !cam || !cam.eye || shown === "detail") return;
   const r = Math.hypot(cam.eye.x, cam.eye.y, cam.eye.z);
   if (r < 0.5 * Math.hypot(eye0.x, eye0.y, eye0.z)) { zoomed = true; report.show("detail"); }
 });
