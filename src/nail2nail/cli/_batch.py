@@ -11,8 +11,7 @@ import sys
 from pathlib import Path
 
 from ..io._json import dumps_json
-from ._scan import add_scan_options, decode_options, masks, max_gradient
-from ._unroll import add_unroll_options, check_unroll_options
+from ._process import add_process_options, process_options
 
 __all__ = ["add_parser", "run"]
 
@@ -39,38 +38,9 @@ def add_parser(sub) -> None:
     p.add_argument("--memory-per-capture", type=float, default=None, metavar="MB",
                    help="peak memory of one capture, MB, for the default --workers (default: "
                    "estimated from the frames; process.json's peak_rss_mb measures it)")
-    add_scan_options(p)
-    p.add_argument("--pairs", default=None,
-                   help="merge report camera pairs PARENT-CHILD, comma separated "
-                   "(default: 0-1,1-2,…)")
-    p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
-                   help="write the merge figures (default: off, the data only)")
-    p.add_argument("--mat5", action="store_true", help="also write the legacy mat5 sets")
-    p.add_argument("--ply", action="store_true",
-                   help="also write each camera's PLY point cloud")
-    p.add_argument("--unroll", action=argparse.BooleanOptionalAction, default=True,
-                   help="unroll the finger into the rolled-equivalent print (default: on)")
-    add_unroll_options(p)
-    p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
+    add_process_options(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=run)
-
-
-def process_options(args: argparse.Namespace) -> dict:
-    """The keyword arguments of :func:`nail2nail.process.process_capture` from `args`."""
-    from ..merge.report import parse_pairs
-
-    check_unroll_options(args)
-    options = decode_options(args)
-    min_modulation = options.pop("min_modulation")
-    if args.pairs is not None:
-        parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
-    return dict(use=args.use, max_gradient=max_gradient(args), min_modulation=min_modulation,
-                decode_options=options, masks=masks(args), allow_mirrored=args.allow_mirrored,
-                pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
-                unroll=args.unroll, method=args.method, ppi=args.ppi,
-                tip_direction=args.tip_direction, length_mm=args.length, wsq=not args.no_wsq,
-                frame=args.frame)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ from ._report import add_report_options, check_report_options
 from ._scan import add_scan_options, decode_options, masks, max_gradient
 from ._unroll import add_unroll_options, check_unroll_options
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "add_process_options", "process_options", "run"]
 
 
 def add_parser(sub) -> None:
@@ -29,6 +29,16 @@ def add_parser(sub) -> None:
     p.add_argument("capture", type=Path, help="capture directory (capture.json)")
     p.add_argument("--calib", type=Path, required=True, help="calibration JSON")
     p.add_argument("--out", type=Path, required=True, help="output directory")
+    add_process_options(p)
+    p.add_argument("--report", action="store_true",
+                   help="also write OUT/report.html, the HTML report (`nail2nail report`)")
+    add_report_options(p)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def add_process_options(p: argparse.ArgumentParser) -> None:
+    """The processing options of ``process`` (and ``batch``): scan, merge and unroll."""
     add_scan_options(p)
     p.add_argument("--pairs", default=None,
                    help="merge report camera pairs PARENT-CHILD, comma separated "
@@ -44,31 +54,31 @@ def add_parser(sub) -> None:
                    help="unroll the finger into the rolled-equivalent print (default: on)")
     add_unroll_options(p)
     p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
-    p.add_argument("--report", action="store_true",
-                   help="also write OUT/report.html, the HTML report (`nail2nail report`)")
-    add_report_options(p)
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def process_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :func:`nail2nail.process.process_capture` from `args`."""
     from ..merge.report import parse_pairs
-    from ..process import process_capture
 
     check_unroll_options(args)
-    check_report_options(args)
     options = decode_options(args)
     min_modulation = options.pop("min_modulation")
     if args.pairs is not None:
         parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
-    summary = process_capture(
-        args.capture, args.calib, args.out, use=args.use, max_gradient=max_gradient(args),
-        min_modulation=min_modulation, decode_options=options, masks=masks(args),
-        allow_mirrored=args.allow_mirrored,
-        pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
-        unroll=args.unroll, method=args.method, ppi=args.ppi, tip_direction=args.tip_direction,
-        length_mm=args.length, wsq=not args.no_wsq, frame=args.frame,
-        progress=True)
+    return dict(use=args.use, max_gradient=max_gradient(args), min_modulation=min_modulation,
+                decode_options=options, masks=masks(args), allow_mirrored=args.allow_mirrored,
+                pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
+                unroll=args.unroll, method=args.method, ppi=args.ppi,
+                tip_direction=args.tip_direction, length_mm=args.length, wsq=not args.no_wsq,
+                frame=args.frame)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..process import process_capture
+
+    options = process_options(args)  # checks the options before any work
+    check_report_options(args)
+    summary = process_capture(args.capture, args.calib, args.out, progress=True, **options)
     if args.report:
         from ..report import write_report
 
