@@ -3,7 +3,8 @@
 Six small virtual captures (scale 0.25; two simulated fingers, copied), one with a truncated
 frame; two local workers, one of them killed while it runs a capture. Every good capture's
 output must equal the single-process ``process`` command's, the corrupt one be reported with
-its error, nothing be left half-written, and a second run skip everything.
+its error, nothing be left half-written, and a second run skip everything (the corrupt capture's
+error repeated without running it, unless asked to retry).
 """
 
 from __future__ import annotations
@@ -166,7 +167,7 @@ def test_batch_equals_process_despite_a_lost_worker(inputs, first_run):
     header = (out / "batch.csv").read_text().splitlines()[0].split(",")
     for column in ("capture", "status", "error", "seconds_scan", "merge_median_um_0-1",
                    "valid_pixels_cam0", "super_vertices", "clarity_median", "worker",
-                   "attempts"):
+                   "attempts", "ran", "bad_input", "hash"):
         assert column in header
 
 
@@ -177,9 +178,20 @@ def test_second_run_skips(inputs, first_run, client):
     again = process_batch(f"{captures}/*", calib, out, client, **_cli_options(calib))
     status = {r["capture"]: r["status"] for r in again}
     assert status == {**dict.fromkeys(GOOD, "skipped"), "corrupt": "failed"}
+    # nothing ran: the corrupt capture's bad-input error is repeated while it is unchanged
+    assert not any(r["ran"] for r in again)
+    first, second = ({r["capture"]: r for r in table}["corrupt"] for table in (rows, again))
+    assert first["ran"] and first["bad_input"] and second["bad_input"]
+    assert second["error"] == first["error"] and second["hash"] == first["hash"]
     assert before == {n: (out / n / "process.json").stat().st_mtime_ns for n in GOOD}
     # the skipped rows still report the job's figures
     assert [r["super_vertices"] for r in again] == [r["super_vertices"] for r in rows]
+    # asked to, the failed capture is run again (and fails again), the rest still skipped
+    retried = process_batch(f"{captures}/*", calib, out, client, retry_failed=True,
+                            **_cli_options(calib))
+    assert {r["capture"]: r["ran"] for r in retried} == {**dict.fromkeys(GOOD, False),
+                                                          "corrupt": True}
+    assert {r["capture"]: r for r in retried}["corrupt"]["error"] == first["error"]
 
 
 def test_changed_input_is_redone(inputs, first_run, tmp_path):
@@ -198,13 +210,16 @@ def test_changed_input_is_redone(inputs, first_run, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-def test_inputs_hash(inputs, tmp_path):
+def test_inputs_hash(inputs, tmp_path, monkeypatch):
     root, _, calib, _ = inputs
     capture = tmp_path / "c"
     shutil.copytree(root / f"seed{SEEDS[0]}", capture)
     h = inputs_hash(capture, calib)
     assert h == inputs_hash(capture, calib, {}) and len(h) == 64
     assert inputs_hash(capture, calib, {"ppi": 1000}) != h
+    monkeypatch.setattr("nail2nail.batch.hashing.__version__", "0.0.0")  # another release
+    assert inputs_hash(capture, calib) != h
+    monkeypatch.undo()
     frame = sorted(capture.glob("cam0/*.png"))[0]
     data = bytearray(frame.read_bytes())
     data[-20] ^= 1
@@ -236,6 +251,7 @@ def test_cli_resumes_and_reports(inputs, first_run, capsys):
     rows = json.loads(captured.out)
     assert {r["capture"]: r["status"] for r in rows} == {**dict.fromkeys(GOOD, "skipped"),
                                                          "corrupt": "failed"}
+    assert not any(r["ran"] for r in rows)
     assert "1 of 6 captures failed" in captured.err
 
 

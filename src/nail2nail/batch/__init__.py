@@ -8,8 +8,12 @@ and the results table ``OUT/batch.csv`` and ``OUT/batch.json``.
 - Resumable: a capture whose job directory is complete (``process.json``) and whose inputs hash
   (:func:`nail2nail.batch.hashing.inputs_hash`: the capture's files, the calibration, the
   options) equals the one recorded in ``OUT/<capture>/batch.json`` is skipped; a changed one is
-  redone, its old directory replaced as a whole.
-- Isolated: a capture's error is its ``failed`` row, the others go on; an error is not retried.
+  redone, its old directory replaced as a whole. A capture that failed on bad input (its row in
+  the previous ``OUT/batch.json``) is not run again while its inputs hash is unchanged: its row
+  repeats the error (``ran`` false); ``retry_failed=True`` (``--retry-failed``) runs it again.
+  Other failures (file system, lost workers, internal errors) are run again on every call.
+- Isolated: a capture's error is its ``failed`` row, the others go on; an error is not retried
+  within a call.
 - Robust to lost workers: a task whose worker dies is run again elsewhere (the scheduler's
   ``distributed.scheduler.allowed-failures``, 3 by default; the nanny restarts the worker), and
   since a job directory is renamed into place only once complete, no half-written output is
@@ -90,8 +94,24 @@ def _attempts(client, keys: list[str]) -> dict[str, int]:
     return client.run_on_scheduler(count, keys=keys)
 
 
+def _previous_failures(out: Path) -> dict[str, dict]:
+    """The bad-input failures of the last call's table ``OUT/batch.json``, by capture name."""
+    from ..io._json import read_json
+
+    try:
+        rows = read_json(out / "batch.json")
+    except (OSError, ValueError):  # none yet, or not ours: nothing to repeat
+        return {}
+    if not isinstance(rows, list):
+        return {}
+    return {r["capture"]: {k: r.get(k) for k in ("hash", "error", "bad_input")}
+            for r in rows if isinstance(r, dict) and r.get("status") == "failed"
+            and r.get("bad_input") and r.get("hash") and "capture" in r}
+
+
 def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLike, client, *,
-                  progress: bool = False, **options) -> list[dict]:
+                  progress: bool = False, retry_failed: bool = False,
+                  **options) -> list[dict]:
     """Process every capture on the Dask cluster of `client`; write the results table.
 
     Parameters
@@ -108,6 +128,9 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
         The cluster's client (:func:`local_client`, or ``Client("tcp://host:8786")``).
     progress : bool
         A progress bar over the captures on stderr (a terminal only, not inside ``quiet``).
+    retry_failed : bool
+        Run again the captures that failed on bad input in the previous call even if their
+        inputs are unchanged (default: repeat their error without running them).
     **options
         Keyword arguments of :func:`nail2nail.process.process_capture` (``use``, ``ppi`` …;
         not ``progress``); they are part of the inputs hash.
@@ -139,11 +162,13 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
     out.mkdir(parents=True, exist_ok=True)
     for c in captures:
         clean_stale(out, c.name)
+    failures = {} if retry_failed else _previous_failures(out)
     futures = {}
     for c in captures:
         # pure=False: the same inputs may change on disk between two calls; the key names it
         future = client.submit(run_capture, str(c), str(calibration), str(out / c.name),
-                               options, key=f"nail2nail-batch-{c.name}-{time.time_ns()}",
+                               options, failures.get(c.name),
+                               key=f"nail2nail-batch-{c.name}-{time.time_ns()}",
                                pure=False, retries=RETRIES)
         futures[future] = c
     records: dict[Path, dict] = {}
@@ -158,7 +183,7 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
                 exc = future.exception()
                 record = {"capture": str(c), "out": str(out / c.name), "status": "failed",
                           "error": f"{type(exc).__name__}: {describe_error(exc)}",
-                          "worker": None}
+                          "ran": True, "worker": None}
             records[c] = result_row(record, attempts=attempts)
             bar.update()
     for c in captures:  # every task has ended: what a lost attempt left is garbage

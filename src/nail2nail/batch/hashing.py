@@ -1,7 +1,9 @@
-"""Content hash of a batch task's inputs: the capture's files, the calibration and the options.
+"""Content hash of a batch task's inputs: the capture's files, the calibration, the options and
+the nail2nail version.
 
 A capture whose output holds the same hash (``OUT/<capture>/batch.json``) is skipped by
-:func:`nail2nail.batch.process_batch`; any changed byte, renamed file or changed option redoes it.
+:func:`nail2nail.batch.process_batch`; any changed byte, renamed file, changed option or another
+release of nail2nail redoes it.
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ import hashlib
 import json
 import os
 from pathlib import Path
+
+from .. import __version__
 
 __all__ = ["inputs_hash"]
 
@@ -25,7 +29,7 @@ def _update_with_file(digest, path: Path) -> None:
 def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
                 options: dict | None = None) -> str:
     """SHA-256 of every file under `capture` (relative path and content), of `calibration`'s
-    content and of `options` (as sorted JSON); hex string.
+    content, of `options` (as sorted JSON) and of ``nail2nail.__version__``; hex string.
 
     Parameters
     ----------
@@ -63,4 +67,5 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
     _update_with_file(digest, calibration)
     digest.update(b"\0options\0")
     digest.update(json.dumps(options or {}, sort_keys=True, default=repr).encode())
+    digest.update(f"\0nail2nail {__version__}".encode())
     return digest.hexdigest()

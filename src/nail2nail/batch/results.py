@@ -28,18 +28,23 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
     Returns
     -------
     dict
-        ``{"capture", "status", "error", "seconds": {stage: s}, "merge_median_um": {pair: µm},
-        "valid_pixels": {camera: n}, "super_vertices", "clarity_median", "peak_rss_mb",
-        "worker", "attempts", "task_seconds", "out"}`` (``task_seconds``: the task's wall time
-        on its worker, hashing included); the job's figures are ``None``/empty when it failed.
+        ``{"capture", "status", "error", "bad_input", "seconds": {stage: s},
+        "merge_median_um": {pair: µm}, "valid_pixels": {camera: n}, "super_vertices",
+        "clarity_median", "peak_rss_mb",
+        "ran", "worker", "attempts", "task_seconds", "hash", "out"}`` (``ran``: the job ran in
+        this batch, not skipped nor an earlier failure repeated; ``task_seconds``: the task's
+        wall time on its worker, hashing included; ``hash``: the inputs hash, ``None`` if it
+        could not be computed); the job's figures are ``None``/empty when it failed.
     """
     from ..io._json import read_json
 
     row = {"capture": Path(record["capture"]).name, "status": record["status"],
-           "error": record["error"], "seconds": {}, "merge_median_um": {}, "valid_pixels": {},
+           "error": record["error"], "bad_input": bool(record.get("bad_input", False)),
+           "seconds": {}, "merge_median_um": {}, "valid_pixels": {},
            "super_vertices": None, "clarity_median": None, "peak_rss_mb": None,
-           "worker": record.get("worker"), "attempts": int(attempts),
-           "task_seconds": record.get("wall_seconds"), "out": record["out"]}
+           "ran": bool(record.get("ran", False)), "worker": record.get("worker"),
+           "attempts": int(attempts), "task_seconds": record.get("wall_seconds"),
+           "hash": record.get("hash"), "out": record["out"]}
     job = Path(record["out"])
     if record["status"] == "failed" or not (job / "process.json").is_file():
         return row

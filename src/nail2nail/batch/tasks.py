@@ -18,6 +18,8 @@ from .hashing import inputs_hash
 __all__ = ["BATCH_JSON", "clean_stale", "run_capture"]
 
 BATCH_JSON = "batch.json"  # the hash record, inside the job directory
+# the errors of a capture's own content, repeated without rerunning while it is unchanged
+BAD_INPUT = (ValueError, KeyError, TypeError)
 
 
 def clean_stale(out: str | os.PathLike, name: str) -> list[Path]:
@@ -43,8 +45,10 @@ def _worker_name() -> str:
         return "local"
 
 
-def run_capture(capture: str, calibration: str, out: str, options: dict) -> dict:
-    """Process one capture into `out` unless its output is complete and its inputs unchanged.
+def run_capture(capture: str, calibration: str, out: str, options: dict,
+                failed: dict | None = None) -> dict:
+    """Process one capture into `out` unless its output is complete and its inputs unchanged,
+    or it failed before on the same inputs.
 
     Parameters
     ----------
@@ -56,12 +60,22 @@ def run_capture(capture: str, calibration: str, out: str, options: dict) -> dict
         The job directory, ``OUT/<capture name>``.
     options : dict
         Keyword arguments of :func:`nail2nail.process.process_capture`.
+    failed : dict, optional
+        An earlier run's failure for this capture, ``{"hash", "error", "bad_input"}`` (a row
+        of ``OUT/batch.json``): if it was a bad-input error and the inputs hash is the same,
+        the job is not run again (it would fail the same way) and the record repeats that
+        error, with ``ran`` false. Other failures (a file system error, a lost worker, an
+        internal error) are always retried.
 
     Returns
     -------
     dict
-        ``{"capture", "out", "status": "done" | "skipped" | "failed", "error", "hash",
-        "worker", "wall_seconds"}``; ``error`` is one line, ``None`` unless failed.
+        ``{"capture", "out", "status": "done" | "skipped" | "failed", "error", "bad_input",
+        "hash", "ran", "worker", "wall_seconds"}``; ``error`` is one line, ``None`` unless
+        failed; ``bad_input``: the error is the capture's (``ValueError``, ``KeyError``,
+        ``TypeError``: a corrupt or inconsistent file, as ``nail2nail process`` exits 2);
+        ``ran``: whether the job ran in this call (false when skipped, or its earlier failure
+        was repeated).
     """
     from .._validation import describe_error
     from ..io._json import read_json, write_json
@@ -69,7 +83,7 @@ def run_capture(capture: str, calibration: str, out: str, options: dict) -> dict
 
     start = time.perf_counter()
     record = {"capture": str(capture), "out": str(out), "status": "failed", "error": None,
-              "hash": None, "worker": _worker_name()}
+              "bad_input": False, "hash": None, "ran": False, "worker": _worker_name()}
     job = Path(out)
     try:
         record["hash"] = digest = inputs_hash(capture, calibration, options)
@@ -77,7 +91,11 @@ def run_capture(capture: str, calibration: str, out: str, options: dict) -> dict
         marker = job / BATCH_JSON
         if done.is_file() and marker.is_file() and read_json(marker).get("hash") == digest:
             record["status"] = "skipped"
+        elif failed and failed.get("bad_input") and failed.get("hash") == digest:
+            record["error"] = failed["error"]  # the same inputs fail the same way
+            record["bad_input"] = True
         else:
+            record["ran"] = True
             process_capture(capture, calibration, job, **options)
             # after the job directory is in place: killed in between, the job is redone
             write_json(marker, {"hash": digest, "capture": str(capture),
@@ -85,5 +103,6 @@ def run_capture(capture: str, calibration: str, out: str, options: dict) -> dict
             record["status"] = "done"
     except Exception as exc:  # isolate the capture: its error is its record
         record["error"] = f"{type(exc).__name__}: {describe_error(exc)}"
+        record["bad_input"] = isinstance(exc, BAD_INPUT)
     record["wall_seconds"] = round(time.perf_counter() - start, 3)
     return record

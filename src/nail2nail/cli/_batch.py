@@ -23,8 +23,9 @@ def add_parser(sub) -> None:
         description="Run `nail2nail process CAPTURE --out OUT/<capture name>` for every "
         "capture directory that CAPTURES (a glob, quoted) matches, one Dask task each, on a "
         "local cluster or an existing one; skip a capture whose output is complete and whose "
-        "inputs (files, calibration, options) are unchanged; write OUT/batch.csv and "
-        "OUT/batch.json, one row per capture.",
+        "inputs (files, calibration, options, nail2nail version) are unchanged, and one that "
+        "failed on bad input with the same inputs (its error repeated); write OUT/batch.csv "
+        "and OUT/batch.json, one row per capture.",
     )
     p.add_argument("captures", help="glob of capture directories, e.g. 'captures/*' (quoted)")
     p.add_argument("--calib", type=Path, required=True, help="calibration JSON")
@@ -38,6 +39,9 @@ def add_parser(sub) -> None:
     p.add_argument("--memory-per-capture", type=float, default=None, metavar="MB",
                    help="peak memory of one capture, MB, for the default --workers (default: "
                    "estimated from the frames; process.json's peak_rss_mb measures it)")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="run again the captures that failed on bad input last time even if "
+                   "their inputs are unchanged")
     add_process_options(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=run)
@@ -58,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
         n = args.workers or default_workers(captures, memory_mb=args.memory_per_capture)
         client = local_client(n)
     try:
-        rows = process_batch(captures, args.calib, args.out, client, progress=True, **options)
+        rows = process_batch(captures, args.calib, args.out, client, progress=True,
+                             retry_failed=args.retry_failed, **options)
     finally:
         cluster = client.cluster if args.scheduler is None else None
         client.close()
@@ -81,6 +86,8 @@ def _print_rows(rows: list[dict], counts: dict[str, int], out: Path) -> None:
         line = f"{row['capture']}: {row['status']}"
         if row["status"] == "failed":
             line += f": {row['error']}"
+            if not row["ran"] and row["bad_input"]:
+                line += " (inputs unchanged since it failed: not run; --retry-failed)"
         elif row["seconds"]:
             line += f" ({row['seconds'].get('total', 0):.2f} s, {row['worker']}"
             line += f", {row['attempts']} attempts)" if row["attempts"] > 1 else ")"
