@@ -32,9 +32,12 @@ browser:
 	   || { $$SUDO apt-get update -qq >>$$log 2>&1 && $$SUDO $(APT_CHROMIUM) >>$$log 2>&1; }; then rm -f $$log; \
 	else echo "browser: apt-get install chromium failed (log: $$log): the browser tests will skip"; fi
 
+# One process per core, at most 4 (each may hold a scale-0.5 demo in memory); a test file's
+# tests stay on one process so that its module fixtures are built once. Plain `pytest` runs
+# serially.
 test: $(STAMP) browser
 	$(VENV)/bin/ruff check src tests bench
-	$(PY) -m pytest src tests
+	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadfile src tests
 
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[test,bench,icp]"
