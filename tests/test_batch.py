@@ -210,6 +210,23 @@ def test_changed_input_is_redone(inputs, first_run, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+def test_report_is_part_of_the_job(inputs, first_run, tmp_path):
+    _, captures, calib, _ = inputs
+    out, _, _ = first_run
+    job = tmp_path / "finger1"
+    shutil.copytree(out / "finger1", job)
+    capture, options = str(captures / "finger1"), _cli_options(calib)
+    record = run_capture(capture, str(calib), str(job), options, report_points=2000)
+    assert record["status"] == "done" and record["error"] is None  # no report yet: redone
+    assert "<html" in (job / "report.html").read_text(encoding="utf-8")[:2000].lower()
+    again = run_capture(capture, str(calib), str(job), options, report_points=2000)
+    assert again["status"] == "skipped" and again["hash"] == record["hash"]
+    (job / "report.html").unlink()  # an incomplete job is redone
+    assert run_capture(capture, str(calib), str(job), options,
+                       report_points=2000)["status"] == "done"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
 def test_inputs_hash(inputs, tmp_path, monkeypatch):
     root, _, calib, _ = inputs
     capture = tmp_path / "c"

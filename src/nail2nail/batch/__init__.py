@@ -111,7 +111,7 @@ def _previous_failures(out: Path) -> dict[str, dict]:
 
 def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLike, client, *,
                   progress: bool = False, retry_failed: bool = False,
-                  **options) -> list[dict]:
+                  report_points: int | None = None, **options) -> list[dict]:
     """Process every capture on the Dask cluster of `client`; write the results table.
 
     Parameters
@@ -131,6 +131,9 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
     retry_failed : bool
         Run again the captures that failed on bad input in the previous call even if their
         inputs are unchanged (default: repeat their error without running them).
+    report_points : int, optional
+        Also write each capture's HTML report, ``OUT/<name>/report.html``, with this many
+        points in its 3D viewer (``nail2nail process --report``); default: no report.
     **options
         Keyword arguments of :func:`nail2nail.process.process_capture` (``use``, ``ppi`` …;
         not ``progress``); they are part of the inputs hash.
@@ -167,7 +170,7 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
     for c in captures:
         # pure=False: the same inputs may change on disk between two calls; the key names it
         future = client.submit(run_capture, str(c), str(calibration), str(out / c.name),
-                               options, failures.get(c.name),
+                               options, failures.get(c.name), report_points,
                                key=f"nail2nail-batch-{c.name}-{time.time_ns()}",
                                pure=False, retries=RETRIES)
         futures[future] = c

@@ -46,7 +46,7 @@ def _worker_name() -> str:
 
 
 def run_capture(capture: str, calibration: str, out: str, options: dict,
-                failed: dict | None = None) -> dict:
+                failed: dict | None = None, report_points: int | None = None) -> dict:
     """Process one capture into `out` unless its output is complete and its inputs unchanged,
     or it failed before on the same inputs.
 
@@ -66,6 +66,10 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
         the job is not run again (it would fail the same way) and the record repeats that
         error, with ``ran`` false. Other failures (a file system error, a lost worker, an
         internal error) are always retried.
+    report_points : int, optional
+        Also write ``OUT/<name>/report.html`` (:func:`nail2nail.report.write_report`, this
+        many viewer points); part of the inputs hash, and a job without its report is not
+        complete.
 
     Returns
     -------
@@ -86,10 +90,14 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
               "bad_input": False, "hash": None, "ran": False, "worker": _worker_name()}
     job = Path(out)
     try:
-        record["hash"] = digest = inputs_hash(capture, calibration, options)
-        done = job / "process.json"
-        marker = job / BATCH_JSON
-        if done.is_file() and marker.is_file() and read_json(marker).get("hash") == digest:
+        hashed = dict(options)
+        if report_points is not None:
+            hashed["report_points"] = report_points
+        record["hash"] = digest = inputs_hash(capture, calibration, hashed)
+        complete = [job / "process.json", marker := job / BATCH_JSON]
+        if report_points is not None:
+            complete.append(job / "report.html")
+        if all(p.is_file() for p in complete) and read_json(marker).get("hash") == digest:
             record["status"] = "skipped"
         elif failed and failed.get("bad_input") and failed.get("hash") == digest:
             record["error"] = failed["error"]  # the same inputs fail the same way
@@ -97,6 +105,10 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
         else:
             record["ran"] = True
             process_capture(capture, calibration, job, **options)
+            if report_points is not None:
+                from ..report import write_report
+
+                write_report(job, max_points=report_points)  # atomic, inside the job
             # after the job directory is in place: killed in between, the job is redone
             write_json(marker, {"hash": digest, "capture": str(capture),
                                 "calibration": str(calibration)})  # atomic

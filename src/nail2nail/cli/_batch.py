@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..io._json import dumps_json
 from ._process import add_process_options, process_options
+from ._report import add_report_options, check_report_options
 
 __all__ = ["add_parser", "run"]
 
@@ -43,6 +44,9 @@ def add_parser(sub) -> None:
                    help="run again the captures that failed on bad input last time even if "
                    "their inputs are unchanged")
     add_process_options(p)
+    p.add_argument("--report", action="store_true",
+                   help="also write OUT/<capture name>/report.html, each capture's HTML report")
+    add_report_options(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=run)
 
@@ -51,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..batch import default_workers, find_captures, local_client, process_batch
 
     options = process_options(args)
+    check_report_options(args)
     captures = find_captures(args.captures)
     if not args.calib.is_file():
         raise ValueError(f"{args.calib}: calibration file not found")
@@ -63,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
         client = local_client(n)
     try:
         rows = process_batch(captures, args.calib, args.out, client, progress=True,
-                             retry_failed=args.retry_failed, **options)
+                             retry_failed=args.retry_failed,
+                             report_points=args.report_points if args.report else None,
+                             **options)
     finally:
         cluster = client.cluster if args.scheduler is None else None
         client.close()
