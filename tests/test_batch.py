@@ -160,7 +160,7 @@ def test_batch_equals_process_despite_a_lost_worker(inputs, first_run):
     assert bad["status"] == "failed" and "cam1" in bad["error"] and "\n" not in bad["error"]
     assert not (out / "corrupt").exists()
     # nothing half-written: no hidden temporary directory, every job directory complete
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".batch.lock"]
     assert all((out / n / "process.json").is_file() for n in GOOD)
     table = json.loads((out / "batch.json").read_text())
     assert [r["capture"] for r in table] == [r["capture"] for r in rows]
@@ -237,6 +237,17 @@ def test_inputs_hash(inputs, tmp_path, monkeypatch):
     monkeypatch.setattr("nail2nail.batch.hashing.__version__", "0.0.0")  # another release
     assert inputs_hash(capture, calib) != h
     monkeypatch.undo()
+    # a mask counts by its content, a mask array by all of its values
+    mask = tmp_path / "mask.png"
+    cv2.imwrite(str(mask), np.full((8, 8), 255, np.uint8))
+    with_mask = inputs_hash(capture, calib, {"masks": {"cam0": str(mask)}})
+    cv2.imwrite(str(mask), np.zeros((8, 8), np.uint8))
+    assert inputs_hash(capture, calib, {"masks": {"cam0": str(mask)}}) != with_mask
+    ones = np.ones((1024, 1280), bool)
+    other = ones.copy()
+    other[500, 600] = False  # where repr() would elide it
+    assert (inputs_hash(capture, calib, {"masks": {"cam0": ones}})
+            != inputs_hash(capture, calib, {"masks": {"cam0": other}}))
     frame = sorted(capture.glob("cam0/*.png"))[0]
     data = bytearray(frame.read_bytes())
     data[-20] ^= 1
@@ -258,6 +269,58 @@ def test_bad_input(inputs, tmp_path, capsys):
     assert "missing.json" in capsys.readouterr().err
 
 
+def test_bad_names_workers_and_a_second_batch_on_one_out(inputs, tmp_path, capsys):
+    import fcntl
+
+    _, captures, calib, _ = inputs
+    twins = [captures / "finger0", tmp_path / "finger0"]
+    with pytest.raises(ValueError, match="share the names"):
+        process_batch(twins, calib, tmp_path / "o", client=None)
+    reserved = tmp_path / "batch.json"
+    reserved.mkdir()
+    with pytest.raises(ValueError, match="results table"):
+        process_batch([reserved], calib, tmp_path / "o", client=None)
+    assert main(["batch", f"{captures}/*", "--calib", str(calib), "--out",
+                 str(tmp_path / "o"), "--workers", "0"]) == 2
+    assert "--workers: expected at least 1" in capsys.readouterr().err
+    out = tmp_path / "busy"
+    out.mkdir()
+    with open(out / ".batch.lock", "a+b") as lock:  # another batch is running on `out`
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        with pytest.raises(ValueError, match="another nail2nail batch"):
+            process_batch(f"{captures}/*", calib, out, client=None)
+    assert [p.name for p in out.iterdir()] == [".batch.lock"]  # nothing else written
+
+
+def test_job_directory_cases(inputs, first_run, tmp_path):
+    """A corrupt marker is redone; an output path that is not a job is not a bad input."""
+    from nail2nail.batch.tasks import clean_stale
+
+    _, captures, calib, _ = inputs
+    out, _, _ = first_run
+    capture, options = str(captures / "finger2"), _cli_options(calib)
+    job = tmp_path / "finger2"
+    shutil.copytree(out / "finger2", job)
+    (job / "batch.json").write_text("[1, 2")  # killed mid-write by an older version, say
+    assert run_capture(capture, str(calib), str(job), options)["status"] == "done"
+    assert run_capture(capture, str(calib), str(job), options)["status"] == "skipped"
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    record = run_capture(capture, str(calib), str(user), options)
+    assert record["status"] == "failed" and not record["bad_input"]
+    assert "OutputRefusedError" in record["error"] and (user / "notes.txt").exists()
+    again = run_capture(capture, str(calib), str(user), options,
+                        failed={"hash": record["hash"], "error": record["error"],
+                                "bad_input": record["bad_input"]})
+    assert again["ran"]  # not a bad input: run again, not repeated
+    # names are literal, not glob patterns
+    (tmp_path / ".scan[1].tmp-x").mkdir()
+    (tmp_path / ".scan1.tmp-x").mkdir()
+    assert clean_stale(tmp_path, "scan[1]") == [tmp_path / ".scan[1].tmp-x"]
+    assert (tmp_path / ".scan1.tmp-x").is_dir()
+
+
 def test_cli_resumes_and_reports(inputs, first_run, capsys):
     _, captures, calib, _ = inputs
     out, _, _ = first_run
@@ -272,7 +335,7 @@ def test_cli_resumes_and_reports(inputs, first_run, capsys):
     assert "1 of 6 captures failed" in captured.err
 
 
-def test_memory_rule(inputs):
+def test_memory_rule(inputs, tmp_path):
     from nail2nail.batch import capture_memory_mb, default_workers
     from nail2nail.batch.memory import BASE_MB, COPIES
 
@@ -281,5 +344,9 @@ def test_memory_rule(inputs):
     manifest = json.loads((capture / "capture.json").read_text())
     pixels = sum(c["size"][0] * c["size"][1] * len(c["frames"]) for c in manifest["cameras"])
     assert capture_memory_mb(capture) == pytest.approx(BASE_MB + COPIES * 4 * pixels / 2**20)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "capture.json").write_text("{")  # its task reports it; the others still count
+    assert 1 <= default_workers([capture, broken]) <= 2
     assert default_workers([capture] * 4, memory_mb=1e9) == 1  # nothing fits: still one
     assert 1 <= default_workers([capture] * 4) <= min(4, os.cpu_count())

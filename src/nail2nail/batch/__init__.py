@@ -13,7 +13,10 @@ and the results table ``OUT/batch.csv`` and ``OUT/batch.json``.
   repeats the error (``ran`` false); ``retry_failed=True`` (``--retry-failed``) runs it again.
   Other failures (file system, lost workers, internal errors) are run again on every call.
 - Isolated: a capture's error is its ``failed`` row, the others go on; an error is not retried
-  within a call.
+  within a call. An output path that is not an earlier job (``OutputRefusedError``) is not
+  a bad input: that capture runs again on the next call.
+- Exclusive: a batch holds ``OUT/.batch.lock`` (``fcntl.flock``) while it runs; a second
+  batch on the same OUT is refused, not interleaved.
 - Robust to lost workers: a task whose worker dies is run again elsewhere (the scheduler's
   ``distributed.scheduler.allowed-failures``, 3 by default; the nanny restarts the worker), and
   since a job directory is renamed into place only once complete, no half-written output is
@@ -23,9 +26,11 @@ and the results table ``OUT/batch.csv`` and ``OUT/batch.json``.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from .hashing import inputs_hash
@@ -36,28 +41,77 @@ from .tasks import clean_stale, run_capture
 __all__ = ["capture_memory_mb", "default_workers", "find_captures", "inputs_hash",
            "local_client", "process_batch", "result_row", "write_results"]
 
-RETRIES = 2
+LOCK = ".batch.lock"  # in OUT, held by the running batch
+RESERVED = ("batch.json", "batch.csv")  # the results table, beside the job directories
+
+
+def _check_names(captures: list[Path], what: str) -> None:
+    """Refuse names whose outputs ``OUT/<name>`` would collide or hit the results table."""
+    names = [p.name for p in captures]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"{what}: captures share the names {twice}; their outputs "
+                         "OUT/<name> would collide")
+    bad = sorted(n for n in names if n in RESERVED or n.startswith(".") or not n)
+    if bad:
+        raise ValueError(f"{what}: capture names {bad} are not usable as OUT/<name> (hidden, "
+                         f"or the results table {' / '.join(RESERVED)}); rename them")
 
 
 def find_captures(pattern: str | os.PathLike) -> list[Path]:
     """The capture directories (holding ``capture.json``) that the glob `pattern` matches.
 
+    Parameters
+    ----------
+    pattern : str or path-like
+        A glob pattern (:func:`glob.glob`), e.g. ``"captures/*"``.
+
+    Returns
+    -------
+    list of Path
+        The matching directories that hold a ``capture.json``, sorted.
+
     Raises
     ------
     ValueError
-        No capture matched, or two captures share a name (their outputs would collide).
+        No capture matched, two captures share a name (their outputs would collide), or a
+        name is hidden or that of the results table.
     """
     matched = sorted(Path(p) for p in glob.glob(os.fspath(pattern)))
     captures = [p for p in matched if (p / "capture.json").is_file()]
     if not captures:
         raise ValueError(f"{pattern}: no capture directory (with capture.json) matches "
                          f"({len(matched)} paths matched)")
-    names = [p.name for p in captures]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ValueError(f"{pattern}: captures share the names {twice}; their outputs "
-                         "OUT/<name> would collide")
+    _check_names(captures, os.fspath(pattern))
     return captures
+
+
+@contextlib.contextmanager
+def _exclusive(out: Path) -> Iterator[None]:
+    """Hold ``OUT/.batch.lock`` so that two batches never write one OUT at once."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock (documented)
+        yield
+        return
+    with open(out / LOCK, "a+b") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(f"{out}: another nail2nail batch is writing to this directory "
+                             f"(it holds {LOCK}); wait for it to end or choose another "
+                             "output directory") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _clean_tables(out: Path) -> None:
+    """Remove the temporary files of a results table write that was interrupted."""
+    for name in RESERVED:
+        for path in out.glob(f".{name}.*.tmp"):
+            path.unlink(missing_ok=True)
 
 
 def local_client(n_workers: int, *, memory_limit: int | str | None = None):
@@ -146,33 +200,53 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
     Raises
     ------
     ValueError
-        No capture matched, two share a name, or the calibration file is missing.
+        No capture matched, two share a name, a name is hidden or that of the results table,
+        the calibration file is missing, or another batch is writing to `out` (it holds
+        ``OUT/.batch.lock``; POSIX systems only).
     """
-    from distributed import as_completed
-
-    from .._progress import progress_bar
-    from .._validation import describe_error
-
     if isinstance(captures, (str, os.PathLike)):
         captures = find_captures(captures)
     captures = [Path(c).resolve() for c in captures]
     if not captures:
         raise ValueError("captures: no capture given")
+    _check_names(captures, "captures")
     calibration = Path(calibration).resolve()
     if not calibration.is_file():
         raise ValueError(f"{calibration}: calibration file not found")
+    if options.get("masks"):  # the workers may run elsewhere: absolute paths
+        options["masks"] = {k: str(Path(v).resolve()) if isinstance(v, (str, os.PathLike)) else v
+                            for k, v in options["masks"].items()}
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    for c in captures:
-        clean_stale(out, c.name)
+    with _exclusive(out):
+        _clean_tables(out)
+        for c in captures:
+            clean_stale(out, c.name)
+        rows = _run(captures, calibration, out, client, options, progress=progress,
+                    retry_failed=retry_failed, report_points=report_points)
+        for c in captures:  # every task has ended: what a lost attempt left is garbage
+            clean_stale(out, c.name)
+        write_results(out, rows)
+    return rows
+
+
+def _run(captures: list[Path], calibration: Path, out: Path, client, options: dict, *,
+         progress: bool, retry_failed: bool, report_points: int | None) -> list[dict]:
+    """Submit a task per capture, gather the rows in the order of `captures`."""
+    from distributed import as_completed
+
+    from .._progress import progress_bar
+    from .._validation import describe_error
+
     failures = {} if retry_failed else _previous_failures(out)
     futures = {}
     for c in captures:
-        # pure=False: the same inputs may change on disk between two calls; the key names it
+        # pure=False: the same inputs may change on disk between two calls; the key names it.
+        # No `retries`: run_capture returns its errors; a lost worker is the scheduler's
+        # allowed-failures.
         future = client.submit(run_capture, str(c), str(calibration), str(out / c.name),
                                options, failures.get(c.name), report_points,
-                               key=f"nail2nail-batch-{c.name}-{time.time_ns()}",
-                               pure=False, retries=RETRIES)
+                               key=f"nail2nail-batch-{c.name}-{time.time_ns()}", pure=False)
         futures[future] = c
     records: dict[Path, dict] = {}
     bar = progress_bar(desc="batch", unit="capture", total=len(captures), enabled=progress)
@@ -182,15 +256,12 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
             attempts = _attempts(client, [future.key]).get(future.key, 1)
             if future.status == "finished":
                 record = future.result()
-            else:  # a worker lost too often (KilledWorker), a task that could not run
-                exc = future.exception()
+            else:  # a worker lost too often (KilledWorker), a task cancelled or unrunnable
+                exc = None if future.cancelled() else future.exception()
+                error = ("cancelled: the scheduler dropped the task (restarted or lost?)"
+                         if exc is None else f"{type(exc).__name__}: {describe_error(exc)}")
                 record = {"capture": str(c), "out": str(out / c.name), "status": "failed",
-                          "error": f"{type(exc).__name__}: {describe_error(exc)}",
-                          "ran": True, "worker": None}
+                          "error": error, "ran": True, "worker": None}
             records[c] = result_row(record, attempts=attempts)
             bar.update()
-    for c in captures:  # every task has ended: what a lost attempt left is garbage
-        clean_stale(out, c.name)
-    rows = [records[c] for c in captures]
-    write_results(out, rows)
-    return rows
+    return [records[c] for c in captures]

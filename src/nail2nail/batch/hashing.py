@@ -26,6 +26,41 @@ def _update_with_file(digest, path: Path) -> None:
             digest.update(chunk)
 
 
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    _update_with_file(digest, path)
+    return digest.hexdigest()
+
+
+def _value(value):
+    """JSON stand-in of an option value that JSON cannot hold."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):  # all of it: repr() elides large arrays
+        array = np.ascontiguousarray(value)
+        return {"dtype": array.dtype.str, "shape": list(array.shape),
+                "sha256": hashlib.sha256(array.tobytes()).hexdigest()}
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return repr(value)
+
+
+def _canonical(options: dict) -> dict:
+    """`options` with each mask file replaced by its path and content hash."""
+    masks = options.get("masks")
+    if not masks:
+        return options
+    files = {}
+    for camera, mask in masks.items():
+        if isinstance(mask, (str, os.PathLike)):
+            path = Path(mask)
+            if not path.is_file():
+                raise ValueError(f"{path}: mask file of camera {camera!r} not found")
+            mask = {"path": os.fspath(path), "sha256": _file_sha256(path)}
+        files[camera] = mask
+    return {**options, "masks": files}
+
+
 def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
                 options: dict | None = None) -> str:
     """SHA-256 of every file under `capture` (relative path and content), of `calibration`'s
@@ -38,7 +73,9 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
     calibration : path-like
         Calibration JSON file.
     options : dict, optional
-        The processing options (JSON-serialisable values, else their ``repr``).
+        The processing options (JSON-serialisable values, else their ``repr``); NumPy arrays
+        count by their dtype, shape and bytes, and the files of ``options["masks"]``
+        (``{camera: path or array}``) by their content.
 
     Returns
     -------
@@ -66,6 +103,7 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
     digest.update(b"\0calibration\0")
     _update_with_file(digest, calibration)
     digest.update(b"\0options\0")
-    digest.update(json.dumps(options or {}, sort_keys=True, default=repr).encode())
+    digest.update(json.dumps(_canonical(options or {}), sort_keys=True, default=_value)
+                  .encode())
     digest.update(f"\0nail2nail {__version__}".encode())
     return digest.hexdigest()

@@ -5,7 +5,7 @@ The rule (README, "Batch processing on Dask"): one capture's job peaks at about
 copies of all its frames (the frames read, the decoded phase planes and their working copies).
 Measured with ``process.json``'s ``peak_rss_mb``: 556 MB for the simulated finger at scale 0.25
 and at 0.5 (3 cameras, 24 frames of 256 × 320 and 512 × 640 px) in a fresh ``nail2nail
-process``, 307 MB at scale 0.25 on a Dask worker, which the rule bounds at 666 and 883 MB; at
+process``, 307 MB at scale 0.25 on a Dask worker, which the rule bounds at 668 and 870 MB; at
 full scale (1280 × 1024) the rule gives 1.7 GB, against 868 MB measured for ``process`` in a
 fresh process (README, "Speed"): the rule errs on the safe side. A local cluster of N workers
 gives each ``total memory / N`` as its Dask memory limit, and the default N is the CPU count
@@ -26,8 +26,21 @@ COPIES = 3  # float32 copies of every frame held at the peak
 def capture_memory_mb(capture: str | os.PathLike) -> float:
     """Estimated peak memory (MB) of processing the capture directory `capture`.
 
-    ``BASE_MB + COPIES * 4 bytes * frames * height * width`` summed over the cameras of its
-    ``capture.json``.
+    Parameters
+    ----------
+    capture : path-like
+        Capture directory (its ``capture.json`` is read, not the frames).
+
+    Returns
+    -------
+    float
+        ``BASE_MB + COPIES * 4 bytes * frames * height * width`` summed over the cameras of
+        its ``capture.json``, MB.
+
+    Raises
+    ------
+    ValueError
+        The manifest is missing or inconsistent (naming the file).
     """
     from ..io.capture import read_capture
 
@@ -47,7 +60,8 @@ def default_workers(captures: Sequence[str | os.PathLike], *,
     captures : sequence of path-like
         The capture directories (the largest estimate counts).
     memory_mb : float, optional
-        Peak memory of one capture, MB (default :func:`capture_memory_mb` of the largest).
+        Peak memory of one capture, MB (default :func:`capture_memory_mb` of the largest;
+        a capture whose manifest cannot be read is left out here: its task reports it).
 
     Returns
     -------
@@ -57,7 +71,13 @@ def default_workers(captures: Sequence[str | os.PathLike], *,
     import psutil
 
     if memory_mb is None:
-        memory_mb = max(capture_memory_mb(c) for c in captures)
+        estimates = []
+        for c in captures:
+            try:
+                estimates.append(capture_memory_mb(c))
+            except (OSError, ValueError, KeyError, TypeError):  # the task fails it, alone
+                continue
+        memory_mb = max(estimates, default=BASE_MB)
     available = psutil.virtual_memory().available / 2**20
     fit = int(0.8 * available // memory_mb)
     return max(1, min(os.cpu_count() or 1, len(captures), fit))

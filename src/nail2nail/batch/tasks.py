@@ -8,6 +8,7 @@ memory) makes the scheduler run the task again elsewhere.
 
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 import time
@@ -15,25 +16,62 @@ from pathlib import Path
 
 from .hashing import inputs_hash
 
-__all__ = ["BATCH_JSON", "clean_stale", "run_capture"]
+__all__ = ["BATCH_JSON", "bad_input", "clean_stale", "run_capture"]
 
 BATCH_JSON = "batch.json"  # the hash record, inside the job directory
-# the errors of a capture's own content, repeated without rerunning while it is unchanged
-BAD_INPUT = (ValueError, KeyError, TypeError)
+
+
+def bad_input(exc: BaseException) -> bool:
+    """Whether `exc` is an error of the capture's own content, repeated without running again
+    while the inputs are unchanged.
+
+    The project's validation errors (``ValueError``, naming the file: a truncated frame, an
+    inconsistent manifest), but not :class:`nail2nail.io._atomic.OutputRefusedError` (the
+    output path, which the user may clear) nor any other exception (file system, memory,
+    internal errors), which are run again on the next call.
+    """
+    from ..io._atomic import OutputRefusedError
+
+    return isinstance(exc, ValueError) and not isinstance(exc, OutputRefusedError)
 
 
 def clean_stale(out: str | os.PathLike, name: str) -> list[Path]:
-    """Remove what an interrupted job for `name` may have left beside ``OUT/<name>``: the
-    temporary ``.NAME.tmp-*`` and ``.NAME.old-*`` directories of
-    :func:`nail2nail.io._atomic.atomic_directory`. Return the paths removed.
+    """Remove what an interrupted job for `name` may have left beside ``OUT/<name>``.
 
+    Parameters
+    ----------
+    out : path-like
+        The batch's output directory.
+    name : str
+        The capture's name (matched literally, not as a pattern).
+
+    Returns
+    -------
+    list of Path
+        The temporary ``.NAME.tmp-*`` and ``.NAME.old-*`` directories of
+        :func:`nail2nail.io._atomic.atomic_directory` that were removed.
+
+    Notes
+    -----
     Call it only while no task for `name` runs (before submitting, after all have ended).
     """
     out = Path(out)
+    name = glob.escape(name)
     stale = [*out.glob(f".{name}.tmp-*"), *out.glob(f".{name}.old-*")]
     for path in stale:
         shutil.rmtree(path, ignore_errors=True)
     return stale
+
+
+def _recorded_hash(marker: Path) -> str | None:
+    """The hash that the job directory's marker records; ``None`` if unreadable (redo)."""
+    from ..io._json import read_json
+
+    try:
+        record = read_json(marker)
+    except (OSError, ValueError):
+        return None
+    return record.get("hash") if isinstance(record, dict) else None
 
 
 def _worker_name() -> str:
@@ -76,13 +114,12 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
     dict
         ``{"capture", "out", "status": "done" | "skipped" | "failed", "error", "bad_input",
         "hash", "ran", "worker", "wall_seconds"}``; ``error`` is one line, ``None`` unless
-        failed; ``bad_input``: the error is the capture's (``ValueError``, ``KeyError``,
-        ``TypeError``: a corrupt or inconsistent file, as ``nail2nail process`` exits 2);
+        failed; ``bad_input``: the error is the capture's own (:func:`bad_input`);
         ``ran``: whether the job ran in this call (false when skipped, or its earlier failure
         was repeated).
     """
     from .._validation import describe_error
-    from ..io._json import read_json, write_json
+    from ..io._json import write_json
     from ..process import process_capture
 
     start = time.perf_counter()
@@ -97,7 +134,7 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
         complete = [job / "process.json", marker := job / BATCH_JSON]
         if report_points is not None:
             complete.append(job / "report.html")
-        if all(p.is_file() for p in complete) and read_json(marker).get("hash") == digest:
+        if all(p.is_file() for p in complete) and _recorded_hash(marker) == digest:
             record["status"] = "skipped"
         elif failed and failed.get("bad_input") and failed.get("hash") == digest:
             record["error"] = failed["error"]  # the same inputs fail the same way
@@ -115,6 +152,6 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
             record["status"] = "done"
     except Exception as exc:  # isolate the capture: its error is its record
         record["error"] = f"{type(exc).__name__}: {describe_error(exc)}"
-        record["bad_input"] = isinstance(exc, BAD_INPUT)
+        record["bad_input"] = bad_input(exc)
     record["wall_seconds"] = round(time.perf_counter() - start, 3)
     return record

@@ -35,8 +35,9 @@ def add_parser(sub) -> None:
                    help="address of a running Dask scheduler, e.g. tcp://host:8786 (default: "
                    "a local cluster)")
     p.add_argument("--workers", type=int, default=None,
-                   help="local cluster: worker processes (default: the CPU count, capped so "
-                   "that as many captures fit in 80%% of the available memory)")
+                   help="local cluster: worker processes (default: the CPU count, capped at "
+                   "the number of captures and so that as many captures fit in 80%% of the "
+                   "available memory)")
     p.add_argument("--memory-per-capture", type=float, default=None, metavar="MB",
                    help="peak memory of one capture, MB, for the default --workers (default: "
                    "estimated from the frames; process.json's peak_rss_mb measures it)")
@@ -64,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
 
         client = Client(args.scheduler)
     else:
+        if args.workers is not None and args.workers < 1:
+            raise ValueError(f"--workers: expected at least 1, got {args.workers}")
         n = args.workers or default_workers(captures, memory_mb=args.memory_per_capture)
         client = local_client(n)
     try:

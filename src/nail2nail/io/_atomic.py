@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
+    "OutputRefusedError",
     "atomic_directory",
     "atomic_files",
     "atomic_path",
@@ -70,6 +71,14 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
+class OutputRefusedError(ValueError):
+    """An output path that may not be replaced (a file, or a directory not of this command).
+
+    A ``ValueError`` (the command exits 2), told apart from the errors of the inputs: the
+    batch (:mod:`nail2nail.batch`) runs such a capture again once the path is cleared.
+    """
+
+
 def check_output_directory(path: str | os.PathLike, *,
                            marker: str | tuple[str, ...] | None = None) -> Path:
     """Check that :func:`atomic_directory` may replace `path`; return it (links followed).
@@ -80,11 +89,11 @@ def check_output_directory(path: str | os.PathLike, *,
     if path.is_symlink() and path.is_dir():
         path = Path(os.path.realpath(path))
     if path.exists() and not path.is_dir():
-        raise ValueError(f"{path}: exists and is not a directory")
+        raise OutputRefusedError(f"{path}: exists and is not a directory")
     if marker is not None and path.is_dir():
         markers = (marker,) if isinstance(marker, str) else tuple(marker)
         if any(path.iterdir()) and not any((path / m).exists() for m in markers):
-            raise ValueError(
+            raise OutputRefusedError(
                 f"{path}: exists, is not empty and holds no {' or '.join(markers)}, so it is "
                 "not an earlier result of this command: not replaced (remove it or choose "
                 "another directory)")
