@@ -202,6 +202,10 @@ def test_partial_directories(processed_finger, tmp_path):
     html = build_report(no_super)
     # no super scan: the page still keeps its contract (ready resolves, methods exist)
     assert "No super scan" in html and "window.nail2nailReport = {ready: Promise.resolve()" in html
+    from nail2nail.io.ply import write_ply
+
+    write_ply(merge_only / "super.ply", np.zeros((0, 3)))  # a fusion that kept nothing
+    assert "No super scan" in build_report(merge_only)
 
 
 def test_bad_input_writes_nothing(processed_finger, tmp_path, capsys):
@@ -222,3 +226,72 @@ def test_bad_input_writes_nothing(processed_finger, tmp_path, capsys):
     assert main(["report", str(processed_finger), "--out", str(tmp_path)]) == 2
     assert "is a directory" in capsys.readouterr().err
     assert main(["report", str(processed_finger), "--report-points", "5"]) == 2
+
+
+HOSTILE = "<!--<script><img src=x onerror=alert(1)>$^"
+
+
+def _renamed_copy(processed_finger: Path, dst: Path, names: dict[str, str]) -> Path:
+    """A copy of the processed finger and its capture with cameras renamed in every JSON."""
+    src_root = processed_finger.parent
+    shutil.copytree(src_root / "capture", dst / "capture")
+    shutil.copytree(processed_finger, dst / "out", ignore=shutil.ignore_patterns("report.html"))
+
+    def sub(o):
+        if isinstance(o, dict):
+            return {names.get(k, k): sub(v) for k, v in o.items()}
+        if isinstance(o, list):
+            return [sub(v) for v in o]
+        if isinstance(o, str):
+            return names.get(o, o.replace(str(src_root), str(dst)))
+        return o
+
+    for path in [*dst.rglob("*.json")]:
+        path.write_text(json.dumps(sub(json.loads(path.read_text()))))
+    return dst / "out"
+
+
+def test_names_from_input_files_are_text_not_markup(processed_finger, tmp_path):
+    out = _renamed_copy(processed_finger, tmp_path, {"cam0": HOSTILE})
+    html = build_report(out, max_points=2_000)
+    assert "<img src=x" not in html and "<!--<script>" not in html
+    assert "&lt;img src=x onerror=alert(1)&gt;$^" in html  # shown as text in the page
+    assert html.count("<script") == html.count("</script>")
+
+
+@given(st.recursive(st.none() | st.booleans() | st.integers() | st.text(),
+                    lambda children: st.lists(children, max_size=4)
+                    | st.dictionaries(st.text(), children, max_size=4), max_leaves=12))
+@settings(max_examples=200, deadline=None)
+def test_json_for_script_is_inert_and_exact(data):
+    from nail2nail.report._html import json_for_script
+
+    text = json_for_script(data)
+    assert not set("<>&") & set(text)  # nothing an HTML parser acts on inside <script>
+    assert json.loads(text) == data
+
+
+def test_script_safe_neutralises_closing_tags_and_comments():
+    from nail2nail.report._html import _script_safe
+
+    js = _script_safe('let a = "</SCRIPT>", b = "</script >", c = "<!--";')
+    assert not re.search("</script", js, re.IGNORECASE) and "<!--" not in js
+
+
+def test_missing_statistics_are_shown_as_dashes(processed_finger, tmp_path):
+    out = tmp_path / "job"
+    shutil.copytree(processed_finger, out, ignore=shutil.ignore_patterns("report.html"))
+    merge_json = out / "merge" / "merge.json"
+    summary = json.loads(merge_json.read_text())
+    pair = next(iter(summary["merge"]))
+    d = summary["merge"][pair]["distance_mm"]
+    summary["merge"][pair]["distance_mm"] = dict.fromkeys(d)  # a pair without matches
+    merge_json.write_text(json.dumps(summary))
+    print_json = out / "print" / "print.json"
+    meta = json.loads(print_json.read_text())
+    meta["quality"] = {**meta["quality"], "clarity_median": None, "clarity_p10": None,
+                       "ridge_period_mm_median": None}
+    print_json.write_text(json.dumps(meta))
+    html = build_report(out, max_points=2_000)
+    assert f"merge {pair}: no matched pixels" in html
+    assert "—, — over" in html  # the print's clarity

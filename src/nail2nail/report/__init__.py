@@ -11,10 +11,11 @@ embedded: the page opens offline, from ``file://``, and weighs a few MB to a few
 detail most of the rest).
 
 The page's JavaScript contract, for scripts and tests: ``<div id="viewer">`` holds the WebGL
-canvas, and ``window.nail2nailReport`` is ``{ready, rotate(degrees), colorBy(name)}``:
-``ready`` a promise resolved once the 3D view has drawn, ``rotate`` turns the view about the
-finger axis, ``colorBy`` recolours it by ``"albedo"``, ``"camera"`` or ``"error"``; both
-return promises resolved after the redraw.
+canvas, and ``window.nail2nailReport`` is
+``{ready, rotate(degrees), colorBy(name), show(what)}``: ``ready`` a promise resolved once the
+3D view has drawn, ``rotate`` turns the view about the finger axis, ``colorBy`` recolours it
+by ``"albedo"``, ``"camera"`` or ``"error"``, ``show`` switches to ``"mesh"``, ``"points"`` or
+``"detail"``; each returns a promise resolved after the redraw.
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
         Output directory of ``process``, ``demo``, ``scan`` or ``merge``
         (:func:`~nail2nail.report.inputs.find_inputs`).
     max_points : int
-        Most super-scan vertices sent to the 3D viewer (evenly decimated above; the PLY in
-        the directory keeps every point).
+        Most super-scan vertices sent to the 3D viewer (decimated by vertex clustering above;
+        the PLY in the directory keeps every point).
     progress : bool
         Stage lines on stderr (a terminal only, not under :func:`nail2nail._progress.quiet`).
 
@@ -54,20 +55,24 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
     ValueError
         `out_dir` is not an output directory, or a file in it cannot be read.
     """
+    import matplotlib
+
     from . import calibration, capture, distortion, merge, overview, prints, viewer
     from ._html import page_html
 
     inputs = find_inputs(out_dir)
     say = Stages(enabled=progress, prefix="report: ")
     sections = []
-    for name, module in (("overview", overview), ("capture", capture),
-                         ("calibration", calibration), ("projector distortion", distortion),
-                         ("merge", merge), ("3D viewer", viewer), ("print", prints)):
-        say(name)
-        if module is viewer:
-            sections.append(module.section(inputs, max_points=max_points))
-        else:
-            sections.append(module.section(inputs))
+    # names from the input files (cameras, pairs) are drawn as they are: a "$" is not maths
+    with matplotlib.rc_context({"text.parse_math": False}):
+        for name, module in (("overview", overview), ("capture", capture),
+                             ("calibration", calibration), ("projector distortion", distortion),
+                             ("merge", merge), ("3D viewer", viewer), ("print", prints)):
+            say(name)
+            if module is viewer:
+                sections.append(module.section(inputs, max_points=max_points))
+            else:
+                sections.append(module.section(inputs))
     from .. import __version__
 
     title = f"nail2nail scan report: {inputs.root.resolve().name}"

@@ -9,7 +9,9 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 import os
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +24,7 @@ __all__ = [
     "escape",
     "figure_html",
     "image_html",
+    "json_for_script",
     "note_html",
     "page_html",
     "png_data_uri",
@@ -192,8 +195,22 @@ def page_html(title: str, subtitle: str, sections: list[Section], *,
 
 
 def _script_safe(js: str) -> str:
-    """JavaScript that cannot close its ``<script>`` element early."""
-    return js.replace("</script", "<\\/script")
+    """JavaScript that cannot close its ``<script>`` element early nor switch the HTML parser
+    into its escaped state (``</script`` in any case, ``<!--``).
+
+    The data embedded in scripts goes through :func:`json_for_script`, which leaves no ``<`` at
+    all; this guards the code itself (ours and the vendored library's, which holds neither).
+    """
+    js = re.sub(r"</(script)", r"<\\/\1", js, flags=re.IGNORECASE)
+    return js.replace("<!--", "<\\!--")
+
+
+def json_for_script(data) -> str:
+    """`data` as JSON that is safe inside an HTML ``<script>`` element: ``<``, ``>`` and ``&``
+    written as JSON's ``\\u003c``, ``\\u003e``, ``\\u0026`` (the same values once parsed),
+    so that no string from an input file (a camera name, say) can end or alter the element."""
+    text = json.dumps(data)
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
 
 
 def read_text(path: Path) -> str:

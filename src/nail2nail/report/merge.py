@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..io._json import read_json
-from ._html import Section, figure_html, image_html, note_html, table_html
+from ._html import Section, escape, figure_html, image_html, note_html, table_html
+from ._plot import fmt
 from .inputs import ReportInputs
 
 __all__ = ["THRESHOLD_MM", "section"]
@@ -23,7 +24,18 @@ THRESHOLD_MM = 0.05
 
 
 def _um(value_mm) -> str:
-    return "" if value_mm is None else f"{1e3 * float(value_mm):.2f}"
+    return "—" if value_mm is None else fmt(1e3 * float(value_mm), ".2f")
+
+
+def above_threshold(distance_mm: dict) -> bool:
+    """Whether a pair's median merge error is above the thesis's threshold (``False`` when
+    the pair had no matches: its statistics are ``null``)."""
+    median = distance_mm.get("median")
+    return median is not None and float(median) > THRESHOLD_MM
+
+
+def _percent(fraction, spec: str) -> str:
+    return fmt(None if fraction is None else 100 * float(fraction), spec)
 
 
 def _pair_rows(merge: dict) -> list[list]:
@@ -34,7 +46,7 @@ def _pair_rows(merge: dict) -> list[list]:
         rows.append([
             key, m.get("parent", ""), m.get("child", ""), f"{m['pairs']:,}",
             _um(d["median"]), _um(d["mean"]), _um(d.get("rms")), _um(d.get("p90")),
-            _um(d["p95"]), _um(d["max"]), f"{100 * d['frac_below_0_05']:.2f}",
+            _um(d["p95"]), _um(d["max"]), _percent(d.get("frac_below_0_05"), ".2f"),
             ", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none",
         ])
     return rows
@@ -87,9 +99,9 @@ def _super_scan(info: dict) -> str:
     rows = [[name, f"{c.get('owned', 0):,}", f"{c.get('fused', 0):,}", f"{dups.get(name, 0):,}",
              ", ".join(f"{k} {v}" for k, v in rejected.get(name, {}).items()) or "none"]
             for name, c in cams.items()]
+    priority = " > ".join(map(str, info.get("priority", [])))
     head = (f"<p>{info.get('vertices', 0):,} vertices, {info.get('faces', 0):,} triangles; "
-            f"priority {' > '.join(info.get('priority', []))}; frame "
-            f"{info.get('frame', 'world')}.</p>")
+            f"priority {escape(priority)}; frame {escape(str(info.get('frame', 'world')))}.</p>")
     return head + table_html(rows, ["camera", "points owned", "fused with a partner",
                                     "duplicates removed", "points rejected"],
                              caption="Each camera's share of the super scan")
@@ -103,7 +115,8 @@ def _comparison(summary: dict) -> str:
             for key, m in pairs.items():
                 d = m["distance_mm"]
                 rows.append([config, obj, key, f"{m['pairs']:,}", _um(d["median"]),
-                             _um(d["p95"]), _um(d["max"]), f"{100 * d['frac_below_0_05']:.1f}"])
+                             _um(d["p95"]), _um(d["max"]),
+                             _percent(d.get("frac_below_0_05"), ".1f")])
     if not rows:
         return ""
     return "<h3>Calibration configurations compared (demo)</h3>" + table_html(
@@ -122,7 +135,7 @@ def section(inputs: ReportInputs) -> Section:
     merge = summary.get("merge", {})
     status = "ok"
     parts = []
-    worst = [k for k, m in merge.items() if m["distance_mm"]["median"] > THRESHOLD_MM]
+    worst = [k for k, m in merge.items() if above_threshold(m["distance_mm"])]
     if worst:
         status = "warn"
         parts.append(note_html(

@@ -10,7 +10,7 @@ from __future__ import annotations
 from ..io._json import read_json
 from ._html import Section, escape, note_html, table_html
 from .inputs import ReportInputs
-from .merge import THRESHOLD_MM
+from .merge import above_threshold
 from .prints import MIN_CLARITY
 
 __all__ = ["section"]
@@ -32,9 +32,13 @@ def section(inputs: ReportInputs) -> Section:
     if inputs.merge is not None:
         merged = read_json(inputs.merge / "merge.json")
         for key, m in merged.get("merge", {}).items():
-            median = m["distance_mm"]["median"]
+            median = m["distance_mm"].get("median")
+            if median is None:  # no matched pixels: no statistics
+                kpis.append(_kpi("—", f"merge {key}: no matched pixels"))
+                warnings.append(f"merge {key}: no matched pixels")
+                continue
             kpis.append(_kpi(f"{1e3 * median:.1f} µm", f"merge {key}: median error"))
-            if median > THRESHOLD_MM:
+            if above_threshold(m["distance_mm"]):
                 warnings.append(f"merge {key}: median error {1e3 * median:.0f} µm")
         sup = merged.get("super_scan")
         if sup:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from ..io._json import read_json
 from ._html import Section, image_html, note_html, table_html
+from ._plot import fmt
 from .inputs import ReportInputs
 
 __all__ = ["MIN_CLARITY", "section"]
@@ -22,6 +23,10 @@ MIN_CLARITY = 0.5
 def _stats(d: dict, scale: float = 100.0, unit: str = "%") -> str:
     return ", ".join(f"{k} {scale * v:.2f}{unit}" for k, v in d.items()
                      if isinstance(v, (int, float)))
+
+
+def _percent(fraction) -> str:
+    return fmt(None if fraction is None else 100 * float(fraction), ".1f")
 
 
 def _geometry_rows(meta: dict) -> list[list]:
@@ -44,11 +49,11 @@ def _geometry_rows(meta: dict) -> list[list]:
     q = meta.get("quality", {})
     if q:
         rows.append(["ridge clarity (median, p10)",
-                     f"{q.get('clarity_median', float('nan')):.3f}, "
-                     f"{q.get('clarity_p10', float('nan')):.3f} over {q.get('blocks', 0)} "
-                     "blocks"])
-        if "ridge_period_mm_median" in q:
-            rows.append(["ridge period (median)", f"{1e3 * q['ridge_period_mm_median']:.0f} µm"])
+                     f"{fmt(q.get('clarity_median'))}, {fmt(q.get('clarity_p10'))} over "
+                     f"{q.get('blocks', 0)} blocks"])
+        period = q.get("ridge_period_mm_median")
+        if period is not None:
+            rows.append(["ridge period (median)", f"{fmt(1e3 * period, '.0f')} µm"])
     if "wsq_compression_ratio" in meta:
         rows.append(["WSQ compression", f"{meta['wsq_compression_ratio']:.1f} : 1"])
     return rows
@@ -103,7 +108,7 @@ def section(inputs: ReportInputs) -> Section:
     coverage = meta.get("coverage", {})
     if coverage:
         parts.append(table_html(
-            [[name, f"{100 * c['contributes_fraction']:.1f}", f"{100 * c['dominant_fraction']:.1f}"]
+            [[name, _percent(c.get("contributes_fraction")), _percent(c.get("dominant_fraction"))]
              for name, c in coverage.items()],
             ["camera", "% of the print it contributes to", "% where it dominates"],
             caption="Each camera's coverage of the print"))

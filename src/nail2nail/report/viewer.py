@@ -24,15 +24,17 @@ method returning a promise resolved after the redraw.
 from __future__ import annotations
 
 import base64
-import json
 from pathlib import Path
 
 import numpy as np
 
-from ._html import Section, escape, note_html
+from ._html import Section, escape, json_for_script, note_html
 from .inputs import ReportInputs
 
-__all__ = ["cluster_vertices", "libraries", "section", "viewer_data"]
+__all__ = ["MIN_VERTICES", "cluster_vertices", "libraries", "section", "viewer_data"]
+
+#: Fewest super-scan vertices the viewer shows (fewer: the section says the scan is missing).
+MIN_VERTICES = 3
 
 #: Camera colours (index order of the scans), also in the legend.
 CAMERA_COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b")
@@ -205,13 +207,15 @@ def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000,
         (base64 float32 (K, 3), mm, world frame), "faces" (base64 int32 (L, 3)), "albedo"
         (base64 float32, 0..1), "camera" (base64 float32 index, -1 none), "error" (base64
         float32 µm, NaN where no pair), "albedo_range", "error_range", "error_coverage"}``;
-        ``None`` without a super scan.
+        ``None`` without a super scan, or one of fewer than :data:`MIN_VERTICES` vertices.
     """
     from ..io.ply import read_ply
 
     if inputs.merge is None or not (inputs.merge / "super.ply").is_file():
         return None
     ply = read_ply(inputs.merge / "super.ply")
+    if len(ply.points) < MIN_VERTICES:  # nothing to look at (a failed fusion): no viewer
+        return None
     points = _world_points(inputs, ply.points.astype(float))
     albedo = (ply.colors.astype(float).mean(axis=1) / 255 if ply.colors is not None
               else np.full(len(points), 0.7))
@@ -265,7 +269,8 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
     data = viewer_data(inputs, max_points=max_points)
     if data is None:
         where = inputs.merge / "super.ply" if inputs.merge else inputs.root / "merge/super.ply"
-        body = note_html(f"No super scan: {where} not found (merge writes it).", "missing")
+        body = note_html(f"No super scan: {where} not found or with fewer than {MIN_VERTICES} "
+                         "vertices (merge writes it).", "missing")
         # the contract holds on every page: `ready` resolves, the methods exist
         stub = ("window.nail2nailReport = {ready: Promise.resolve(), rotate: () => "
                 "Promise.resolve(), colorBy: () => Promise.resolve(), show: () => "
@@ -304,8 +309,8 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
     levels = {"base": base}
     if detail is not None:
         body += ('<script type="application/json" id="viewer-detail">'
-                 + json.dumps(detail) + "</script>")
-    payload = json.dumps({**data, "levels": levels, "colours": list(CAMERA_COLOURS)})
+                 + json_for_script(detail) + "</script>")
+    payload = json_for_script({**data, "levels": levels, "colours": list(CAMERA_COLOURS)})
     script = _VIEWER_JS.replace("__DATA__", payload)
     return Section("view3d", "3D viewer", body, scripts=[script])
 
