@@ -295,3 +295,19 @@ def test_missing_statistics_are_shown_as_dashes(processed_finger, tmp_path):
     html = build_report(out, max_points=2_000)
     assert f"merge {pair}: no matched pixels" in html
     assert "—, — over" in html  # the print's clarity
+
+
+def test_projector_panel_from_the_capture(processed_finger, tmp_path):
+    from nail2nail.report.inputs import DEFAULT_PANEL, find_inputs, projector_panel
+
+    assert projector_panel(find_inputs(processed_finger)) == DEFAULT_PANEL  # as simulated
+    out = _renamed_copy(processed_finger, tmp_path, {})
+    manifest = tmp_path / "capture" / "capture.json"
+    data = json.loads(manifest.read_text())
+    data["projector"]["size"] = [800, 600]
+    manifest.write_text(json.dumps(data))
+    inputs = find_inputs(out)
+    assert projector_panel(inputs) == (800, 600)  # the distortion grid's, a DLT's size
+    data["projector"] = {}
+    manifest.write_text(json.dumps(data))
+    assert projector_panel(inputs) == DEFAULT_PANEL

@@ -12,7 +12,7 @@ import numpy as np
 
 from ._html import Section, figure_html, note_html, table_html
 from ._plot import fmt, new_figure
-from .inputs import ReportInputs
+from .inputs import ReportInputs, projector_panel
 
 __all__ = ["section"]
 
@@ -31,11 +31,11 @@ def _axis(model) -> np.ndarray:
     return model.R[2]
 
 
-def _geometry_table(calib) -> str:
+def _geometry_table(calib, panel: tuple[int, int]) -> str:
     rows = []
     for cam in calib.cameras:
         camera = _pinhole(cam.camera, cam.size or (1024, 1280))
-        projector = _pinhole(cam.projector, (1280, 1040))
+        projector = _pinhole(cam.projector, panel)
         angle = np.degrees(np.arccos(np.clip(_axis(camera) @ _axis(projector), -1, 1)))
         baseline = np.linalg.norm(camera.center - projector.center)
         for what, m in ((cam.name, camera), (f"{cam.name}: projector", projector)):
@@ -83,7 +83,7 @@ def section(inputs: ReportInputs) -> Section:
             "missing"), status="missing")
     path = inputs.calibration
     calib = load_calibration(path, allow_mirrored=True)
-    body = [note_html(f"{path}"), _geometry_table(calib)]
+    body = [note_html(f"{path}"), _geometry_table(calib, projector_panel(inputs))]
     if calib.projector_distortion:
         d = calib.projector_distortion
         body.append(note_html(f"Projector radial distortion in the model: centre "

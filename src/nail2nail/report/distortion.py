@@ -14,15 +14,14 @@ import numpy as np
 
 from ._html import Section, figure_html, note_html, table_html
 from ._plot import fmt, new_figure
-from .inputs import ReportInputs
+from .inputs import ReportInputs, projector_panel
 
 __all__ = ["section"]
 
 ID, TITLE = "distortion", "Projector distortion"
 
-#: Grid spacing of the figure, panel px; default panel ``(W, H)``.
+#: Grid spacing of the figure, panel px.
 SPACING = 64
-PANEL = (1280, 1040)
 
 
 def _estimate(inputs: ReportInputs) -> tuple[dict | None, str]:
@@ -60,7 +59,7 @@ def section(inputs: ReportInputs) -> Section:
     body = [note_html(source),
             table_html(rows, ["estimate", "centre x px", "centre y px", "ρ", "std x px",
                               "std y px", "std ρ", "fit RMS px"]),
-            _grid_figure(center, rho)]
+            _grid_figure(center, rho, projector_panel(inputs))]
     plane = inputs.root / "captures" / "plane"
     if (plane / "capture.json").is_file():
         body.append(_plane_grids(plane, est.get("primary_camera"), center, rho))
@@ -97,11 +96,12 @@ def _plane_grids(plane, camera: str | None, center: np.ndarray, rho: float) -> s
             + "</div>")
 
 
-def _grid_figure(center: np.ndarray, rho: float) -> str:
-    """A panel grid as shown under the radial model, and corrected; radial displacement."""
+def _grid_figure(center: np.ndarray, rho: float, panel: tuple[int, int]) -> str:
+    """A panel grid (`panel` ``(W, H)`` px) as shown under the radial model, and corrected;
+    radial displacement."""
     from ..distortion import ideal_from_panel
 
-    width, height = PANEL
+    width, height = panel
     fig = new_figure(9.0, 3.6)
     grid_ax, radial_ax = fig.subplots(1, 2, width_ratios=[1.6, 1])
     # where the rays of panel grid points land, in ideal (pinhole) coordinates
