@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -18,6 +18,7 @@ from nail2nail.calibration import (
     calibrate_device,
     projector_points,
 )
+from nail2nail.distortion import ideal_from_panel
 from nail2nail.io.calibration import load_calibration, save_calibration
 from nail2nail.simulation.rig import default_rig
 
@@ -99,6 +100,7 @@ def rig_thesis():
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**16), rho=st.floats(-0.005, 0.0),
        focal_scale=st.floats(0.8, 1.25), model=st.sampled_from(["thesis", "opencv"]))
+@example(seed=15925, rho=0.0, focal_scale=1.2494008802890952, model="thesis")  # ρ = 0: see below
 def test_exact_projections_recover_the_rig(seed, rho, focal_scale, model):
     """Property: from exact projections the true cameras and projector come back (any seed,
     projector distortion and camera focal length)."""
@@ -118,7 +120,18 @@ def test_exact_projections_recover_the_rig(seed, rho, focal_scale, model):
         assert err["rotation_deg"] < 1e-5, (name, err)
         assert err["position_mm"] < 1e-4, (name, err)
     if model == "thesis":
-        assert result.projector_distortion["rho"] == pytest.approx(rho, abs=1e-7)
+        # the model moves a panel point by ρ³ r³ (eq. 3.34), so near ρ = 0 the parameter is not
+        # identifiable (seed 15925, ρ = 0: ρ̂ = 1.03e-7, which moves no point by 2e-12 px); what
+        # must come back is the displacement over the whole panel, and ρ where it is defined
+        fit = result.projector_distortion
+        w, h = rig.projector.size
+        yy, xx = np.mgrid[0:h:16, 0:w:16]
+        panel = np.stack([xx.ravel(), yy.ravel()], -1).astype(float)
+        true_ideal = ideal_from_panel(panel, rig.projector_distortion["center"], rho)
+        fit_ideal = ideal_from_panel(panel, fit["center"], fit["rho"])
+        assert np.abs(fit_ideal - true_ideal).max() < 1e-6
+        if abs(rho) >= 1e-4:
+            assert fit["rho"] == pytest.approx(rho, rel=1e-6)
 
 
 def test_noisy_points_meet_the_issue_tolerances(rig_thesis):
