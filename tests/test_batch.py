@@ -210,20 +210,26 @@ def test_changed_input_is_redone(inputs, first_run, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-def test_report_is_part_of_the_job(inputs, first_run, tmp_path):
+def test_report_of_a_current_job(inputs, first_run, tmp_path):
     _, captures, calib, _ = inputs
     out, _, _ = first_run
     job = tmp_path / "finger1"
     shutil.copytree(out / "finger1", job)
     capture, options = str(captures / "finger1"), _cli_options(calib)
+    processed = (job / "process.json").stat().st_mtime_ns
     record = run_capture(capture, str(calib), str(job), options, report_points=2000)
-    assert record["status"] == "done" and record["error"] is None  # no report yet: redone
+    assert record["status"] == "done" and record["ran"] and record["error"] is None
     assert "<html" in (job / "report.html").read_text(encoding="utf-8")[:2000].lower()
+    assert (job / "process.json").stat().st_mtime_ns == processed  # the report alone
     again = run_capture(capture, str(calib), str(job), options, report_points=2000)
     assert again["status"] == "skipped" and again["hash"] == record["hash"]
-    (job / "report.html").unlink()  # an incomplete job is redone
+    # without --report: the same job, its report kept
+    assert run_capture(capture, str(calib), str(job), options)["status"] == "skipped"
+    assert (job / "report.html").is_file()
+    (job / "report.html").unlink()  # asked for and missing: written again
     assert run_capture(capture, str(calib), str(job), options,
                        report_points=2000)["status"] == "done"
+    assert (job / "process.json").stat().st_mtime_ns == processed
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 

@@ -187,7 +187,8 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
         inputs are unchanged (default: repeat their error without running them).
     report_points : int, optional
         Also write each capture's HTML report, ``OUT/<name>/report.html``, with this many
-        points in its 3D viewer (``nail2nail process --report``); default: no report.
+        points in its 3D viewer (``nail2nail process --report``); default: no report. A
+        current job without its report gets the report alone; an existing one is kept.
     **options
         Keyword arguments of :func:`nail2nail.process.process_capture` (``use``, ``ppi`` …;
         not ``progress``); they are part of the inputs hash.

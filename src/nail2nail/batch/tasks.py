@@ -63,6 +63,12 @@ def clean_stale(out: str | os.PathLike, name: str) -> list[Path]:
     return stale
 
 
+def _write_report(job: Path, points: int) -> None:
+    from ..report import write_report
+
+    write_report(job, max_points=points)  # atomic, inside the job directory
+
+
 def _recorded_hash(marker: Path) -> str | None:
     """The hash that the job directory's marker records; ``None`` if unreadable (redo)."""
     from ..io._json import read_json
@@ -106,8 +112,8 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
         internal error) are always retried.
     report_points : int, optional
         Also write ``OUT/<name>/report.html`` (:func:`nail2nail.report.write_report`, this
-        many viewer points); part of the inputs hash, and a job without its report is not
-        complete.
+        many viewer points). Not part of the inputs hash: a current job without its report
+        gets the report alone (``done``), and an existing report is kept.
 
     Returns
     -------
@@ -127,15 +133,17 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
               "bad_input": False, "hash": None, "ran": False, "worker": _worker_name()}
     job = Path(out)
     try:
-        hashed = dict(options)
-        if report_points is not None:
-            hashed["report_points"] = report_points
-        record["hash"] = digest = inputs_hash(capture, calibration, hashed)
-        complete = [job / "process.json", marker := job / BATCH_JSON]
-        if report_points is not None:
-            complete.append(job / "report.html")
-        if all(p.is_file() for p in complete) and _recorded_hash(marker) == digest:
+        record["hash"] = digest = inputs_hash(capture, calibration, options)
+        marker = job / BATCH_JSON
+        current = ((job / "process.json").is_file() and marker.is_file()
+                   and _recorded_hash(marker) == digest)
+        wants_report = report_points is not None and not (job / "report.html").is_file()
+        if current and not wants_report:
             record["status"] = "skipped"
+        elif current:  # the job is current, its report missing: the report alone
+            record["ran"] = True
+            _write_report(job, report_points)
+            record["status"] = "done"
         elif failed and failed.get("bad_input") and failed.get("hash") == digest:
             record["error"] = failed["error"]  # the same inputs fail the same way
             record["bad_input"] = True
@@ -143,9 +151,7 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
             record["ran"] = True
             process_capture(capture, calibration, job, **options)
             if report_points is not None:
-                from ..report import write_report
-
-                write_report(job, max_points=report_points)  # atomic, inside the job
+                _write_report(job, report_points)
             # after the job directory is in place: killed in between, the job is redone
             write_json(marker, {"hash": digest, "capture": str(capture),
                                 "calibration": str(calibration)})  # atomic
