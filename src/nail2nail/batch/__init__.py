@@ -35,14 +35,14 @@ from pathlib import Path
 
 from .hashing import inputs_hash
 from .memory import capture_memory_mb, default_workers
-from .results import result_row, write_results
+from .results import TABLE_CSV, TABLE_JSON, read_results, result_row, write_results
 from .tasks import clean_stale, run_capture
 
 __all__ = ["capture_memory_mb", "default_workers", "find_captures", "inputs_hash",
            "local_client", "process_batch", "result_row", "write_results"]
 
 LOCK = ".batch.lock"  # in OUT, held by the running batch
-RESERVED = ("batch.json", "batch.csv")  # the results table, beside the job directories
+RESERVED = (TABLE_JSON, TABLE_CSV)  # the results table: not a capture's OUT/<name>
 
 
 def _check_names(captures: list[Path], what: str) -> None:
@@ -150,16 +150,8 @@ def _attempts(client, keys: list[str]) -> dict[str, int]:
 
 def _previous_failures(out: Path) -> dict[str, dict]:
     """The bad-input failures of the last call's table ``OUT/batch.json``, by capture name."""
-    from ..io._json import read_json
-
-    try:
-        rows = read_json(out / "batch.json")
-    except (OSError, ValueError):  # none yet, or not ours: nothing to repeat
-        return {}
-    if not isinstance(rows, list):
-        return {}
     return {r["capture"]: {k: r.get(k) for k in ("hash", "error", "bad_input")}
-            for r in rows if isinstance(r, dict) and r.get("status") == "failed"
+            for r in read_results(out) if r.get("status") == "failed"
             and r.get("bad_input") and r.get("hash") and "capture" in r}
 
 

@@ -12,7 +12,9 @@ import io
 import os
 from pathlib import Path
 
-__all__ = ["result_row", "write_results"]
+__all__ = ["TABLE_CSV", "TABLE_JSON", "read_results", "result_row", "write_results"]
+
+TABLE_JSON, TABLE_CSV = "batch.json", "batch.csv"  # in OUT, beside the job directories
 
 
 def result_row(record: dict, *, attempts: int = 1) -> dict:
@@ -85,7 +87,7 @@ def write_results(out: str | os.PathLike, rows: list[dict]) -> tuple[Path, Path]
     from ..io._json import write_json
 
     out = Path(out)
-    json_path, csv_path = out / "batch.json", out / "batch.csv"
+    json_path, csv_path = out / TABLE_JSON, out / TABLE_CSV
     write_json(json_path, rows)
     flat = [_flat(r) for r in rows]
     columns = list(dict.fromkeys(k for r in flat for k in r))
@@ -96,3 +98,15 @@ def write_results(out: str | os.PathLike, rows: list[dict]) -> tuple[Path, Path]
     with atomic_path(csv_path) as tmp:
         tmp.write_text(text.getvalue(), encoding="utf-8")
     return json_path, csv_path
+
+
+def read_results(out: str | os.PathLike) -> list[dict]:
+    """The rows of an earlier ``OUT/batch.json``; ``[]`` when there is none, or it is not a
+    list of rows (unreadable, or not this command's): nothing to resume from."""
+    from ..io._json import read_json
+
+    try:
+        rows = read_json(Path(out) / TABLE_JSON)
+    except (OSError, ValueError):
+        return []
+    return [r for r in rows if isinstance(r, dict)] if isinstance(rows, list) else []

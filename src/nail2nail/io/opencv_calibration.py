@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera_models import Pinhole, pinhole_from_dlt
+from ..patterns import PANEL_SIZE
 from ._atomic import atomic_path
 from .calibration import CameraCalibration, RigCalibration
 
@@ -68,8 +69,6 @@ _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3",
                "ty")
 _SLSTUDIO_KEYS = ("Kc", "kc", "Kp", "kp", "Rp", "Tp")
 _STEREO_KEYS = ("M1", "D1", "M2", "D2", "R", "T")
-#: Panel size assumed for a DLT projector on export when none is given (docs/conventions.md).
-_DEFAULT_PANEL = (1280, 1040)
 
 
 @contextlib.contextmanager
@@ -508,7 +507,8 @@ def write_opencv_calibration(
             "refused (pre-distort the patterns with its look-up table and recalibrate without "
             "it, or keep the nail2nail JSON file)")
     notes: list[str] = []
-    panel = _DEFAULT_PANEL if projector_size is None else tuple(int(v) for v in projector_size)
+    # the thesis's panel for a DLT projector when none is given (docs/conventions.md)
+    panel = PANEL_SIZE if projector_size is None else tuple(int(v) for v in projector_size)
     models = []
     guessed = False  # a DLT projector's panel size: the default, said once
     for cam in calibration.cameras:

@@ -43,3 +43,8 @@ def fmt(value, spec: str = ".3f") -> str:
         return f"{int(value):,}"
     value = float(value)
     return f"{value:{spec}}" if np.isfinite(value) else "—"
+
+
+def percent(fraction, spec: str = ".1f") -> str:
+    """A fraction (0..1) as a percentage cell by format `spec` (``"—"`` for None or NaN)."""
+    return fmt(None if fraction is None else 100 * float(fraction), spec)

@@ -25,10 +25,7 @@ from pathlib import Path
 
 from ..io._json import read_json
 
-__all__ = ["DEFAULT_PANEL", "ReportInputs", "find_inputs", "projector_panel"]
-
-#: The projector panel ``(W, H)`` px assumed when the capture does not say (the thesis's).
-DEFAULT_PANEL = (1280, 1040)
+__all__ = ["ReportInputs", "find_inputs", "projector_panel"]
 
 
 @dataclass
@@ -153,15 +150,15 @@ def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
 
 def projector_panel(inputs: ReportInputs) -> tuple[int, int]:
     """The projector panel ``(W, H)`` px: the capture manifest's ``projector.size``, else
-    :data:`DEFAULT_PANEL` (no capture, or a manifest without it)."""
-    from ..io._json import read_json
+    the thesis's :data:`nail2nail.patterns.PANEL_SIZE` (no capture, or a manifest without it)."""
+    from ..patterns import PANEL_SIZE
 
     if inputs.capture is not None:
         try:
             size = read_json(inputs.capture / "capture.json").get("projector", {}).get("size")
             width, height = (int(v) for v in size)
         except (OSError, ValueError, TypeError, AttributeError):  # the capture section says
-            return DEFAULT_PANEL
+            return PANEL_SIZE
         if width > 0 and height > 0:
             return width, height
-    return DEFAULT_PANEL
+    return PANEL_SIZE

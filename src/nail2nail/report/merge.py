@@ -14,10 +14,10 @@ import numpy as np
 
 from ..io._json import read_json
 from ._html import Section, escape, figure_html, image_html, note_html, table_html
-from ._plot import fmt
+from ._plot import fmt, percent
 from .inputs import ReportInputs
 
-__all__ = ["THRESHOLD_MM", "section"]
+__all__ = ["THRESHOLD_MM", "above_threshold", "section"]
 
 #: The thesis's threshold on the merge error (0.05 mm, chapter four).
 THRESHOLD_MM = 0.05
@@ -34,10 +34,6 @@ def above_threshold(distance_mm: dict) -> bool:
     return median is not None and float(median) > THRESHOLD_MM
 
 
-def _percent(fraction, spec: str) -> str:
-    return fmt(None if fraction is None else 100 * float(fraction), spec)
-
-
 def _pair_rows(merge: dict) -> list[list]:
     rows = []
     for key, m in merge.items():
@@ -46,7 +42,7 @@ def _pair_rows(merge: dict) -> list[list]:
         rows.append([
             key, m.get("parent", ""), m.get("child", ""), f"{m['pairs']:,}",
             _um(d["median"]), _um(d["mean"]), _um(d.get("rms")), _um(d.get("p90")),
-            _um(d["p95"]), _um(d["max"]), _percent(d.get("frac_below_0_05"), ".2f"),
+            _um(d["p95"]), _um(d["max"]), percent(d.get("frac_below_0_05"), ".2f"),
             ", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none",
         ])
     return rows
@@ -116,7 +112,7 @@ def _comparison(summary: dict) -> str:
                 d = m["distance_mm"]
                 rows.append([config, obj, key, f"{m['pairs']:,}", _um(d["median"]),
                              _um(d["p95"]), _um(d["max"]),
-                             _percent(d.get("frac_below_0_05"), ".1f")])
+                             percent(d.get("frac_below_0_05"), ".1f")])
     if not rows:
         return ""
     return "<h3>Calibration configurations compared (demo)</h3>" + table_html(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from ..io._json import read_json
 from ._html import Section, image_html, note_html, table_html
-from ._plot import fmt
+from ._plot import fmt, percent
 from .inputs import ReportInputs
 
 __all__ = ["MIN_CLARITY", "section"]
@@ -23,10 +23,6 @@ MIN_CLARITY = 0.5
 def _stats(d: dict, scale: float = 100.0, unit: str = "%") -> str:
     return ", ".join(f"{k} {scale * v:.2f}{unit}" for k, v in d.items()
                      if isinstance(v, (int, float)))
-
-
-def _percent(fraction) -> str:
-    return fmt(None if fraction is None else 100 * float(fraction), ".1f")
 
 
 def _geometry_rows(meta: dict) -> list[list]:
@@ -108,7 +104,7 @@ def section(inputs: ReportInputs) -> Section:
     coverage = meta.get("coverage", {})
     if coverage:
         parts.append(table_html(
-            [[name, _percent(c.get("contributes_fraction")), _percent(c.get("dominant_fraction"))]
+            [[name, percent(c.get("contributes_fraction")), percent(c.get("dominant_fraction"))]
              for name, c in coverage.items()],
             ["camera", "% of the print it contributes to", "% where it dominates"],
             caption="Each camera's coverage of the print"))
