@@ -128,6 +128,37 @@ def test_fit_cylinder_recovers_pose_and_radius(tilt_deg, azimuth, radius, center
     assert np.degrees(np.arccos(np.clip(cyl.pad @ pad, -1, 1))) < 0.01
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    taper=st.floats(-0.12, 0.0),
+    tilt_deg=st.floats(0.0, 10.0),
+    azimuth=st.floats(0.0, 2 * np.pi),
+    seed=st.integers(0, 2**16),
+)
+def test_fit_cylinder_follows_a_tapered_finger(taper, tilt_deg, azimuth, seed):
+    """A cone seen from one side (a finger narrowing to the tip, dR/dt = taper): the fitted
+    axis is the cone's, not tilted towards the pad as a cylinder's would be (sections oblique
+    to the finger shear the print), and the taper is recovered."""
+    tilt = np.radians(tilt_deg)
+    axis = np.array([np.sin(tilt) * np.cos(azimuth), np.cos(tilt), np.sin(tilt) * np.sin(azimuth)])
+    a, p, e = _frame(axis)
+    rng = np.random.default_rng(seed)
+    theta = rng.uniform(-np.radians(100), np.radians(100), 6000)
+    t = rng.uniform(-14.0, 14.0, 6000)
+    r = 8.0 + taper * t
+    xyz = (np.outer(t, a) + r[:, None] * (np.outer(np.cos(theta), p)
+                                          + np.outer(np.sin(theta), e)))
+    xyz += 0.002 * rng.standard_normal(xyz.shape)
+    cyl = fit_cylinder(xyz)
+    angle = np.degrees(np.arccos(np.clip(cyl.axis @ a, -1, 1)))
+    assert angle < 0.05, angle
+    assert cyl.taper == pytest.approx(taper, abs=2e-3)
+    # the radius is the cone's at the centre
+    t_c = (np.asarray(cyl.center) @ a)
+    assert cyl.radius == pytest.approx(8.0 + taper * t_c, abs=5e-3)
+    assert cyl.describe()["taper"] == pytest.approx(taper, abs=2e-3)
+
+
 def test_fit_cylinder_short_wide_patch_follows_tip_direction():
     xyz, _, _ = cylinder_points(radius=10.0, half_length=10.0, noise_mm=0.002, seed=1)
     cyl = fit_cylinder(xyz, tip_direction=(0.0, 1.0, 0.0))

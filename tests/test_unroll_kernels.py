@@ -43,8 +43,9 @@ def ref_upsample(out, r0, r1, fr, c0, c1, fc):
     return tall[:, c0] * (1 - fc) + tall[:, c1] * fc
 
 
-def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1):
-    """``masked_gaussian`` as it was before the compiled steps."""
+def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1, curvature=False):
+    """``masked_gaussian`` as it was before the compiled steps (the curvature correction, on
+    the reduced grid, as ``ridges`` has it)."""
     v = np.asarray(values, dtype=np.float32)
     m = np.asarray(valid, dtype=np.float32)
     squeeze = v.ndim == 2
@@ -62,6 +63,8 @@ def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1):
     den = ndi.gaussian_filter(m, s, truncate=3.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(den[..., None] > 1e-3, num / den[..., None], np.nan).astype(np.float32)
+    if curvature:
+        out = out - np.float32(0.5 * s * s) * ridges._laplacian(out)
     if f > 1:
         rows = (np.arange(h, dtype=np.float32) - (f - 1) / 2) / f
         cols = (np.arange(w, dtype=np.float32) - (f - 1) / 2) / f
@@ -79,13 +82,20 @@ def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1):
     return out[..., 0] if squeeze else out
 
 
-def ref_local_normalize(values, valid, sigma_px, *, reduce=1):
-    """``local_normalize`` as it was before the compiled steps."""
+def ref_local_normalize(values, valid, sigma_px, *, reduce=1, floor_fraction=0.0,
+                        floor_percentile=80.0):
+    """``local_normalize`` as it was before the compiled steps (with the RMS floor)."""
     v = np.where(valid, values, np.nan).astype(np.float32)
     mean = ref_masked_gaussian(v, valid, sigma_px, reduce=reduce)
     d = v - mean
-    rms = np.sqrt(ref_masked_gaussian(d * d, valid & np.isfinite(d), sigma_px, reduce=reduce))
+    ok = valid & np.isfinite(d)
+    mean_square = ref_masked_gaussian(d * d, ok, sigma_px, reduce=reduce)
+    rms = np.sqrt(mean_square)
     floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
+    if floor_fraction > 0 and np.isfinite(mean_square[ok]).any():
+        level = np.sqrt(np.percentile(mean_square[ok & np.isfinite(mean_square)],
+                                      floor_percentile))
+        floor = max(floor, floor_fraction * float(level))
     with np.errstate(invalid="ignore", divide="ignore"):
         out = d / np.maximum(rms, floor)
     return np.where(valid, out, np.nan).astype(np.float32)

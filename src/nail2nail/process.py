@@ -23,6 +23,7 @@ import sys
 
 from ._progress import Stages
 from ._timing import StepClock
+from .io.rolled import ROLLED_LENGTH_MM
 
 __all__ = ["peak_rss_mb", "process_capture"]
 
@@ -57,7 +58,8 @@ def process_capture(
     method: str | None = None,
     ppi: float = 500.0,
     tip_direction=None,
-    length_mm: float | None = None,
+    length_mm: float | None = ROLLED_LENGTH_MM,
+    ridge_options: dict | None = None,
     wsq: bool = True,
     progress: bool = False,
     calibration_name: str = "calibration",
@@ -93,9 +95,13 @@ def process_capture(
     unroll : bool
         Unroll the finger into the rolled-equivalent print (``OUT/print``).
     method, ppi, tip_direction, length_mm, wsq
-        Unroll options (:func:`nail2nail.unroll.unroll_scans`,
+        Unroll options (:func:`nail2nail.unroll.unroll_scans`, `length_mm` None: all the
+        skin that was seen;
         :func:`nail2nail.io.rolled.write_rolled_print`); `method` defaults to
         :data:`nail2nail.unroll.DEFAULT_METHOD`.
+    ridge_options : dict, optional
+        ``mix`` and ``min_clarity`` of :func:`nail2nail.unroll.unroll_scans` (the ridge
+        signal's blend and the clarity mask); their defaults otherwise.
     progress : bool
         One line per stage and progress bars (scan, merge) on stderr; a terminal only, and
         not inside :func:`nail2nail._progress.quiet`.
@@ -181,8 +187,8 @@ def process_capture(
                     "masks": {k: (str(v) if isinstance(v, (str, os.PathLike)) else "array")
                               for k, v in (masks or {}).items()},
                     "figures": figures, "unroll": unroll,
-                    **({"method": method, "ppi": ppi, "length_mm": length_mm} if unroll
-                       else {})},
+                    **({"method": method, "ppi": ppi, "length_mm": length_mm,
+                        **(ridge_options or {})} if unroll else {})},
         "cameras": {s.name: int(s.mask.sum()) for s in scans},
     }
     with atomic_directory(out, marker="process.json") as tmp:
@@ -211,7 +217,8 @@ def process_capture(
             say(f"unroll ({method})")
             with times.stage("unroll"):
                 rolled = unroll_scans(scans, method=method, ppi=ppi,
-                                      tip_direction=tip_direction, length_mm=length_mm)
+                                      tip_direction=tip_direction, length_mm=length_mm,
+                                      **(ridge_options or {}))
             del scans  # the print alone from here on
             with times.stage("write_print"):
                 meta = write_rolled_print(tmp / "print", rolled, wsq=wsq)

@@ -12,7 +12,7 @@ from pathlib import Path
 from ..io._json import dumps_json
 from ._report import add_report_options, check_report_options
 from ._scan import add_scan_options, decode_options, masks, max_gradient
-from ._unroll import add_unroll_options, check_unroll_options
+from ._unroll import add_unroll_options, check_unroll_options, unroll_options
 
 __all__ = ["add_parser", "add_process_options", "process_options", "run"]
 
@@ -70,7 +70,7 @@ def process_options(args: argparse.Namespace) -> dict:
                 pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
                 unroll=args.unroll, method=args.method, ppi=args.ppi,
                 tip_direction=args.tip_direction, length_mm=args.length, wsq=not args.no_wsq,
-                frame=args.frame)
+                frame=args.frame, ridge_options=unroll_options(args))
 
 
 def run(args: argparse.Namespace) -> int:

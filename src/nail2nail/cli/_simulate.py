@@ -40,6 +40,11 @@ def add_parser(sub) -> None:
                    "a synthetic print; truth/rolled_print.png is this image")
     p.add_argument("--print-ppi", type=float, metavar="PPI",
                    help="resolution of --print (default: the file's, else 500)")
+    p.add_argument("--conditions", type=int, metavar="SEED",
+                   help="finger only: draw the scanner's optics and the finger's shape, pose, "
+                   "skin and print class at random from the stated ranges "
+                   "(nail2nail.simulation.conditions.RANGES), reproducibly from SEED; the "
+                   "values drawn are recorded in capture.json (rig.photometry, scene)")
     board = p.add_argument_group(
         "board scene", "a printed planar calibration board (--scene board; docs/real-scanner.md)")
     board.add_argument("--board", choices=BOARD_KINDS, default=None,
@@ -88,6 +93,12 @@ def run(args: argparse.Namespace) -> int:
         print_image, file_ppi = read_print_image(args.print_image)
         print_ppi = print_ppi or file_ppi or 500.0
     rig = load_rig(args.rig) if args.rig else None
+    conditions = None
+    if args.conditions is not None:
+        if args.scene != "finger":
+            raise ValueError(f"--conditions: only with --scene finger, got --scene {args.scene}")
+        conditions = _conditions_rig(args, rig)
+        rig, args.scale = conditions[1], None  # the scale is applied
     patterns = names = pattern_set = None
     if args.patterns:  # a `nail2nail patterns` directory carries its pattern set (any scheme)
         patterns, names, pattern_set = read_pattern_dir(args.patterns)
@@ -95,6 +106,12 @@ def run(args: argparse.Namespace) -> int:
     if args.poses is not None:
         return _run_poses(args, board, rig, patterns, names, start, pattern_set)
     scene = args.scene
+    if conditions is not None:
+        from ..simulation.scenes import make_scene
+
+        scene = make_scene("finger", rig=rig, seed=args.seed, **conditions[0].finger_options(
+            print_image=print_image, print_ppi=print_ppi or 500.0))
+        print_image = None  # wrapped by the scene already
     if board is not None:
         from ..simulation.capture import _configure_rig
         from ..simulation.scenes import make_scene
@@ -120,8 +137,9 @@ def run(args: argparse.Namespace) -> int:
         "n_frames": manifest["n_frames"],
         "cameras": [{"name": c["name"], "size": c["size"]} for c in manifest["cameras"]],
         "truth": manifest.get("truth"),
-        "print": None if print_image is None else {"image": str(args.print_image),
-                                                   "ppi": print_ppi},
+        "print": None if args.print_image is None else {"image": str(args.print_image),
+                                                        "ppi": print_ppi},
+        "conditions": None if conditions is None else conditions[0].to_dict(),
         "seconds": round(elapsed, 2),
     }
     if args.json:
@@ -131,6 +149,25 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}: scene {args.scene}, {summary['n_frames']} frames x "
               f"{len(summary['cameras'])} cameras ({cams}) in {elapsed:.1f} s")
     return 0
+
+
+def _conditions_rig(args, rig):
+    """``(Conditions, Rig)``: the conditions drawn from ``--conditions`` and the rig with their
+    optics (the given ``--rig``'s geometry, else the default rig's), at ``--scale``."""
+    import dataclasses
+
+    from ..simulation.capture import _configure_rig
+    from ..simulation.conditions import draw_conditions
+
+    drawn = draw_conditions(args.conditions)
+    if rig is None:
+        rig = drawn.rig(args.scale or 1.0)
+        scale = None
+    else:
+        rig = dataclasses.replace(rig, photometry=dataclasses.replace(rig.photometry,
+                                                                      **drawn.photometry))
+        scale = args.scale
+    return drawn, _configure_rig(rig, scale=scale, projector_distortion=args.projector_distortion)
 
 
 def _board_from_args(args):

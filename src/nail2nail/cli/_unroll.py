@@ -13,9 +13,9 @@ from pathlib import Path
 
 from .._progress import Stages
 from ..io._json import dumps_json
-from ..unroll import DEFAULT_METHOD, METHODS
+from ..unroll import DEFAULT_LENGTH_MM, DEFAULT_METHOD, METHODS, MIN_CLARITY
 
-__all__ = ["add_parser", "add_unroll_options", "check_unroll_options", "run"]
+__all__ = ["add_parser", "add_unroll_options", "check_unroll_options", "run", "unroll_options"]
 
 
 def _vector(text: str) -> tuple[float, float, float]:
@@ -40,9 +40,19 @@ def add_unroll_options(p) -> None:
                    help="rough direction of the fingertip in the scans' frame, X,Y,Z (default: "
                    "up in the cameras' images, measured on the scans, whatever the frame: give "
                    "it when the fingertip does not point to the top of the images)")
-    p.add_argument("--length", type=float, default=None, metavar="MM",
-                   help="keep only the skin within MM below the fingertip, as a rolled-print "
-                   "card does (about 25 reaches the distal crease; default: all that was seen)")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--length", type=float, default=DEFAULT_LENGTH_MM, metavar="MM",
+                        help="keep only the skin within MM below the fingertip, as an inked "
+                        f"roll does (default {DEFAULT_LENGTH_MM:g}: the distal crease of an "
+                        "adult finger)")
+    length.add_argument("--full-length", dest="length", action="store_const", const=None,
+                        help="keep all the skin the cameras saw below the tip")
+    p.add_argument("--min-clarity", type=float, default=MIN_CLARITY, metavar="Q",
+                   help="leave out of the print the skin whose ridge clarity (3.2 mm blocks, 0-1) "
+                   f"is below Q: no ridges there to print (default {MIN_CLARITY}; 0 keeps all)")
+    p.add_argument("--fixed-blend", action="store_true",
+                   help="the ridge signal of earlier versions: relief + 0.3 x albedo, no RMS "
+                   "floor (default: relief and albedo weighed by their measured clarity)")
 
 
 def check_unroll_options(args: argparse.Namespace) -> None:
@@ -51,6 +61,14 @@ def check_unroll_options(args: argparse.Namespace) -> None:
         raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
     if args.length is not None and not args.length > 0:
         raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
+    if not 0 <= args.min_clarity < 1:
+        raise ValueError(f"--min-clarity: expected a clarity in [0, 1), got {args.min_clarity}")
+
+
+def unroll_options(args: argparse.Namespace) -> dict:
+    """The ridge-signal keyword arguments of :func:`nail2nail.unroll.unroll_scans`."""
+    return {"mix": not args.fixed_blend,
+            "min_clarity": args.min_clarity if args.min_clarity > 0 else None}
 
 
 def add_parser(sub) -> None:
@@ -84,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     step(f"unroll ({args.method})")
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
-                          tip_direction=args.tip_direction, length_mm=args.length)
+                          tip_direction=args.tip_direction, length_mm=args.length,
+                          **unroll_options(args))
     step("write the print")
     meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,
                               extra={"scan_dir": str(args.scan_dir),

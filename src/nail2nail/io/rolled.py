@@ -29,6 +29,11 @@ from .prints import write_print_image
 __all__ = ["ROLLED_FORMAT", "write_rolled_print"]
 
 ROLLED_FORMAT = "nail2nail-rolled-print"
+
+#: Length of skin a rolled print keeps below the fingertip, mm: an inked roll records the distal
+#: phalanx from the tip to about the distal interphalangeal crease, 22–28 mm on adult fingers
+#: (the cameras see further down the finger, and minutiae there match nothing on a card)
+ROLLED_LENGTH_MM = 25.0
 _COLOURS = np.array([[230, 60, 50], [60, 170, 70], [50, 90, 230], [220, 180, 40],
                      [170, 60, 200], [40, 190, 200]], dtype=np.float32)
 

@@ -10,8 +10,12 @@ and the irradiance factor, so that :func:`render_frames` costs a few array opera
 Image formation (fractions of full scale), for a pattern value ``P`` (8-bit) at the panel
 coordinate of a pixel:
 
-    ``E = blur_p((P / 255) ** gamma)``  (projector response and defocus, on the panel),
-    ``s = albedo · (ambient + power · cos(incidence) · (d_ref / d)² · E)``,
+    ``E = blur_p((P / 255) ** gamma)``  (projector response and defocus, on the panel; with a
+    ``projector_fill_factor`` each panel pixel is a sharp square aperture instead, see
+    :func:`aperture_weights`),
+    ``L = power · cos(incidence) · (d_ref / d)² · E``  (projector light on the skin),
+    ``L ← blur_s(L)``  (subsurface spread, σ ``subsurface_mm``; none by default),
+    ``s = albedo · (ambient · power + L) + specular · power · (n·h)^m · (d_ref / d)² · E``,
     ``s ← blur_c(s)``  (camera defocus),
     ``electrons = s · full_well`` + shot noise ``√electrons`` + read noise,
     quantised to ``bit_depth`` bits (``round``, clipped).
@@ -60,6 +64,13 @@ class CameraGeometry:
         Surface albedo (0 where no surface).
     irradiance : (H, W) float32
         ``cos(incidence) · (d_ref / d)²`` of the projector light (0 outside `mask`).
+    specular : (H, W) float32
+        ``specular · max(n·h, 0)^m · (d_ref / d)²`` (Blinn-Phong, ``h`` the half vector of the
+        directions to the projector and to the camera; 0 outside `mask` or without
+        highlights).
+    mm_per_px : float
+        Median distance between horizontally adjacent surface points, mm (the camera's
+        sampling of the surface: the subsurface spread's scale in pixels).
     params : dict of str to (H, W) float64
         Scene surface parameters (finger: rolled-print ``u, v`` in mm); NaN where no surface.
     camera : Pinhole
@@ -79,7 +90,10 @@ class CameraGeometry:
     params: dict
     camera: Pinhole
     name: str = "cam0"
+    specular: np.ndarray | None = None
+    mm_per_px: float = float("nan")
     _sampler: tuple = field(default=None, repr=False)
+    _aperture: tuple | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -160,8 +174,17 @@ def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry
     lit_full[idx] = lit
     panel_lit = np.where(lit[:, None], panel, np.nan)
     ideal_lit = np.where(lit[:, None], ideal, np.nan)
-    ref = rig.photometry.reference_distance_mm
+    photometry = rig.photometry
+    ref = photometry.reference_distance_mm
     irr = np.where(lit, cos_inc * (ref / dist) ** 2, 0.0)
+    spec = np.zeros_like(irr)
+    if photometry.specular > 0:
+        to_c = camera.center - pts
+        half = l_dir + to_c / np.linalg.norm(to_c, axis=-1)[:, None]
+        half /= np.linalg.norm(half, axis=-1)[:, None]
+        cos_h = np.clip(np.einsum("ij,ij->i", normal, half), 0, 1)
+        spec = np.where(lit, photometry.specular * cos_h**photometry.specular_exponent
+                        * (ref / dist) ** 2, 0.0)
     geometry = CameraGeometry(
         xyz=xyz,
         normal=full(normal, np.nan),
@@ -174,9 +197,113 @@ def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry
         params={k: full(v, np.nan) for k, v in info.params.items()},
         camera=camera,
         name=rig.camera_names[camera_index],
+        specular=full(spec, 0.0, np.float32),
     )
+    step = np.linalg.norm(np.diff(xyz, axis=1), axis=-1)
+    step = step[np.isfinite(step)]
+    geometry.mm_per_px = float(np.median(step)) if step.size else float("nan")
     geometry._sampler = _bilinear_plan(geometry, rig.panel_size)
+    if photometry.projector_fill_factor is not None:
+        geometry._aperture = aperture_weights(geometry, photometry)
     return geometry
+
+
+#: at most this many panel pixels either side of a camera pixel's panel coordinate are summed
+MAX_APERTURE_HALF_WIDTH = 8
+
+
+def _box_gauss(d, width, sigma):
+    """``(1/width) ∫ box_width(d − x) N(x; σ) dx``: a sharp aperture of `width` px, blurred."""
+    from scipy.special import ndtr
+
+    s = np.maximum(sigma, 1e-3)
+    return ((ndtr((d + width / 2) / s) - ndtr((d - width / 2) / s)) / width).astype(np.float32)
+
+
+def aperture_weights(geometry: CameraGeometry, photometry: Photometry) -> tuple:
+    """Weights of the panel pixels that light each lit camera pixel (sharp-aperture model).
+
+    A panel pixel ``i`` emits through a square aperture of side ``a = √fill`` px centred on
+    it, normalised to the pixel's mean radiance (``1/a`` per axis), blurred by the projector's
+    defocus σ_p (`projector_blur_px`). A camera pixel integrates over its footprint on the
+    panel, the parallelogram spanned by the panel coordinate's steps to the next column and
+    row; its variance ``(J_c² + J_r²)/12`` per axis is added to σ_p² (a box taken as the
+    Gaussian of the same variance). The radiance a pixel sees is then
+    ``Σ_j Σ_l wx_j wy_l E[iy + l, ix + j]``, separable per axis.
+
+    Parameters
+    ----------
+    geometry : CameraGeometry
+        With ``xp``, ``yp`` and ``mask``.
+    photometry : Photometry
+        With ``projector_fill_factor`` set.
+
+    Returns
+    -------
+    tuple
+        ``(K, ix, iy, wx, wy)``: the half width ``K`` of the window (px), the panel pixel of
+        offset ``−K`` for each lit pixel (into the panel padded by ``K + 1`` dark pixels) and
+        the weights ``(n_lit, 2K + 1)`` float32 per axis.
+    """
+    width = float(np.sqrt(photometry.projector_fill_factor))
+    lit = geometry.mask
+    var = []
+    for p in (geometry.xp, geometry.yp):
+        with np.errstate(invalid="ignore"):
+            jr, jc = np.gradient(p)
+        foot = (jr * jr + jc * jc)[lit]
+        fill = np.nanmedian(foot) if np.isfinite(foot).any() else 0.0
+        foot = np.where(np.isfinite(foot), np.minimum(foot, 16.0), fill)
+        var.append(photometry.projector_blur_px**2 + foot / 12.0)
+    sigma = np.sqrt(np.maximum(var[0], var[1]))
+    half = int(np.ceil(width / 2 + 3 * float(sigma.max(initial=0.0))))
+    half = min(max(half, 1), MAX_APERTURE_HALF_WIDTH)
+    offsets = np.arange(-half, half + 1)
+    out = [half]
+    for p, v in zip((geometry.xp, geometry.yp), var, strict=True):
+        x = p[lit]
+        centre = np.rint(x)
+        d = (x - centre)[:, None] - offsets[None, :]
+        out.append(centre.astype(np.intp) + 1)  # offset −K in the panel padded by K + 1
+        out.append(_box_gauss(d, width, np.sqrt(v)[:, None]))
+    K, ix, wx, iy, wy = out
+    return K, ix, iy, wx, wy
+
+
+def _aperture_sample(aperture: tuple, emitted: np.ndarray, ones: tuple) -> np.ndarray:
+    """Radiance seen by each lit pixel from the emitted panel values ``(Hp, Wp)``."""
+    K, ix, iy, wx, wy = aperture
+    pad = K + 1
+    rows_equal = bool((emitted == emitted[:1]).all())
+    cols_equal = bool((emitted == emitted[:, :1]).all())
+    if rows_equal:  # a pattern along x (or uniform): one row, the rows' aperture precomputed
+        row = np.pad(emitted[0], pad)
+        return np.einsum("ij,ij->i", wx, row[ix[:, None] + np.arange(2 * K + 1)]) * ones[1]
+    if cols_equal:
+        col = np.pad(emitted[:, 0], pad)
+        return np.einsum("ij,ij->i", wy, col[iy[:, None] + np.arange(2 * K + 1)]) * ones[0]
+    panel = np.pad(emitted, pad)
+    flat = panel.ravel()
+    stride = panel.shape[1]
+    out = np.zeros(len(ix), np.float32)
+    for lr in range(2 * K + 1):
+        base = (iy + lr) * stride + ix
+        acc = np.zeros(len(ix), np.float32)
+        for j in range(2 * K + 1):
+            acc += wx[:, j] * flat[base + j]
+        out += wy[:, lr] * acc
+    return out
+
+
+def _aperture_ones(aperture: tuple, panel_shape) -> tuple[np.ndarray, np.ndarray]:
+    """Each axis's aperture sum over the panel's extent (the other axis of a 1-D pattern)."""
+    K, ix, iy, wx, wy = aperture
+    taps = np.arange(2 * K + 1)
+    ph, pw = panel_shape
+    on_x = np.pad(np.ones(pw, np.float32), K + 1)
+    on_y = np.pad(np.ones(ph, np.float32), K + 1)
+    return (np.einsum("ij,ij->i", wx, on_x[ix[:, None] + taps]),
+            np.einsum("ij,ij->i", wy, on_y[iy[:, None] + taps]))
 
 
 def _bilinear_plan(geometry: CameraGeometry, panel_size) -> tuple:
@@ -206,6 +333,9 @@ def projector_radiance(pattern, photometry: Photometry) -> np.ndarray:
     Returns
     -------
     (Hp + 2, Wp + 2) float32
+        With a ``projector_fill_factor`` (sharp apertures): ``(Hp, Wp)``, the emitted values
+        after gamma alone (the apertures and defocus are applied per camera pixel,
+        :func:`aperture_weights`).
     """
     p = np.asarray(pattern)
     if p.ndim != 2:
@@ -217,6 +347,8 @@ def projector_radiance(pattern, photometry: Photometry) -> np.ndarray:
         value = lut.astype(np.float32)[p]
     else:
         value = np.clip(p.astype(np.float32), 0, 1) ** np.float32(photometry.projector_gamma)
+    if photometry.projector_fill_factor is not None:
+        return value
     value = np.pad(value, 1)
     if photometry.projector_blur_px > 0:
         value = ndi.gaussian_filter(value, photometry.projector_blur_px, mode="constant")
@@ -261,6 +393,10 @@ def render_frames(
         raise ValueError(f"patterns: expected (n_frames, Hp, Wp), got shape {patterns.shape}")
     lit, i00, stride, w = geometry._sampler
     ph, pw = patterns.shape[1:]
+    aperture = geometry._aperture if photometry.projector_fill_factor is not None else None
+    if photometry.projector_fill_factor is not None and aperture is None:
+        aperture = geometry._aperture = aperture_weights(geometry, photometry)
+    ones = _aperture_ones(aperture, (ph, pw)) if aperture is not None else None
     if stride != pw + 2:
         raise ValueError(
             f"patterns: panel size {pw}x{ph} does not match the rig's projector ({stride - 2} wide)"
@@ -268,8 +404,14 @@ def render_frames(
     height, width = geometry.shape
     albedo = geometry.albedo.ravel()
     base = albedo * np.float32(photometry.ambient * photometry.projector_power)
-    gain = (albedo.ravel()[lit] * geometry.irradiance.ravel()[lit]
-            * np.float32(photometry.projector_power))
+    power = np.float32(photometry.projector_power)
+    light = geometry.irradiance.ravel()[lit] * power
+    gain = albedo.ravel()[lit] * geometry.irradiance.ravel()[lit] * power
+    specular = None
+    if geometry.specular is not None and photometry.specular > 0:
+        specular = geometry.specular.ravel()[lit] * power
+    subsurface = photometry.subsurface_mm / geometry.mm_per_px \
+        if photometry.subsurface_mm > 0 and geometry.mm_per_px > 0 else 0.0
     bits = photometry.bit_depth
     top = 2**bits - 1
     dtype = np.uint8 if bits == 8 else np.uint16
@@ -277,11 +419,23 @@ def render_frames(
     blur = photometry.camera_blur_px * scale
     for k, pattern in enumerate(patterns):
         rad = radiance[k] if radiance is not None else projector_radiance(pattern, photometry)
-        flat = rad.ravel()
-        sample = (w[0] * flat[i00] + w[1] * flat[i00 + 1] + w[2] * flat[i00 + stride]
-                  + w[3] * flat[i00 + stride + 1])
-        signal = base.copy()
-        signal[lit] += gain * sample
+        if aperture is not None:
+            sample = _aperture_sample(aperture, rad, ones)
+        else:
+            flat = rad.ravel()
+            sample = (w[0] * flat[i00] + w[1] * flat[i00 + 1] + w[2] * flat[i00 + stride]
+                      + w[3] * flat[i00 + stride + 1])
+        if subsurface > 0:
+            lit_light = np.zeros(height * width, np.float32)
+            lit_light[lit] = light * sample
+            lit_light = ndi.gaussian_filter(lit_light.reshape(height, width), subsurface,
+                                            mode="constant").ravel()
+            signal = base + albedo * lit_light
+        else:  # (the arithmetic of the default model, unchanged)
+            signal = base.copy()
+            signal[lit] += gain * sample
+        if specular is not None:
+            signal[lit] += specular * sample
         image = signal.reshape(height, width)
         if blur > 0:
             image = ndi.gaussian_filter(image, blur, mode="nearest")

@@ -92,6 +92,21 @@ class Photometry:
         ``False`` renders noise-free (still quantised).
     reference_distance_mm : float
         Distance at which the projector irradiance equals ``projector_power`` (inverse square).
+    projector_fill_factor : float or None
+        ``None`` (default): the panel image is interpolated bilinearly between pixel centres
+        (a soft projector). A number in ``(0, 1]``: each panel pixel is a sharp square
+        aperture covering this fraction of its area (dark gaps between pixels, as on a DLP or
+        LCD panel), blurred by `projector_blur_px` only; the camera pixel's footprint on the
+        panel is integrated (:func:`~nail2nail.simulation.render.camera_geometry`).
+    specular : float
+        Strength of specular highlights (Blinn-Phong, fraction of full scale for a mirror
+        facing the projector at the reference distance; 0: Lambertian skin).
+    specular_exponent : float
+        Blinn-Phong exponent (larger: smaller, sharper highlights).
+    subsurface_mm : float
+        σ of the subsurface spread of the projected light in the skin, mm (0: none): light
+        enters at one point and leaves nearby, which lowers the fringes' contrast at fine
+        periods and blurs the ridges' shading.
     """
 
     projector_gamma: float = 2.2
@@ -104,6 +119,10 @@ class Photometry:
     bit_depth: int = 8
     noise: bool = True
     reference_distance_mm: float = 176.5
+    projector_fill_factor: float | None = None
+    specular: float = 0.0
+    specular_exponent: float = 40.0
+    subsurface_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if self.bit_depth not in (8, 10, 12, 16):
@@ -111,8 +130,14 @@ class Photometry:
         for name in ("projector_gamma", "full_well", "reference_distance_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected a positive number, got {getattr(self, name)!r}")
+        if self.projector_fill_factor is not None and not 0 < self.projector_fill_factor <= 1:
+            raise ValueError(f"projector_fill_factor: expected None or a number in (0, 1], got "
+                             f"{self.projector_fill_factor!r}")
+        if not self.specular_exponent > 0:
+            raise ValueError(f"specular_exponent: expected a positive number, got "
+                             f"{self.specular_exponent!r}")
         for name in ("projector_power", "ambient", "camera_blur_px", "projector_blur_px",
-                     "read_noise"):
+                     "read_noise", "specular", "subsurface_mm"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: expected a number >= 0, got {getattr(self, name)!r}")
 

@@ -451,6 +451,18 @@ def _normal_from_gradient(f, xyz, eps=1e-5):
     return grad / np.linalg.norm(grad, axis=-1, keepdims=True)
 
 
+def _finger_rotation(rotation_deg) -> np.ndarray:
+    """``R = R_z(yaw) R_x(tilt) R_y(roll)`` of ``(tilt, roll, yaw)`` in degrees (local → world)."""
+    tilt, roll, yaw = np.radians(np.asarray(rotation_deg, dtype=float))
+    c, s = np.cos(tilt), np.sin(tilt)
+    rx = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    c, s = np.cos(roll), np.sin(roll)
+    ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    c, s = np.cos(yaw), np.sin(yaw)
+    rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    return rz @ rx @ ry
+
+
 @functools.lru_cache(maxsize=4)
 def _cached_fingerprint(u_range, v_range, center, seed, pattern) -> Fingerprint:
     # growing a print takes a few seconds: scenes with the same parameters share it (read-only)
@@ -518,6 +530,22 @@ class Finger(Scene):
         (default 25): a rolled print records the distal phalanx from the tip to about the
         distal interphalangeal crease, some 22–28 mm on adult fingers (ridges go on below it
         on the skin, but not on the print).
+
+    Shape and pose
+    --------------
+    taper : float
+        Relative growth of the body's cross-section per mm below the cap's base (``y0``), up
+        to 30 mm below it (default 0: a straight body): the section at ``y`` has semi-axes
+        ``k(y) · (ax, az)``, ``k = 1 + taper · clip(y0 − y, 0, 30)``; ``u`` around the body
+        scales with it (``u = cos ψ · k · S(φ)``).
+    rotation_deg : (3,) float
+        The finger's rotation in the world, degrees: ``(tilt, roll, yaw)`` about the world's
+        ``X`` (tip towards or away from the cameras), the finger's own axis ``Y``, and ``Z``
+        (in the images' plane), applied as ``R = R_z(yaw) R_x(tilt) R_y(roll)`` about the
+        local origin (on the axis, ``y0`` below the cap's base). Default: no rotation.
+    offset_mm : (3,) float
+        Translation of the finger in the world, mm (default 0): ``X_world = R X + offset``.
+        The rolled-print coordinates ``u, v`` stay those of the finger's own frame.
     """
 
     fingerprint: Fingerprint | None = None
@@ -536,9 +564,26 @@ class Finger(Scene):
     ridge_arc_deg: float = 110.0
     ridge_edge_mm: float = 1.0
     rolled_length_mm: float = 25.0
+    taper: float = 0.0
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name = "finger"
 
+    #: how far below the cap's base the taper goes on growing the section, mm
+    TAPER_LENGTH_MM = 30.0
+
     def __post_init__(self):
+        if not (np.isfinite(self.taper) and 0 <= self.taper <= 0.05):
+            raise ValueError(f"taper: expected 0 <= taper <= 0.05 per mm, got {self.taper}")
+        rotation = np.asarray(self.rotation_deg, dtype=float)
+        offset = np.asarray(self.offset_mm, dtype=float)
+        if rotation.shape != (3,) or not np.isfinite(rotation).all():
+            raise ValueError(f"rotation_deg: expected 3 finite angles, got {self.rotation_deg}")
+        if offset.shape != (3,) or not np.isfinite(offset).all():
+            raise ValueError(f"offset_mm: expected 3 finite numbers, got {self.offset_mm}")
+        self._R = _finger_rotation(rotation)
+        self._t = offset
+        self._posed = bool(np.any(rotation != 0) or np.any(offset != 0))
         if not 0 <= self.relief_height < 0.5:
             raise ValueError(f"relief_height: expected 0 <= h < 0.5 mm, got {self.relief_height}")
         if not (np.isfinite(self.ridge_arc_deg) and 0 < self.ridge_arc_deg):
@@ -562,7 +607,7 @@ class Finger(Scene):
             self.fingerprint = Fingerprint.from_image(
                 self.print_image, ppi=self.print_ppi, center_uv=self.pad_center)
         elif self.fingerprint is None:
-            half_u = float(self._s[-1]) + 1.0
+            half_u = float(self._s[-1]) * self._k_max + 1.0
             self.fingerprint = _cached_fingerprint(
                 (-half_u, half_u), (-32.0, self.y0 + float(self._m[-1]) + 1.0),
                 self.pad_center, int(self.seed), self.pattern,
@@ -576,18 +621,36 @@ class Finger(Scene):
         self._box = self._rolled_box()
 
     # rolled-print coordinates --------------------------------------------------------------
+    @property
+    def _k_max(self) -> float:
+        return 1.0 + self.taper * self.TAPER_LENGTH_MM
+
+    def _k(self, y):
+        """The taper's scale ``k(y)`` of the body's section (1 on the cap)."""
+        if self.taper == 0:
+            return 1.0
+        return 1.0 + self.taper * np.clip(self.y0 - np.asarray(y, dtype=float), 0.0,
+                                          self.TAPER_LENGTH_MM)
+
+    def _local(self, xyz):
+        """Points in the finger's own frame (``R⁻¹ (X − offset)``)."""
+        if not self._posed:
+            return xyz
+        return (np.asarray(xyz, dtype=float) - self._t) @ self._R
+
     def _scaled(self, xyz):
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         qy = np.maximum(y - self.y0, 0.0) / self.ay
-        return x / self.ax, qy, z / self.az
+        k = self._k(y)
+        return x / (self.ax * k), qy, z / (self.az * k)
 
     def _skin(self, xyz):
-        """``u, v`` (mm) and the arc length ``S(φ)`` around the body (mm) of points."""
+        """``u, v`` (mm) and the arc length ``S(φ)`` around the body (mm) of local points."""
         qx, qy, qz = self._scaled(xyz)
         norm = np.sqrt(qx * qx + qy * qy + qz * qz)
         psi = np.arcsin(np.clip(qy / np.maximum(norm, 1e-12), 0.0, 1.0))
         s = np.interp(np.arctan2(qx, qz), self._phi, self._s)
-        u = np.cos(psi) * s
+        u = np.cos(psi) * s * self._k(xyz[:, 1])
         v = np.where(qy > 0, self.y0 + np.interp(psi, self._psi, self._m), xyz[:, 1])
         return u, v, s
 
@@ -598,7 +661,7 @@ class Finger(Scene):
 
     def print_coordinates(self, xyz) -> tuple[np.ndarray, np.ndarray]:
         """Rolled-print coordinates ``u, v`` (mm) of points ``(N, 3)`` (see the class doc)."""
-        u, v, _ = self._skin(np.asarray(xyz, dtype=float))
+        u, v, _ = self._skin(self._local(np.asarray(xyz, dtype=float)))
         return u, v
 
     @property
@@ -615,7 +678,7 @@ class Finger(Scene):
         """``|u|`` of the arc ``S = s_limit`` at `v` (``cos ψ · s_limit`` on the cap)."""
         dv = np.asarray(v, dtype=float) - self.y0
         psi = np.interp(np.clip(dv, 0, None), self._m, self._psi)
-        return np.where(dv <= 0, s_limit, np.cos(psi) * s_limit)
+        return np.where(dv <= 0, s_limit * self._k(v), np.cos(psi) * s_limit)
 
     def ridge_envelope(self, u, v) -> np.ndarray:
         """Friction-ridge envelope ``e`` at rolled-print coordinates ``(u, v)`` mm.
@@ -665,7 +728,7 @@ class Finger(Scene):
         if not self._synthetic:
             return 0, h, 0, w
         margin = 1.0
-        u_hi = self._s_ridge + margin
+        u_hi = self._s_ridge * self._k_max + margin
         v_hi = self.v_tip + margin
         v_lo = self.v_tip - self.rolled_length_mm - margin
         c0 = int(np.floor((fp.u0 - u_hi) / fp.pitch + 1e-9))
@@ -788,16 +851,19 @@ class Finger(Scene):
         return (norm - 1.0) / np.maximum(gnorm, 1e-12)
 
     def implicit(self, xyz) -> np.ndarray:
-        """``f (N,)``: positive outside the finger, zero on its surface, ~mm near it."""
+        """``f (N,)`` of points in the finger's own frame: positive outside, zero on its surface,
+        ~mm near it."""
         xyz = np.asarray(xyz, dtype=float)
         u, v, s = self._skin(xyz)
         r = self.fingerprint.sample(u, v) * self._envelope_of_arc(s)
         return self._base_distance(xyz) - self._hmax * r
 
     def _shell_t(self, o, d, offset):
-        """Entry/exit of the base shape grown by `offset` mm (approximately: axes + offset)."""
+        """Entry/exit of the base shape grown by `offset` mm (approximately: axes + offset;
+        the body's cylinder as wide as the taper's widest section when growing)."""
         ax, ay, az = self.ax + offset, self.ay + offset, self.az + offset
-        c0, c1 = _elliptic_cylinder_t(o, d, ax, az)
+        k = self._k_max if offset > 0 else 1.0
+        c0, c1 = _elliptic_cylinder_t(o, d, self.ax * k + offset, self.az * k + offset)
         e0, e1 = _ellipsoid_t(o, d, (ax, ay, az), np.array([0.0, self.y0, 0.0]))
         y_c0 = o[1] + c0 * d[:, 1]
         y_c1 = o[1] + c1 * d[:, 1]
@@ -809,8 +875,10 @@ class Finger(Scene):
         return entry, exit_
 
     def intersect(self, origin, directions):
-        o = np.asarray(origin, dtype=float)
+        o = self._local(np.asarray(origin, dtype=float))
         d = np.asarray(directions, dtype=float)
+        if self._posed:
+            d = d @ self._R
         margin = 2 * self._hmax + 0.02
         t0, t1 = self._shell_t(o, d, margin)
         hit = np.isfinite(t0) & (t1 > t0) & (t1 > 0)
@@ -821,8 +889,10 @@ class Finger(Scene):
         return _march(self.implicit, o, d, t0, t_end, self.march_step)
 
     def surface(self, xyz):
-        xyz = np.asarray(xyz, dtype=float)
+        xyz = self._local(np.asarray(xyz, dtype=float))
         normal = _normal_from_gradient(self.implicit, xyz)
+        if self._posed:
+            normal = normal @ self._R.T
         u, v, s = self._skin(xyz)
         r = self.fingerprint.sample(u, v) * self._envelope_of_arc(s)
         albedo = np.clip(self.skin_albedo * (1 + self.albedo_contrast * r), 0, 1)
@@ -830,6 +900,8 @@ class Finger(Scene):
 
     def to_dict(self):
         return {"name": self.name, "ax": self.ax, "ay": self.ay, "az": self.az, "y0": self.y0,
+                "taper": self.taper, "rotation_deg": [float(a) for a in self.rotation_deg],
+                "offset_mm": [float(a) for a in self.offset_mm],
                 "relief_height": self.relief_height, "skin_albedo": self.skin_albedo,
                 "albedo_contrast": self.albedo_contrast, "seed": self.seed,
                 "pad_center": list(self.pad_center), "ridge_arc_deg": self.ridge_arc_deg,

@@ -7,22 +7,38 @@ of the scan), blends the cameras across their overlaps and renders a 500-ppi pri
 convention (mirror of the pad view, fingertip up, ridges dark), with its binarised version,
 mask, quality and distortion figures.
 
-Modules: :mod:`~nail2nail.unroll.ridges` (ridge signal), :mod:`~nail2nail.unroll.flatten`
-(flattening maps and their distortion), :mod:`~nail2nail.unroll.render` (print grid, blending,
-grey and binary prints), :mod:`~nail2nail.unroll.quality` (ridge period and clarity),
+Modules, in data order: :mod:`~nail2nail.unroll.ridges` (ridge signal per camera: relief and
+albedo), :mod:`~nail2nail.unroll.flatten` (flattening maps and their distortion),
+:mod:`~nail2nail.unroll.render` (print grid, blending, grey and binary prints),
+:mod:`~nail2nail.unroll.mixing` (relief and albedo weighed by their clarity, the clarity mask),
+:mod:`~nail2nail.unroll.quality` (ridge period and clarity),
 :mod:`~nail2nail.unroll.rolled` (:func:`unroll_scans`), :mod:`~nail2nail.unroll.accuracy`
 (comparison with the true skin coordinates).
 """
 
 from .flatten import METHODS, fit_flattening, map_distortion
-from .rolled import DEFAULT_METHOD, RolledPrint, image_up_direction, unroll_scans
+from .mixing import clarity_map, mix_layers
+from .rolled import (
+    DEFAULT_LENGTH_MM,
+    DEFAULT_METHOD,
+    FLOOR_FRACTION,
+    MIN_CLARITY,
+    RolledPrint,
+    image_up_direction,
+    unroll_scans,
+)
 
 __all__ = [
+    "DEFAULT_LENGTH_MM",
     "DEFAULT_METHOD",
+    "FLOOR_FRACTION",
     "METHODS",
+    "MIN_CLARITY",
     "RolledPrint",
+    "clarity_map",
     "fit_flattening",
     "image_up_direction",
     "map_distortion",
+    "mix_layers",
     "unroll_scans",
 ]

@@ -118,10 +118,17 @@ class _AxisMap:
 class CylinderMap(_AxisMap):
     """Unrolling on a circular cylinder: ``s = R θ``, ``t`` along the axis (thesis, chapter five).
 
-    `center` is a point on the axis (the origin of ``t``); see :class:`_AxisMap`.
+    `center` is a point on the axis (the origin of ``t``); see :class:`_AxisMap`. `taper` is
+    the fitted cone's ``dR/dt`` (the radius at ``t`` is ``radius + taper · t``,
+    :func:`fit_cylinder`); the thesis's map itself uses the constant `radius`.
     """
 
+    taper: float = 0.0
     name = "cylinder"
+
+    def describe(self) -> dict:
+        """JSON-ready parameters."""
+        return {**super().describe(), "taper": round(float(self.taper), 6)}
 
     def angles(self, xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``θ`` (rad, 0 on the pad), ``t`` (mm along the axis) and the radius (mm) of points."""
@@ -297,11 +304,12 @@ def _check_points(xyz) -> np.ndarray:
 
 def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0, 1.0),
                  n_max: int = 20000) -> CylinderMap:
-    """Least-squares circular cylinder through surface points.
+    """Least-squares circular cone (a cylinder that may taper) through surface points.
 
     The axis starts as the principal direction of the points, turned towards `tip_direction`,
-    and is refined with the centre and radius by minimising ``Σ (ρ_i − R)²`` (ρ the distance
-    to the axis; Levenberg–Marquardt on a random subset of `n_max` points).
+    and is refined with the centre, radius and taper by minimising ``Σ (ρ_i − R − τ t_i)²``
+    (ρ the distance to the axis, ``t`` the position along it; Levenberg–Marquardt on a random
+    subset of `n_max` points), then again on the finger's body alone.
 
     Parameters
     ----------
@@ -342,17 +350,20 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
 
     def residual(p):
         a, c = unpack(p)
-        # ρ − R, compiled (ρ = |d − (d·a) a|)
-        return axis_distance(pts - c, a, p[4])
+        # ρ − R(z), compiled (ρ = |d − (d·a) a|); R(z) = R + τ z: a cone, since fingers taper
+        # (a circular cylinder fitted to one side of a cone tilts its axis towards the pad,
+        # and sections oblique to the finger shear the print by several per cent)
+        d = pts - c
+        return axis_distance(d, a, p[4]) - p[5] * (d @ a)
 
     d = pts - centroid
     r0 = float(np.median(np.linalg.norm(d - np.outer(d @ a0, a0), axis=1)))
     # start behind the pad: the centroid of a one-sided scan lies in front of the axis
-    p0 = np.array([0.0, 0.0, 0.0, -0.3 * r0, r0])
+    p0 = np.array([0.0, 0.0, 0.0, -0.3 * r0, r0, 0.0])
     fit = scipy.optimize.least_squares(residual, p0, method="lm")
-    # the tip's cap tilts a cylinder fitted to the whole finger, and a tilted axis shears the
-    # unrolled print: fit again to the body only, the sections whose radius is that of the
-    # finger's body (within 6 % of the median section radius)
+    # the tip's cap tilts a cone fitted to the whole finger, and a tilted axis shears the
+    # unrolled print: fit again to the body only, the 1 mm sections whose radius is within 6 %
+    # of the line fitted (robustly) to the sections' radii along the axis
     a, c = unpack(fit.x)
     d = pts - c
     along = d @ a
@@ -360,16 +371,39 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
     slab = np.floor((along - along.min()) / 1.0).astype(np.intp)  # 1 mm sections
     r_slab = np.array([np.median(rho[slab == k]) if np.any(slab == k) else np.nan
                        for k in range(slab.max() + 1)])
-    body = np.abs(r_slab - np.nanmedian(r_slab)) <= 0.06 * np.nanmedian(r_slab)
+    body = _body_sections(r_slab)
     keep = body[slab]
     if keep.sum() >= 100 and keep.mean() < 0.98:
         pts = pts[keep]
         fit = scipy.optimize.least_squares(residual, fit.x, method="lm")
-    a, c = unpack(fit.x)
-    a = a if np.dot(a, tip) >= 0 else -a
-    c = c + np.dot(centroid - c, a) * a
-    a, n, _ = _frame(a, pad_direction)
-    return CylinderMap(center=c, axis=a, pad=n, radius=float(abs(fit.x[4])))
+    a_fit, c = unpack(fit.x)
+    shift = float(np.dot(centroid - c, a_fit))
+    radius = float(abs(fit.x[4] + fit.x[5] * shift))  # at the new centre
+    c = c + shift * a_fit
+    taper = float(fit.x[5])
+    if np.dot(a_fit, tip) < 0:
+        a_fit, taper = -a_fit, -taper
+    a, n, _ = _frame(a_fit, pad_direction)
+    return CylinderMap(center=c, axis=a, pad=n, radius=radius, taper=taper)
+
+
+def _body_sections(r_slab) -> np.ndarray:
+    """The sections of the finger's body: radius within 6 % of a line through the radii.
+
+    The line is fitted to the sections within 6 % of the median radius, then again to those
+    within 6 % of the line (a tapered body's radius changes along it; the cap's falls fast).
+    """
+    k = np.arange(len(r_slab), dtype=float)
+    ok = np.isfinite(r_slab)
+    med = np.nanmedian(r_slab)
+    body = ok & (np.abs(r_slab - med) <= 0.06 * med)
+    for _ in range(2):
+        if body.sum() < 3:
+            break
+        slope, icpt = np.polyfit(k[body], r_slab[body], 1)
+        line = icpt + slope * k
+        body = ok & (np.abs(r_slab - line) <= 0.06 * np.abs(line))
+    return body
 
 
 def fit_sphere(xyz, *, axis, pad_direction=(0.0, 0.0, 1.0), n_max: int = 20000) -> SphereMap:

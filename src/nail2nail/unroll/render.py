@@ -183,7 +183,8 @@ def camera_samples(scan, signal, weight, flat):
     return flat(xyz), signal[ok], weight[ok]
 
 
-def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
+def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
+            floor_fraction: float = 0.0) -> np.ndarray:
     """8-bit print: ridges dark on white, contrast normalised locally (σ `sigma_px`).
 
     ``I = 127.5 − 90 z`` with ``z`` the locally normalised ridge signal (a sinusoid of unit
@@ -199,6 +200,9 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
         σ of the normalisation window, print px (1 mm by default in :func:`unroll_scans`).
     reduce : int
         Block size of the reduced grid for the averages.
+    floor_fraction : float
+        The local RMS is floored at this fraction of its 80th percentile over the mask (the
+        ridges' level), so that a faint region stays faint (0: no floor).
 
     Returns
     -------
@@ -207,6 +211,10 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1) -> np.ndarray:
     mean = masked_gaussian(value, mask, sigma_px, reduce=reduce)
     d = np.where(mask, value - mean, 0)
     rms = np.sqrt(masked_gaussian(d * d, mask, sigma_px, reduce=reduce))
+    if floor_fraction > 0 and np.any(mask):
+        level = rms[mask & np.isfinite(rms)]
+        if level.size:
+            rms = np.maximum(rms, floor_fraction * float(np.percentile(level, 80)))
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.where(mask, d / np.maximum(rms, 1e-12), 0)
     gray = np.clip(np.rint(127.5 - 90.0 * z), 0, 255)

@@ -108,7 +108,17 @@ def pixel_spacing_mm(xyz, valid) -> float:
     return float(np.median(step))
 
 
-def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.ndarray:
+def _laplacian(a) -> np.ndarray:
+    """Five-point Laplacian over the first two axes (grid units); 0 where a neighbour is NaN
+    or off the grid (no correction there)."""
+    out = np.zeros(a.shape, np.float32)
+    out[1:-1, 1:-1] = (a[:-2, 1:-1] + a[2:, 1:-1] + a[1:-1, :-2] + a[1:-1, 2:]
+                       - 4 * a[1:-1, 1:-1])
+    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1,
+                    curvature: bool = False) -> np.ndarray:
     """Normalised Gaussian average of `values` over the `valid` pixels.
 
     ``G(v · m) / G(m)``: invalid pixels neither contribute nor pull the average to zero. With
@@ -124,6 +134,11 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
         σ in pixels of the full grid.
     reduce : int
         Block size of the reduced grid (1: full resolution).
+    curvature : bool
+        Take back the Gaussian's bias on a curved field, ``(σ²/2) ∇²``, to second order (on
+        the reduced grid): a Gaussian mean of a curved surface lies inside it by about
+        ``σ² / 2R`` (0.04 mm for σ 0.8 mm on a finger of radius 8 mm), and where the curvature
+        changes (the tip's cap, the sides) that bias would print as bands.
 
     Returns
     -------
@@ -156,6 +171,8 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
         ndi.gaussian_filter(v[..., k], s, truncate=3.0, output=num[..., k])
     den = ndi.gaussian_filter(m, s, truncate=3.0)
     out = ratio(num, den)  # where(den > 1e-3, num / den, nan), compiled
+    if curvature:
+        out = out - np.float32(0.5 * s * s) * _laplacian(out)
     if f > 1:
         # block centres sit at (f − 1)/2 + f·i on the full grid
         rows = (np.arange(h, dtype=np.float32) - (f - 1) / 2) / f
@@ -176,7 +193,8 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     return out[..., 0] if squeeze else out
 
 
-def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.ndarray:
+def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
+                    floor_fraction: float = 0.0, floor_percentile: float = 80.0) -> np.ndarray:
     """``(v − mean) / rms`` over a Gaussian window of σ `sigma_px` (valid pixels only).
 
     Parameters
@@ -188,6 +206,12 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     reduce : int
         Block size of the reduced grid the averages are computed on
         (:func:`masked_gaussian`).
+    floor_fraction : float
+        The RMS is floored at this fraction of its `floor_percentile`-th percentile over the
+        valid pixels (the level of the ridges where they are clear): a patch of skin without
+        ridges (noise and scanner errors of a few µm) stays faint instead of being blown up to
+        full contrast. 0 (default): only the rounding floor below.
+    floor_percentile : float
 
     Returns
     -------
@@ -203,6 +227,11 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1) -> np.nd
     # a floor relative to the values' magnitude: a constant field stays 0 instead of its
     # rounding noise being blown up to unit RMS
     floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
+    if floor_fraction > 0 and ok.any():
+        level = np.sqrt(np.percentile(mean_square[ok & np.isfinite(mean_square)],
+                                      floor_percentile)) if np.isfinite(mean_square[ok]).any() \
+            else 0.0
+        floor = max(floor, floor_fraction * float(level))
     # where(valid, d / maximum(sqrt(mean_square), floor), nan), float32
     return normalized(d, mean_square, valid, floor)
 
@@ -258,7 +287,10 @@ def camera_layer(
     feather_px: float = 40.0,
     max_view_angle_deg: float = 75.0,
     valid: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
+    floor_fraction: float = 0.0,
+    curvature: bool = False,
+    separate: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
 
     The ridge signal is the relief ``h = (X − X̄)·n`` from the smooth surface ``X̄`` (σ
@@ -290,6 +322,15 @@ def camera_layer(
         merging rejects pairs beyond 70° for the same reason). Needs ``camera_center``.
     valid : (H, W) bool, optional
         ``scan_valid(scan)`` when the caller has it already (not checked).
+    floor_fraction : float
+        RMS floor of the local normalisations, as a fraction of the ridges' level
+        (:func:`local_normalize`; 0: none): skin without ridges stays faint.
+    curvature : bool
+        Take the smooth surface's curvature bias back (:func:`masked_gaussian`).
+    separate : bool
+        Return the relief and albedo signals apart (``relief, albedo, weight``; ``albedo``
+        None when `albedo_weight` is 0), for a blend that weighs them by their measured
+        clarity (:func:`nail2nail.unroll.mixing.mix_layers`).
 
     Returns
     -------
@@ -316,7 +357,7 @@ def camera_layer(
     spacing = pixel_spacing_mm(xyz, m)
     sigma = surface_sigma_mm / spacing
     reduce = max(1, int(sigma // 3))
-    smooth = masked_gaussian(xyz, m, sigma, reduce=reduce)
+    smooth = masked_gaussian(xyz, m, sigma, reduce=reduce, curvature=curvature)
     if min(m.shape) >= 2:
         # normals (oriented towards the camera), viewing cosine and relief in one pass
         cos, relief, finite = surface_relief(smooth, xyz, scan.camera_center)
@@ -335,7 +376,19 @@ def camera_layer(
             relief, albedo = both[..., 0], both[..., 1]
     csig = contrast_sigma_mm / spacing
     creduce = max(1, int(csig // 4))
-    signal = local_normalize(relief, m, csig, reduce=creduce)
+    floor = {"floor_fraction": floor_fraction}
+    signal = local_normalize(relief, m, csig, reduce=creduce, **floor)
+    if separate:
+        weight_args = (np.asarray(scan.modulation[box], np.float32), cos,
+                       _feather(m, feather_px, max(1, reduce // 2)), m)
+        cos_min = np.cos(np.radians(max_view_angle_deg))
+        relief_out, weight = layer_outputs(*weight_args, signal, cos_min, box, valid.shape)
+        albedo_out = None
+        if albedo is not None:
+            albedo_out, _ = layer_outputs(
+                *weight_args, local_normalize(albedo, m, csig, reduce=creduce, **floor),
+                cos_min, box, valid.shape)
+        return relief_out, albedo_out, weight
     if albedo is not None:
         # both parts have unit local RMS: the sum is brought back to about unit RMS (the grey
         # print is normalised again on the print grid)

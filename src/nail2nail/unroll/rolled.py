@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._timing import StepClock
-from ..io.rolled import ROLLED_FORMAT
+from ..io.rolled import ROLLED_FORMAT, ROLLED_LENGTH_MM
 from ..reconstruction import Scan
 from .flatten import METHODS, fit_flattening, map_distortion
+from .mixing import clarity_map, gate_mask, mix_layers
 from .quality import block_quality
 from .render import (
     PrintGrid,
@@ -32,6 +33,18 @@ __all__ = ["DEFAULT_METHOD", "RolledPrint", "image_up_direction", "unroll_scans"
 
 #: The default unrolling method: the one with the least length and area distortion (README).
 DEFAULT_METHOD = "rolled"
+
+#: Length of skin kept below the fingertip by default, mm (:data:`~nail2nail.io.rolled.
+#: ROLLED_LENGTH_MM`)
+DEFAULT_LENGTH_MM = ROLLED_LENGTH_MM
+
+#: RMS floor of the ridge signal's local normalisations, as a fraction of the ridges' level
+#: (``unroll.ridges.local_normalize``): skin without ridges stays faint, not blown up
+FLOOR_FRACTION = 0.35
+
+#: Print pixels whose ridge clarity (2.4 mm blocks, ``unroll.mixing.clarity_map``) is below
+#: this are left out of the print (masked, white): no ridges there to print
+MIN_CLARITY = 0.3
 
 
 @dataclass
@@ -125,6 +138,8 @@ class RolledPrint:
                 "clarity_p10": _r(np.percentile(clarity, 10)) if clarity.size else None,
                 "ridge_period_mm_median": _r(np.median(period) * pitch) if period.size else None,
                 "regions": _region_quality(q, self.share, self.cameras),
+                "mixing": q.get("mixing"),
+                "gate": q.get("gate"),
             },
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
         }
@@ -225,7 +240,9 @@ def unroll_scans(
     ridge_options: dict | None = None,
     feather_px: float = 40.0,
     grid_mm: float = 0.5,
-    length_mm: float | None = None,
+    length_mm: float | None = DEFAULT_LENGTH_MM,
+    mix: bool = True,
+    min_clarity: float | None = MIN_CLARITY,
 ) -> RolledPrint:
     """Unroll a finger scanned by one or more cameras into a rolled-equivalent print.
 
@@ -254,10 +271,20 @@ def unroll_scans(
         Width of each camera's cross-fade at the edge of its valid region, camera px.
     grid_mm : float
         Cell size of the coarse mesh the flattening is fitted and judged on, mm.
-    length_mm : float, optional
-        Keep only the skin within this distance (print-plane ``t``) below the fingertip, as a
-        rolled-print card box does (about 25 mm reaches the distal crease of an adult finger);
-        default: everything the cameras saw.
+    length_mm : float or None
+        Keep only the skin within this distance (print-plane ``t``) below the fingertip, as an
+        inked roll does: :data:`DEFAULT_LENGTH_MM` (25 mm reaches the distal crease of an
+        adult finger); None keeps everything the cameras saw.
+    mix : bool
+        Blend relief and albedo apart and average them by their measured ridge clarity, the
+        albedo's sign measured (:func:`~nail2nail.unroll.mixing.mix_layers`); normalise with
+        an RMS floor (``FLOOR_FRACTION`` of the ridges' level) and take the smooth surface's
+        curvature bias back. False: the fixed sum of earlier versions (relief + 0.3 × albedo,
+        no floor), for comparison.
+    min_clarity : float or None
+        Leave out of the print (mask) the pixels whose ridge clarity is below this
+        (:func:`~nail2nail.unroll.mixing.clarity_map`, 2.4 mm blocks): skin without ridges
+        signal is not printed as noise or stripes. None: keep every pixel with data.
 
     Returns
     -------
@@ -304,23 +331,60 @@ def unroll_scans(
     flat, mesh = fit_flattening(points, method, tip_direction=tip_direction,
                                 pad_direction=pad_direction, grid_mm=grid_mm)
     lap("flatten")
-    layers = [camera_layer(s, feather_px=feather_px, valid=v, **(ridge_options or {}))
+    options = dict(ridge_options or {})
+    if mix:
+        options = {"floor_fraction": FLOOR_FRACTION, "curvature": True, **options}
+    layers = [camera_layer(s, feather_px=feather_px, valid=v, separate=mix, **options)
               for s, v in zip(scans, valids, strict=True)]
     lap("ridges")
-    samples = [camera_samples(s, sig, wt, flat) for s, (sig, wt) in zip(scans, layers, strict=True)]
+    samples, albedo_samples = [], []
+    for s, layer in zip(scans, layers, strict=True):
+        sig, wt = layer[0], layer[-1]
+        samples.append(camera_samples(s, sig, wt, flat))
+        if mix and layer[1] is not None:
+            ok = (wt > 0) & np.isfinite(sig)  # the samples' pixels, row-major
+            st, _, w = samples[-1]
+            albedo_samples.append((st, np.nan_to_num(layer[1][ok]), w))
     grid = print_grid([st for st, _, _ in samples], ppi=ppi)
     # the outline smoothed over about one ridge period (0.5 mm)
     value, mask, share = blend_cameras(grid, samples, edge_sigma_px=0.25 / grid.pitch)
+    albedo = None
+    if albedo_samples and len(albedo_samples) == len(samples):
+        albedo, _, _ = blend_cameras(grid, albedo_samples, edge_sigma_px=0.25 / grid.pitch)
     lap("blend")
     if not mask.any():
         raise ValueError("scans: the print has no pixel with data")
     if length_mm is not None:
         grid, value, mask, share = _cut_length(grid, value, mask, share, length_mm)
+        if albedo is not None:
+            albedo = albedo[:mask.shape[0]]
     pitch = grid.pitch
-    image = to_gray(value, mask, sigma_px=1.0 / pitch, reduce=max(1, int(0.25 / pitch)))
+    mixing = None
+    if mix:
+        value, mixing = mix_layers(value, albedo, mask, pitch)
+    lap("mix")
+    gray_options = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
+    if mix:
+        gray_options["floor_fraction"] = FLOOR_FRACTION
+    image = to_gray(value, mask, **gray_options)
+    gated = None
+    if min_clarity is not None:
+        clarity = clarity_map(image, mask, pitch)
+        kept = gate_mask(clarity, mask, min_clarity=min_clarity,
+                         min_area_px=round(4.0 / pitch**2))  # pieces under 4 mm² dropped
+        gated = {"min_clarity": min_clarity,
+                 "masked_fraction": round(1 - float(kept.sum()) / max(int(mask.sum()), 1), 4)}
+        if kept.any():
+            mask = kept
+            value = np.where(mask, value, np.nan).astype(np.float32)
+            share = share * mask
+            image = np.where(mask, image, 255).astype(np.uint8)
     binary = binarize(image, mask, period_px=0.48 / pitch)
     lap("render")
     quality = block_quality(image, mask, block_px=round(3.2 / pitch))
+    quality["mixing"] = None if mixing is None else {
+        "albedo_share": round(mixing["albedo_share"], 4)}
+    quality["gate"] = gated
     distortion = map_distortion(flat, mesh)
     lap("quality")
     return RolledPrint(image=image, mask=mask, binary=binary, ridge=value, share=share,
