@@ -81,3 +81,112 @@ def test_rms_floor_keeps_a_flat_patch_faint():
     assert np.std(floored[:, :90]) == pytest.approx(np.std(plain[:, :90]), rel=0.05)
     gray = to_gray(v, valid, sigma_px=20.0, reduce=2, floor_fraction=0.35)
     assert np.std(gray[:, 150:]) < 0.25 * np.std(gray[:, :90])
+
+
+# -- end to end: skin without ridges, and a scanner's periodic phase error ------------------
+@pytest.fixture(scope="module")
+def patch_finger():
+    """A virtual finger (half resolution) wearing a 9 × 12 mm patch of ridges, flat skin
+    around it; its scans, the true (u, v) of every camera pixel, and the patch's extent."""
+    from nail2nail.io.calibration import RigCalibration
+    from nail2nail.io.capture import Capture
+    from nail2nail.scanning import scan_capture
+    from nail2nail.simulation.capture import simulate
+    from nail2nail.simulation.rig import default_rig, ideal_calibration
+    from nail2nail.simulation.scenes import make_scene
+
+    rows, cols = np.mgrid[:236, :177]  # 12 × 9 mm at 500 ppi
+    image = np.uint8(127.5 + 127 * np.cos(2 * np.pi * (rows + 0.2 * cols) * PITCH / 0.5))
+    rig = default_rig(0.5)
+    scene = make_scene("finger", rig=rig, seed=1, print_image=image)
+    sim = simulate(scene, rig=rig, seed=1)
+    names = list(sim.frames)
+    capture = Capture(path=None, manifest={"cameras": [{"name": n} for n in names],
+                                           "bit_depth": 8},
+                      pattern_set=sim.pattern_set,
+                      frames={n: sim.frames[n].astype(np.float32) / np.float32(255)
+                              for n in names})
+    scans = scan_capture(capture, RigCalibration.from_dict(ideal_calibration(rig)))
+    uv = [(sim.geometry[s.name].params["u"], sim.geometry[s.name].params["v"]) for s in scans]
+    u0, v0 = scene.pad_center
+    # distance of each camera pixel's skin from the patch (4.5 × 6 mm half sides), mm
+    away = [np.maximum(np.abs(u - u0) - 4.5, np.abs(v - v0) - 6.0) for u, v in uv]
+    inside = [a < -0.5 for a in away]
+    # 1 mm out: the amplitude's 1 mm window reaches about as far into the flat skin (a rim of
+    # faint skin stays around the ridges)
+    outside = [a > 1.0 for a in away]
+    return scans, inside, outside, away
+
+
+@pytest.mark.parametrize("error_um", [0.0, 3.0])
+def test_skin_without_ridges_is_left_out_never_striped(patch_finger, error_um):
+    """The flat skin around a patch of ridges is left out of the print, the ridges kept; also
+    when the scanner adds a periodic error of a few µm along the normal, with the fringes'
+    period (20 projector px), which a print normalised without a floor or a clarity mask
+    printed as stripes at full contrast."""
+    import copy
+
+    from nail2nail.unroll import unroll_scans
+
+    scans, inside, outside, _ = patch_finger
+    if error_um:
+        scans = copy.deepcopy(scans)
+        for s in scans:
+            toward = np.asarray(s.camera_center, np.float32) - s.xyz
+            toward /= np.linalg.norm(toward, axis=-1, keepdims=True)
+            wave = np.float32(error_um * 1e-3) * np.sin(2 * np.pi * s.xp / 20.0)
+            s.xyz += toward * wave[..., None]
+    rolled = unroll_scans(scans, length_mm=None)
+    ungated = unroll_scans(scans, length_mm=None, min_clarity=None)  # the same grid
+    before = unroll_scans(scans, length_mm=None, mix=False, min_clarity=None)
+    # the flat skin away from the print's outer rim (1.5 mm: there the 1 mm windows of the
+    # normalisations are cut by the edge, and only grazing views saw the skin; the rim is
+    # measured below, not required)
+    import scipy.ndimage as ndi
+
+    interior = ndi.distance_transform_edt(ungated.mask) * PITCH > 1.5
+    flat = _landing(rolled, scans, outside) & interior
+    ridged = _landing(rolled, scans, inside)
+    assert flat.sum() > 20000 and ridged.sum() > 20000
+    kept_flat = rolled.mask[flat].mean()
+    assert kept_flat < 0.01, kept_flat
+    assert rolled.mask[ridged].mean() > 0.9
+    # what is left of the flat skin is faint or unclear: never clear ridges at full contrast
+    q = clarity_map(rolled.image, rolled.mask, PITCH)
+    left = flat & rolled.mask
+    if left.any():
+        assert np.nanmedian(q[left]) < 0.9
+    # the earlier fixed blend printed all the flat skin, and the error as clear stripes
+    flat_before = _landing(before, scans, outside) \
+        & (ndi.distance_transform_edt(before.mask) * PITCH > 1.5)
+    assert before.mask[flat_before].mean() > 0.95
+    if error_um:
+        qb = clarity_map(before.image, before.mask, PITCH)
+        assert np.nanmedian(qb[flat_before]) > 0.5
+
+
+def _landing(rolled, scans, select):
+    """The print pixels that the selected camera pixels land on."""
+    hits = np.zeros(rolled.mask.shape, bool)
+    for scan, sel in zip(scans, select, strict=True):
+        ok = sel & scan.mask
+        r, c = rolled.pixel_of(np.asarray(scan.xyz, np.float64)[ok])
+        r, c = np.rint(r).astype(int), np.rint(c).astype(int)
+        keep = (r >= 0) & (r < hits.shape[0]) & (c >= 0) & (c < hits.shape[1])
+        hits[r[keep], c[keep]] = True
+    return hits
+
+
+def test_cli_refuses_a_bad_clarity_before_reading(tmp_path, capsys):
+    from nail2nail.cli import main
+
+    for value in ("1.5", "-0.1", "nan"):
+        assert main(["unroll", str(tmp_path / "missing"), "--out", str(tmp_path / "o"),
+                     "--min-clarity", value]) == 2
+        err = capsys.readouterr().err
+        assert "--min-clarity" in err and "missing" not in err
+    assert not (tmp_path / "o").exists()
+    # --length and --full-length are one choice
+    with pytest.raises(SystemExit):
+        main(["unroll", str(tmp_path), "--out", str(tmp_path / "o"), "--length", "20",
+              "--full-length"])

@@ -143,8 +143,9 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
         "albedo_share": share}
 
 
-def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0) -> np.ndarray:
-    """`mask` less the pixels whose clarity is below `min_clarity`; the largest piece kept.
+def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0,
+              min_share: float = 0.25) -> np.ndarray:
+    """`mask` less the pixels whose clarity is below `min_clarity`; the large pieces kept.
 
     Parameters
     ----------
@@ -155,6 +156,10 @@ def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0) -> np.
     min_area_px : int
         Pieces of the remaining mask smaller than this are dropped as well (the largest is
         always kept).
+    min_share : float
+        So are pieces smaller than this fraction of the largest (a print is one piece of skin,
+        or a few large ones parted by a scar or a crease; strips along the scan's edge are
+        not).
 
     Returns
     -------
@@ -165,7 +170,7 @@ def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0) -> np.
     if n > 1:
         sizes = np.bincount(label.ravel())
         sizes[0] = 0
-        big = sizes >= min_area_px
+        big = sizes >= max(min_area_px, min_share * sizes.max())
         big[sizes.argmax()] = True
         big[0] = False
         keep = big[label]

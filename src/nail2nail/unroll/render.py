@@ -201,7 +201,7 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
     reduce : int
         Block size of the reduced grid for the averages.
     floor_fraction : float
-        The local RMS is floored at this fraction of its 80th percentile over the mask (the
+        The local RMS is floored at this fraction of its 90th percentile over the mask (the
         ridges' level), so that a faint region stays faint (0: no floor).
 
     Returns
@@ -214,7 +214,7 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
     if floor_fraction > 0 and np.any(mask):
         level = rms[mask & np.isfinite(rms)]
         if level.size:
-            rms = np.maximum(rms, floor_fraction * float(np.percentile(level, 80)))
+            rms = np.maximum(rms, floor_fraction * float(np.percentile(level, 90)))
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.where(mask, d / np.maximum(rms, 1e-12), 0)
     gray = np.clip(np.rint(127.5 - 90.0 * z), 0, 255)

@@ -193,8 +193,19 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1,
     return out[..., 0] if squeeze else out
 
 
+def _weighted_percentile(x, w, q: float) -> float:
+    """The `q`-th percentile of `x` with weights `w` (the smallest x whose weight below reaches
+    q %)."""
+    order = np.argsort(x)
+    cw = np.cumsum(w[order])
+    if not cw[-1] > 0:
+        return float(np.percentile(x, q))
+    return float(x[order][min(np.searchsorted(cw, q / 100 * cw[-1]), len(x) - 1)])
+
+
 def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
-                    floor_fraction: float = 0.0, floor_percentile: float = 80.0) -> np.ndarray:
+                    floor_fraction: float = 0.0, floor_percentile: float = 90.0,
+                    level_weights=None) -> np.ndarray:
     """``(v − mean) / rms`` over a Gaussian window of σ `sigma_px` (valid pixels only).
 
     Parameters
@@ -212,6 +223,9 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
         ridges (noise and scanner errors of a few µm) stays faint instead of being blown up to
         full contrast. 0 (default): only the rounding floor below.
     floor_percentile : float
+    level_weights : (H, W) float, optional
+        Weights of the pixels in that percentile (the blending weight's viewing factor, so that
+        grazing pixels and the scan's edge do not set the ridges' level).
 
     Returns
     -------
@@ -227,10 +241,12 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
     # a floor relative to the values' magnitude: a constant field stays 0 instead of its
     # rounding noise being blown up to unit RMS
     floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
-    if floor_fraction > 0 and ok.any():
-        level = np.sqrt(np.percentile(mean_square[ok & np.isfinite(mean_square)],
-                                      floor_percentile)) if np.isfinite(mean_square[ok]).any() \
-            else 0.0
+    use = ok & np.isfinite(mean_square)
+    if floor_fraction > 0 and use.any():
+        w = np.ones(int(use.sum())) if level_weights is None \
+            else np.nan_to_num(np.asarray(level_weights, np.float64)[use])
+        level = np.sqrt(_weighted_percentile(mean_square[use].astype(np.float64), w,
+                                             floor_percentile))
         floor = max(floor, floor_fraction * float(level))
     # where(valid, d / maximum(sqrt(mean_square), floor), nan), float32
     return normalized(d, mean_square, valid, floor)
@@ -289,6 +305,7 @@ def camera_layer(
     valid: np.ndarray | None = None,
     floor_fraction: float = 0.0,
     curvature: bool = False,
+    highpass_mm: float = 0.0,
     separate: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
@@ -327,6 +344,11 @@ def camera_layer(
         (:func:`local_normalize`; 0: none): skin without ridges stays faint.
     curvature : bool
         Take the smooth surface's curvature bias back (:func:`masked_gaussian`).
+    highpass_mm : float
+        Subtract the signals' normalised Gaussian of this σ, mm (0: none): a band-pass to the
+        ridges' periods that keeps ridges (0.993 of a 0.7 mm period at σ 0.35 mm) and removes
+        most of longer ones, the scanner's periodic errors of a few mm and the shading's bands
+        (0.27 of a 2.8 mm period).
     separate : bool
         Return the relief and albedo signals apart (``relief, albedo, weight``; ``albedo``
         None when `albedo_weight` is 0), for a blend that weighs them by their measured
@@ -374,9 +396,19 @@ def camera_layer(
             # one pass for both (the normalising weight G(m) computed once)
             both = masked_gaussian(np.stack([relief, albedo], -1), m, noise_sigma_mm / spacing)
             relief, albedo = both[..., 0], both[..., 1]
+    if highpass_mm > 0:
+        hsig = highpass_mm / spacing
+        hreduce = max(1, int(hsig // 4))
+        if albedo is None:
+            relief = relief - masked_gaussian(relief, m, hsig, reduce=hreduce)
+        else:
+            both = np.stack([relief, albedo], -1)
+            both = both - masked_gaussian(both, m, hsig, reduce=hreduce)
+            relief, albedo = both[..., 0], both[..., 1]
     csig = contrast_sigma_mm / spacing
     creduce = max(1, int(csig // 4))
-    floor = {"floor_fraction": floor_fraction}
+    # the ridges' level: pixels weighed by cos² of their viewing angle (not the grazing edge)
+    floor = {"floor_fraction": floor_fraction, "level_weights": np.nan_to_num(cos) ** 2}
     signal = local_normalize(relief, m, csig, reduce=creduce, **floor)
     if separate:
         weight_args = (np.asarray(scan.modulation[box], np.float32), cos,

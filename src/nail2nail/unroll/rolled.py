@@ -27,7 +27,7 @@ from .render import (
     print_grid,
     to_gray,
 )
-from .ridges import camera_layer, scan_valid
+from .ridges import camera_layer, masked_gaussian, scan_valid
 
 __all__ = ["DEFAULT_METHOD", "RolledPrint", "image_up_direction", "unroll_scans"]
 
@@ -40,7 +40,19 @@ DEFAULT_LENGTH_MM = ROLLED_LENGTH_MM
 
 #: RMS floor of the ridge signal's local normalisations, as a fraction of the ridges' level
 #: (``unroll.ridges.local_normalize``): skin without ridges stays faint, not blown up
-FLOOR_FRACTION = 0.35
+FLOOR_FRACTION = 0.5
+
+#: The grey print's RMS floor, as a fraction of the (already normalised) signal's level: the
+#: print equalises the blend's contrast without lifting what the camera layers left faint
+GRAY_FLOOR_FRACTION = 0.8
+
+#: σ of the ridge signal's high-pass, mm (``unroll.ridges.camera_layer``): periods of a few mm
+#: (the scanner's periodic errors, shading bands) are not ridges
+HIGHPASS_MM = 0.35
+
+#: Print pixels whose ridge signal's local RMS (of the normalised signal, 1 mm) is below this
+#: are left out: a faint region carries no ridges (the RMS floor keeps such regions faint)
+MIN_AMPLITUDE = 0.5
 
 #: Print pixels whose ridge clarity (2.4 mm blocks, ``unroll.mixing.clarity_map``) is below
 #: this are left out of the print (masked, white): no ridges there to print
@@ -333,7 +345,8 @@ def unroll_scans(
     lap("flatten")
     options = dict(ridge_options or {})
     if mix:
-        options = {"floor_fraction": FLOOR_FRACTION, "curvature": True, **options}
+        options = {"floor_fraction": FLOOR_FRACTION, "curvature": True,
+                   "highpass_mm": HIGHPASS_MM, **options}
     layers = [camera_layer(s, feather_px=feather_px, valid=v, separate=mix, **options)
               for s, v in zip(scans, valids, strict=True)]
     lap("ridges")
@@ -365,11 +378,17 @@ def unroll_scans(
     lap("mix")
     gray_options = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
     if mix:
-        gray_options["floor_fraction"] = FLOOR_FRACTION
+        gray_options["floor_fraction"] = GRAY_FLOOR_FRACTION
     image = to_gray(value, mask, **gray_options)
     gated = None
     if min_clarity is not None:
         clarity = clarity_map(image, mask, pitch)
+        if mix:
+            # faint: the RMS floor kept it so (no ridges' worth of signal); counts as unclear
+            z = np.where(mask, (127.5 - image.astype(np.float32)) / 90.0, 0.0)
+            amplitude = np.sqrt(masked_gaussian(z * z, mask, 1.0 / pitch,
+                                                reduce=max(1, int(0.25 / pitch))))
+            clarity = np.where(amplitude >= MIN_AMPLITUDE, clarity, 0.0)
         kept = gate_mask(clarity, mask, min_clarity=min_clarity,
                          min_area_px=round(4.0 / pitch**2))  # pieces under 4 mm² dropped
         gated = {"min_clarity": min_clarity,
