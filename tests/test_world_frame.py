@@ -322,8 +322,11 @@ def test_camera_centred_calibration_unrolls_upright_by_default(finger, tmp_path,
                       for n in ("world", "cam0"))
     assert a.shape == b.shape
     # the same print but for rounding: the points are triangulated in another frame, then
-    # stored as float32. Measured: 24 of 311780 mask pixels differ; inside both masks 3607
-    # pixels by 1 grey level and 12 by 2, none by more. Upside down, nothing would match.
+    # stored as float32. Measured: the masks agree; of 180631 pixels 18437 differ by 1 grey
+    # level, 50 by 2 and 3 by 3 (the clarity-weighted blend and the RMS floors use levels of
+    # the whole print, which move a little with every pixel's rounding; the fixed blend of
+    # earlier versions differed by 1 at 1.2 % of its pixels). Upside down, nothing would match.
     diff = np.abs(a - b)[mask_a & mask_b]
     assert np.count_nonzero(mask_a != mask_b) <= 1e-4 * mask_a.size
-    assert diff.max() <= 2 and np.count_nonzero(diff) <= 0.02 * diff.size
+    assert diff.max() <= 3 and np.count_nonzero(diff >= 2) <= 1e-3 * diff.size
+    assert np.count_nonzero(diff) <= 0.15 * diff.size
