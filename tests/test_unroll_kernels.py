@@ -83,7 +83,7 @@ def ref_masked_gaussian(values, valid, sigma_px, *, reduce=1, curvature=False):
 
 
 def ref_local_normalize(values, valid, sigma_px, *, reduce=1, floor_fraction=0.0,
-                        floor_percentile=80.0):
+                        floor_percentile=90.0, level_weights=None):
     """``local_normalize`` as it was before the compiled steps (with the RMS floor)."""
     v = np.where(valid, values, np.nan).astype(np.float32)
     mean = ref_masked_gaussian(v, valid, sigma_px, reduce=reduce)
@@ -92,9 +92,12 @@ def ref_local_normalize(values, valid, sigma_px, *, reduce=1, floor_fraction=0.0
     mean_square = ref_masked_gaussian(d * d, ok, sigma_px, reduce=reduce)
     rms = np.sqrt(mean_square)
     floor = 1e-4 * float(np.nanmean(np.abs(v))) + 1e-12 if valid.any() else 1e-12
-    if floor_fraction > 0 and np.isfinite(mean_square[ok]).any():
-        level = np.sqrt(np.percentile(mean_square[ok & np.isfinite(mean_square)],
-                                      floor_percentile))
+    use = ok & np.isfinite(mean_square)
+    if floor_fraction > 0 and use.any():
+        w = np.ones(int(use.sum())) if level_weights is None \
+            else np.nan_to_num(np.asarray(level_weights, np.float64)[use])
+        level = np.sqrt(ridges._weighted_percentile(mean_square[use].astype(np.float64), w,
+                                                    floor_percentile))
         floor = max(floor, floor_fraction * float(level))
     with np.errstate(invalid="ignore", divide="ignore"):
         out = d / np.maximum(rms, floor)

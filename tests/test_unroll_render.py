@@ -407,3 +407,21 @@ def test_masked_gaussian_reduced_keeps_float32():
     values = np.ones((40, 50), np.float32)
     out = masked_gaussian(values, np.ones(values.shape, bool), 6.0, reduce=2)
     assert out.dtype == np.float32
+
+
+def test_blend_cameras_keeps_a_large_piece_parted_by_a_gap():
+    """A band of skin without samples parts the print: the smaller piece stays if it is large
+    (a tip's cap beyond a shadow line), specks go."""
+    grid = PrintGrid(10.0, 10.0, 0.05, (400, 400))
+    rng = np.random.default_rng(3)
+    st = rng.uniform(-9.9, 9.9, (400_000, 2))
+    st = st[np.abs(st[:, 1] - 4.0) > 1.0]  # a 2 mm band without data: pieces of 6 and 12 mm
+    speck = rng.uniform(-9.0, -8.8, (400, 2))  # 0.2 mm square, apart from both
+    speck[:, 1] += 13.0
+    st = np.concatenate([st[st[:, 1] < 3.0], st[st[:, 1] > 5.0], speck])
+    _, mask, _ = blend_cameras(grid, [(st, np.ones(len(st)), np.ones(len(st)))])
+    t = grid.plane(*np.nonzero(mask))[:, 1]
+    assert (t > 5.5).sum() > 0.3 * (t < 2.5).sum()  # the smaller piece kept
+    assert not ((t > 3.5) & (t < 4.5)).any()  # the gap stays a gap
+    s = grid.plane(*np.nonzero(mask))[:, 0]
+    assert not ((s < -8.7) & (t > 3.9) & (t < 4.3)).any()  # the speck dropped

@@ -1,7 +1,8 @@
 """The virtual scanner: rig, scenes, rendering and capture writing (``docs/capture-format.md``).
 
 Modules: :mod:`.rig` (cameras, projector, photometry), :mod:`.scenes` (target, finger, plane,
-sphere, coin, calibration board), :mod:`.fingerprint` (synthetic prints), :mod:`.render`
+sphere, coin, calibration board), :mod:`.fingerprint` (synthetic prints), :mod:`.conditions`
+(random optics, light, skin and finger per seed: many scanners, not one), :mod:`.render`
 (per-camera geometry and frames), :mod:`.capture` (in-memory simulation and capture
 directories), :mod:`.board_poses` (board poses in front of a rig, board capture series).
 """
@@ -14,14 +15,17 @@ from .capture import (
     simulate_capture,
     write_capture,
 )
+from .conditions import RANGES, Conditions, draw_conditions
 from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
 from .rig import Photometry, Rig, default_rig, ideal_calibration, load_rig, save_rig
 from .scenes import SCENES, BoardScene, Scene, make_scene
 
 __all__ = [
+    "RANGES",
     "SCENES",
     "BoardScene",
     "CameraGeometry",
+    "Conditions",
     "Photometry",
     "Rig",
     "Scene",
@@ -29,6 +33,7 @@ __all__ = [
     "board_poses",
     "camera_geometry",
     "default_rig",
+    "draw_conditions",
     "ideal_calibration",
     "load_pattern_dir",
     "load_rig",

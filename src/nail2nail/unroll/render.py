@@ -105,7 +105,8 @@ def _splat(grid: PrintGrid, st, values, weights):
 
 
 def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
-                  min_support: float = 0.3, edge_sigma_px: float = 0.0):
+                  min_support: float = 0.3, edge_sigma_px: float = 0.0,
+                  min_piece: float = 0.1):
     """Blend per-camera samples ``(st (N, 2), value (N,), weight (N,))`` on the print grid.
 
     Parameters
@@ -157,9 +158,14 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
         mask &= den_s > 1e-9 * max(float(den_s.max()), 1e-300)
     label, n = ndi.label(mask)
     if n > 1:
+        # specks go; a large piece stays: a band of skin no camera decoded (a shadow line
+        # across a tilted finger) can part the tip's cap from the body, and dropping the cap
+        # would cut the print's length from the wrong end
         sizes = np.bincount(label.ravel())
         sizes[0] = 0
-        mask = label == sizes.argmax()
+        keep = sizes >= min_piece * sizes.max()
+        keep[0] = False
+        mask = keep[label]
     with np.errstate(invalid="ignore", divide="ignore"):
         value = np.where(mask, num_s / den_s, np.nan).astype(np.float32)
         total = np.maximum(den_s, 1e-300)
