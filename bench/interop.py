@@ -162,31 +162,54 @@ def det_points(genuine, impostor):
 
 
 def plot_det(path: Path, curves: dict, thresholds: dict) -> None:
+    """Score distributions (genuine and impostor, per variant) and the DET curves."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.2, 4.2), dpi=120)
+    fig, (hist, det) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=110)
+    bins = np.logspace(0, 3.2, 50)
+    for (label, (genuine, impostor)), color in zip(curves.items(), ("C0", "C1"), strict=False):
+        hist.hist(np.maximum(impostor, 1), bins=bins, color=color, alpha=0.35,
+                  label=f"impostor, {label}")
+        hist.hist(np.maximum(genuine, 1), bins=bins, color=color, histtype="step", lw=2,
+                  label=f"genuine, {label}")
+    hist.axvline(40, color="k", ls="--", lw=1, label="threshold 40 (FMR 0.01 %)")
+    hist.set_xscale("log")
+    hist.set_yscale("log")
+    hist.set_xlabel("SourceAFIS score (under 1 drawn at 1)")
+    hist.set_ylabel("comparisons")
+    hist.set_title("scores: unrolled print vs true prints")
+    hist.legend(fontsize=7)
     floor = 1e-4
     for label, (genuine, impostor) in curves.items():
         fmr, fnmr = det_points(np.asarray(genuine), np.asarray(impostor))
-        ax.step(np.maximum(fmr, floor), np.maximum(fnmr, floor), where="post", label=label)
+        det.step(np.maximum(fmr, floor), np.maximum(fnmr, floor), where="post", label=label)
     for label, (fmr, fnmr) in thresholds.items():
-        ax.plot(max(fmr, floor), max(fnmr, floor), "o", label=label)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlim(floor, 1)
-    ax.set_ylim(floor, 1)
-    ax.set_xlabel("false match rate (0 drawn at 1e-4)")
-    ax.set_ylabel("false non-match rate (0 drawn at 1e-4)")
-    ax.set_title("SourceAFIS on unrolled prints, held-out conditions")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
+        det.plot(max(fmr, floor), max(fnmr, floor), "o", label=label)
+    det.set_xscale("log")
+    det.set_yscale("log")
+    det.set_xlim(floor, 1)
+    det.set_ylim(floor, 1)
+    det.set_xlabel("false match rate (0 drawn at 1e-4)")
+    det.set_ylabel("false non-match rate (0 drawn at 1e-4)")
+    det.set_title("DET, held-out conditions")
+    det.grid(True, which="both", alpha=0.3)
+    det.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
+
+
+def replot(results_json: Path, path: Path) -> None:
+    """:func:`plot_det` from a ``results.json`` of an earlier run."""
+    summary = json.loads(results_json.read_text())["summary"]
+    d, b = summary["default"], summary["before"]
+    plot_det(path, {"default": (d["_genuine"], d["_impostor"]),
+                    "before (fixed blend)": (b["_genuine"], b["_impostor"])},
+             {"threshold 40, default": (d["fmr_at_40"], d["fnmr_at_40"])})
 
 
 def score(results: list[dict], out: Path) -> dict:
