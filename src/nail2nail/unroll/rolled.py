@@ -29,7 +29,8 @@ from .render import (
 )
 from .ridges import camera_layer, masked_gaussian, scan_valid
 
-__all__ = ["DEFAULT_METHOD", "RolledPrint", "image_up_direction", "unroll_scans"]
+__all__ = ["DEFAULT_LENGTH_MM", "DEFAULT_METHOD", "FLOOR_FRACTION", "MIN_CLARITY", "RolledPrint",
+           "image_up_direction", "unroll_scans"]
 
 #: The default unrolling method: the one with the least length and area distortion (README).
 DEFAULT_METHOD = "rolled"
@@ -54,7 +55,7 @@ HIGHPASS_MM = 0.35
 #: are left out: a faint region carries no ridges (the RMS floor keeps such regions faint)
 MIN_AMPLITUDE = 0.5
 
-#: Print pixels whose ridge clarity (2.4 mm blocks, ``unroll.mixing.clarity_map``) is below
+#: Print pixels whose ridge clarity (3.2 mm blocks, ``unroll.mixing.clarity_map``) is below
 #: this are left out of the print (masked, white): no ridges there to print
 MIN_CLARITY = 0.3
 
@@ -295,8 +296,10 @@ def unroll_scans(
         no floor), for comparison.
     min_clarity : float or None
         Leave out of the print (mask) the pixels whose ridge clarity is below this
-        (:func:`~nail2nail.unroll.mixing.clarity_map`, 2.4 mm blocks): skin without ridges
-        signal is not printed as noise or stripes. None: keep every pixel with data.
+        (:func:`~nail2nail.unroll.mixing.clarity_map`, 3.2 mm blocks) or whose signal is faint
+        (local RMS of the normalised signal under ``MIN_AMPLITUDE``): skin without a ridge
+        signal is not printed as noise or stripes (the faint test with `mix` only). None: keep
+        every pixel with data.
 
     Returns
     -------
