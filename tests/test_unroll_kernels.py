@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import scipy.ndimage as ndi
 
+from nail2nail._quantile import weighted_quantiles
 from nail2nail.io.calibration import RigCalibration
 from nail2nail.io.capture import Capture
 from nail2nail.scanning import scan_capture
@@ -96,8 +97,7 @@ def ref_local_normalize(values, valid, sigma_px, *, reduce=1, floor_fraction=0.0
     if floor_fraction > 0 and use.any():
         w = np.ones(int(use.sum())) if level_weights is None \
             else np.nan_to_num(np.asarray(level_weights, np.float64)[use])
-        level = np.sqrt(ridges._weighted_percentile(mean_square[use].astype(np.float64), w,
-                                                    floor_percentile))
+        level = np.sqrt(weighted_quantiles(mean_square[use], w, [floor_percentile / 100])[0])
         floor = max(floor, floor_fraction * float(level))
     with np.errstate(invalid="ignore", divide="ignore"):
         out = d / np.maximum(rms, floor)

@@ -154,8 +154,6 @@ def run(args: argparse.Namespace) -> int:
 def _conditions_rig(args, rig):
     """``(Conditions, Rig)``: the conditions drawn from ``--conditions`` and the rig with their
     optics (the given ``--rig``'s geometry, else the default rig's), at ``--scale``."""
-    import dataclasses
-
     from ..simulation.capture import _configure_rig
     from ..simulation.conditions import draw_conditions
 
@@ -164,8 +162,7 @@ def _conditions_rig(args, rig):
         rig = drawn.rig(args.scale or 1.0)
         scale = None
     else:
-        rig = dataclasses.replace(rig, photometry=dataclasses.replace(rig.photometry,
-                                                                      **drawn.photometry))
+        rig = drawn.on_rig(rig)
         scale = args.scale
     return drawn, _configure_rig(rig, scale=scale, projector_distortion=args.projector_distortion)
 

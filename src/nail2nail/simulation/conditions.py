@@ -80,11 +80,16 @@ class Conditions:
     photometry: dict
     finger: dict
 
+    def on_rig(self, rig: Rig) -> Rig:
+        """`rig`'s geometry (cameras, projector, scale) with this condition's optics: its
+        photometry's fields replaced by :attr:`photometry` (the reference distance kept)."""
+        photometry = dataclasses.replace(rig.photometry, **self.photometry)
+        return dataclasses.replace(rig, photometry=photometry)
+
     def rig(self, scale: float = 1.0, *, projector_distortion: str = "thesis") -> Rig:
-        """The default rig's geometry with this condition's optics."""
-        base = default_rig(scale, projector_distortion=projector_distortion)
-        photometry = dataclasses.replace(base.photometry, **self.photometry)
-        return dataclasses.replace(base, photometry=photometry)
+        """:meth:`on_rig` of :func:`~nail2nail.simulation.rig.default_rig` at `scale` (camera
+        resolution, 1 = 1280 × 1024 px) and `projector_distortion` (``"thesis"``, ``"none"``)."""
+        return self.on_rig(default_rig(scale, projector_distortion=projector_distortion))
 
     def finger_options(self, *, print_image=None, print_ppi: float = 500.0) -> dict:
         """Keyword arguments of :func:`~nail2nail.simulation.scenes.make_scene` ``"finger"``;

@@ -99,8 +99,9 @@ class Photometry:
         LCD panel), blurred by `projector_blur_px` only; the camera pixel's footprint on the
         panel is integrated (:func:`~nail2nail.simulation.render.camera_geometry`).
     specular : float
-        Strength of specular highlights (Blinn-Phong, fraction of full scale for a mirror
-        facing the projector at the reference distance; 0: Lambertian skin).
+        Strength of specular highlights (Blinn-Phong: J. F. Blinn, "Models of light
+        reflection for computer synthesized pictures", SIGGRAPH 1977; fraction of full scale
+        for a mirror facing the projector at the reference distance; 0: Lambertian skin).
     specular_exponent : float
         Blinn-Phong exponent (larger: smaller, sharper highlights).
     subsurface_mm : float

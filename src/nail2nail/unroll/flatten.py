@@ -41,6 +41,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from .._interpolate import bilinear
+from .._quantile import weighted_quantiles
 from ._kernels import axis_distance
 
 __all__ = [
@@ -613,13 +614,9 @@ def map_distortion(flat, mesh: SurfaceMesh) -> dict:
 
 
 def _weighted_stats(x, w) -> dict:
-    order = np.argsort(x)
-    cw = np.cumsum(w[order]) / w.sum()
-
-    def q(p):
-        return float(x[order][min(np.searchsorted(cw, p), len(x) - 1)])
-
-    return {"median": round(q(0.5), 5), "p95": round(q(0.95), 5), "max": round(float(x.max()), 5)}
+    median, p95 = weighted_quantiles(x, w, (0.5, 0.95))
+    return {"median": round(float(median), 5), "p95": round(float(p95), 5),
+            "max": round(float(x.max()), 5)}
 
 
 def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0.0),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
+from .._quantile import weighted_quantiles
 from ..reconstruction import Scan
 from ._kernels import (
     block_mean,
@@ -193,16 +194,6 @@ def masked_gaussian(values, valid, sigma_px: float, *, reduce: int = 1,
     return out[..., 0] if squeeze else out
 
 
-def _weighted_percentile(x, w, q: float) -> float:
-    """The `q`-th percentile of `x` with weights `w` (the smallest x whose weight below reaches
-    q %)."""
-    order = np.argsort(x)
-    cw = np.cumsum(w[order])
-    if not cw[-1] > 0:
-        return float(np.percentile(x, q))
-    return float(x[order][min(np.searchsorted(cw, q / 100 * cw[-1]), len(x) - 1)])
-
-
 def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
                     floor_fraction: float = 0.0, floor_percentile: float = 90.0,
                     level_weights=None) -> np.ndarray:
@@ -245,8 +236,7 @@ def local_normalize(values, valid, sigma_px: float, *, reduce: int = 1,
     if floor_fraction > 0 and use.any():
         w = np.ones(int(use.sum())) if level_weights is None \
             else np.nan_to_num(np.asarray(level_weights, np.float64)[use])
-        level = np.sqrt(_weighted_percentile(mean_square[use].astype(np.float64), w,
-                                             floor_percentile))
+        level = np.sqrt(weighted_quantiles(mean_square[use], w, [floor_percentile / 100])[0])
         floor = max(floor, floor_fraction * float(level))
     # where(valid, d / maximum(sqrt(mean_square), floor), nan), float32
     return normalized(d, mean_square, valid, floor)
