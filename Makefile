@@ -34,9 +34,12 @@ browser:
 
 # One process per core, at most 4 (each may hold a scale-0.5 demo in memory); a test file's
 # tests stay on one process so that its module fixtures are built once. Plain `pytest` runs
-# serially.
+# serially. Before the tests: ruff, the architecture contracts (import-linter, pyproject.toml
+# [tool.importlinter]) and the type check (mypy, [tool.mypy]).
 test: $(STAMP) browser
 	$(VENV)/bin/ruff check src tests bench
+	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/mypy
 	$(PY) -m pytest -n auto --maxprocesses 4 --dist loadfile src tests
 
 bench: $(STAMP)

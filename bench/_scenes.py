@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nail2nail.patterns import default_pattern_set, make_patterns
+from nail2nail.scan.patterns import default_pattern_set, make_patterns
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig
 

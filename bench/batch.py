@@ -33,7 +33,7 @@ from pathlib import Path
 
 
 def make_captures(root: Path, scale: float, n: int) -> tuple[list[Path], Path]:
-    from nail2nail.io.calibration import RigCalibration, save_calibration
+    from nail2nail.calibration.files import RigCalibration, save_calibration
     from nail2nail.simulation.capture import simulate_capture
     from nail2nail.simulation.rig import default_rig, ideal_calibration
 

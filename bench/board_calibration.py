@@ -2,8 +2,8 @@
 
 Renders (once) `--poses` captures of a board (:func:`nail2nail.simulation.board_poses
 .simulate_board_captures`, the default rig with the thesis's projector distortion) and a finger
-at the given scale, then calibrates with :func:`nail2nail.calibration.board_views` and
-:func:`nail2nail.calibration.calibrate_board` for each projector model and prints:
+at the given scale, then calibrates with :func:`nail2nail.calibration.observe.board_views` and
+:func:`nail2nail.calibration.board.calibrate_board` for each projector model and prints:
 
 - the board features' detection error (camera px) and the local homographies' projector points'
   error (panel px) against the truth (RMS per coordinate, largest);
@@ -32,14 +32,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nail2nail.boards import BOARD_KINDS, default_board
-from nail2nail.calibration import board_views, calibrate_board
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.board import calibrate_board
+from nail2nail.calibration.boards import BOARD_KINDS, default_board
+from nail2nail.calibration.files import RigCalibration
+from nail2nail.calibration.observe import board_views
 from nail2nail.io.capture import read_capture, read_truth
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
 from nail2nail.simulation.board_poses import simulate_board_captures
 from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
 
 
 def render(work: Path, *, scale: float, n_poses: int, kind: str) -> list[Path]:
@@ -129,7 +130,7 @@ def main() -> None:
     work = work / f"scale-{args.scale:g}"
     print(f"captures in {work}")
     poses = render(work, scale=args.scale, n_poses=args.poses, kind=args.board)
-    rig = read_capture(poses[0], load=False).rig()
+    rig = Rig.from_capture(read_capture(poses[0], load=False))
     board = default_board(args.board)
     t0 = time.perf_counter()
     captures = board_views(poses, board)

@@ -33,17 +33,18 @@ from pathlib import Path
 import numpy as np
 from _scenes import render_scenes
 
-from nail2nail.calibration import calibrate_from_observations
-from nail2nail.distortion import ideal_from_panel
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.distortion import ideal_from_panel
+from nail2nail.calibration.files import RigCalibration
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.calibration.observe import target_observations
+from nail2nail.calibration.target import calibrate_from_observations
 from nail2nail.io.capture import read_capture, read_truth
-from nail2nail.markers import TargetGeometry
 from nail2nail.merge import correspond
-from nail2nail.patterns import default_pattern_set
 from nail2nail.pipeline import plane_distortion
-from nail2nail.reconstruction import model_matrix, reconstruct_points_lsq
-from nail2nail.scanning import scan_capture, target_observations
-from nail2nail.simulation.rig import ideal_calibration
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.patterns import default_pattern_set
+from nail2nail.scan.triangulation import model_matrix, reconstruct_points_lsq
+from nail2nail.simulation.rig import Rig, ideal_calibration
 
 
 def calibrations(work: Path) -> dict:
@@ -66,7 +67,7 @@ def calibrations(work: Path) -> dict:
         out[name] = calibrate_from_observations(obs, **common, **options)[0]
         print(f"calibration {name!r}: {time.perf_counter() - start:.1f} s")
     finger = read_capture(work / "finger", load=False)
-    out["true"] = RigCalibration.from_dict(ideal_calibration(finger.rig()))
+    out["true"] = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(finger)))
     return out
 
 
@@ -100,7 +101,7 @@ def main() -> None:
     work = args.work or Path(tempfile.mkdtemp()) / "calibration_accuracy"
     work.mkdir(parents=True, exist_ok=True)
     render_scenes(work, args.scale)
-    rig = read_capture(work / "finger", load=False).rig()
+    rig = Rig.from_capture(read_capture(work / "finger", load=False))
     points = truth_points(work, rig)
     names = rig.camera_names
     for label, calib in calibrations(work).items():

@@ -45,7 +45,7 @@ from test_merge_fast import reference_correspond  # the implementation before is
 
 from nail2nail.merge import correspond, nearest_bruteforce, nearest_kdtree
 from nail2nail.merge.correspondence import CorrespondenceCache, nearest_grid
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.results import Scan
 
 H, W = 1280, 1024  # camera frame (rows, cols)
 

@@ -3,12 +3,13 @@
 A full default capture is 3 cameras x 24 frames of 1280 x 1024 (portrait) 8-bit images. The
 frames come from the virtual scanner (finger scene, projector distortion off) when it is
 available, else from an analytic synthetic scene (``--source synthetic``). For every camera the
-fused numba kernel (:func:`nail2nail.phase.decode_fast`) reads the 24 frames as stored, unwraps
+fused numba kernel (:func:`nail2nail.scan.kernels.decode_fast`) reads the 24 frames as stored,
+unwraps
 the 1/8/64-period phases in x and y, runs the neighbourhood checks and triangulates what
 ``nail2nail scan`` triangulates: both projector coordinates in least squares on the camera rays,
-float64 (:func:`nail2nail.reconstruction.ray_table`, once per calibration) -- ``ours``. Also
+float64 (:func:`nail2nail.scan.triangulation.ray_table`, once per calibration) -- ``ours``. Also
 timed: decoding alone, and ``yp`` through the per-pixel rational table of
-:func:`nail2nail.reconstruction.triangulation_table` (the look-up table of Liu et al., Opt.
+:func:`nail2nail.scan.triangulation.triangulation_table` (the look-up table of Liu et al., Opt.
 Express 18 (2010) 5229). Throughput counts every camera pixel processed (Mpoints/s); the valid
 share is printed too, and the fast path's deviations from the NumPy reference on camera 0
 (decoded coordinates; points against the float64 reference triangulation of the same
@@ -34,9 +35,10 @@ import time
 
 import numpy as np
 
-from nail2nail.patterns import default_pattern_set, frame_table, make_patterns
-from nail2nail.phase import decode, decode_fast, planar_table
-from nail2nail.reconstruction import ray_table, reconstruct_image, triangulation_table
+from nail2nail.scan.decoding import decode
+from nail2nail.scan.kernels import decode_fast, planar_table
+from nail2nail.scan.patterns import default_pattern_set, frame_table, make_patterns
+from nail2nail.scan.triangulation import ray_table, reconstruct_image, triangulation_table
 
 SHAPE = (1280, 1024)  # camera (H, W)
 
@@ -74,7 +76,7 @@ def synthetic_capture(pattern_set, n_cameras=3, shape=SHAPE, seed=0):
 
 def simulator_capture(pattern_set, seed=0):
     """Frames of the virtual scanner's finger (full scale, projector distortion off)."""
-    from nail2nail.camera_models import dlt_from_pinhole
+    from nail2nail.calibration.camera_models import dlt_from_pinhole
     from nail2nail.simulation.render import camera_geometry, projector_radiance, render_frames
     from nail2nail.simulation.rig import default_rig
     from nail2nail.simulation.scenes import make_scene

@@ -43,9 +43,9 @@ from _measure import median_time, reset_peak, status_mb
 
 
 def _finger_scans(scale: float, seed: int):
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
     from nail2nail.simulation.capture import simulate_capture
 
     with tempfile.TemporaryDirectory(prefix="nail2nail-bench-") as tmp:

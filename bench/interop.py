@@ -100,10 +100,10 @@ def body_and_cap(rolled, scans, uv, y0: float, acc: dict) -> dict:
 
 def run_finger(job: dict) -> dict:
     """Simulate, scan, unroll and measure one finger (in a worker process)."""
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
     from nail2nail.io.prints import read_print_image
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
     from nail2nail.simulation.capture import simulate_capture
     from nail2nail.simulation.conditions import draw_conditions
     from nail2nail.simulation.scenes import make_scene

@@ -101,9 +101,9 @@ def _scans(args, work: Path) -> list:
 
     if args.scans is not None and (args.scans / "scan.json").is_file():
         return load_scans(args.scans)
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
 
     calib = args.calib if args.calib is not None and args.calib.is_file() else (
         args.capture / "truth" / "calibration.json")

@@ -25,14 +25,14 @@ from pathlib import Path
 import numpy as np
 from _scenes import render_scenes
 
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.files import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.merge import correspond
 from nail2nail.merge.fusion import fuse_scans
-from nail2nail.patterns import default_pattern_set
 from nail2nail.pipeline import best_calibration, plane_distortion
-from nail2nail.scanning import scan_capture
-from nail2nail.simulation.rig import ideal_calibration
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.patterns import default_pattern_set
+from nail2nail.simulation.rig import Rig, ideal_calibration
 
 OFF = {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None}
 FUSE_OFF = {**OFF, "spike_mm": None, "surface_mm": None}
@@ -45,7 +45,8 @@ def calibrations(work: Path, scale: float) -> dict:
     best = best_calibration(read_capture(work / "target", load=False), center=fit.center,
                             rho=fit.rho, panel_size=pattern_set.panel_size)
     finger = read_capture(work / "finger", load=False)
-    return {"best (joint)": best, "true": RigCalibration.from_dict(ideal_calibration(finger.rig()))}
+    true = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(finger)))
+    return {"best (joint)": best, "true": true}
 
 
 def um(stats: dict) -> str:

@@ -64,12 +64,12 @@ def read_ours(capture_dir) -> float:
 
 def stage_peaks(capture_dir, calib, out) -> dict:
     """Peak RSS (MB) of each stage, each stage run alone after a reset of the peak."""
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
     from nail2nail.io.rolled import write_rolled_print
     from nail2nail.io.scans import save_scans
     from nail2nail.merge import write_merge
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
     from nail2nail.unroll import unroll_scans
 
     if not reset_peak():
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
 
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
     from nail2nail.process import process_capture
 

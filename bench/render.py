@@ -24,7 +24,7 @@ def main() -> None:
     args = parser.parse_args()
 
 
-    from nail2nail.patterns import default_pattern_set, make_patterns
+    from nail2nail.scan.patterns import default_pattern_set, make_patterns
     from nail2nail.simulation.render import camera_geometry, projector_radiance, render_frames
     from nail2nail.simulation.rig import default_rig
     from nail2nail.simulation.scenes import make_scene

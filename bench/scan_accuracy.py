@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nail2nail.calibration import calibrate_from_observations
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.calibration.observe import target_observations
+from nail2nail.calibration.target import calibrate_from_observations
 from nail2nail.io.capture import read_capture, read_truth
-from nail2nail.markers import TargetGeometry
-from nail2nail.phase import decode
-from nail2nail.scanning import scan_capture, target_observations
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.decoding import decode
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig
 

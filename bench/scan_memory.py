@@ -11,7 +11,8 @@ camera), ``f = 2`` the 2048 x 2560 one.
 
 Every scan runs in a child process; its peak resident set size is ``ru_maxrss`` of
 ``resource.getrusage(RUSAGE_CHILDREN)`` in a wrapper process that runs nothing else. Measured:
-the library's :func:`nail2nail.scanning.scan_capture` alone (``lib``, both methods) and the whole
+the library's :func:`nail2nail.scan.capture.scan_capture` alone (``lib``, both methods) and the
+whole
 ``nail2nail scan`` command, which also writes the mat5, PLY and npz files (``cli``).
 
 Usage::
@@ -48,8 +49,9 @@ TARGET_MIB = 2048
 TARGET_ONE_CAMERA_MIB = 400
 
 _LIBRARY_SCAN = (
-    "import sys; from nail2nail.io.calibration import load_calibration; "
-    "from nail2nail.io.capture import read_capture; from nail2nail.scanning import scan_capture; "
+    "import sys; from nail2nail.calibration.files import load_calibration; "
+    "from nail2nail.io.capture import read_capture; from nail2nail.scan.capture import "
+    "scan_capture; "
     "scans = scan_capture(read_capture(sys.argv[1], load=False), load_calibration(sys.argv[2]), "
     "method=sys.argv[3]); print('VALID', *(int(s.mask.sum()) for s in scans))"
 )

@@ -4,7 +4,7 @@ For every scheme (the default multi-frequency PMP set; Gray code + 4-step phase 
 and without the complementary Gray-code bit; Gray code + line shifting; a 3-step set with a
 1-period cue as other systems use) the virtual scanner renders the same finger (same rays, same
 noise seed; projector distortion off, so that only decoding differs) and every camera is
-scanned as ``nail2nail scan`` scans it (:func:`nail2nail.scanning.scan_frames`, the ideal
+scanned as ``nail2nail scan`` scans it (:func:`nail2nail.scan.capture.scan_frames`, the ideal
 calibration, ``max_gradient`` 2 scaled to the camera size, ``use="xpyp"``; the Gray-code schemes
 by the NumPy path, PMP by the fused kernel). Printed per scheme, all cameras pooled over the
 pixels valid in the scan and in the truth:
@@ -31,14 +31,14 @@ import time
 
 import numpy as np
 
-from nail2nail.io.calibration import RigCalibration
-from nail2nail.patterns import (
+from nail2nail.calibration.files import RigCalibration
+from nail2nail.scan.capture import gradient_limit, scan_frames
+from nail2nail.scan.patterns import (
     PatternSet,
     default_pattern_set,
     gray_line_pattern_set,
     gray_phase_pattern_set,
 )
-from nail2nail.scanning import gradient_limit, scan_frames
 from nail2nail.simulation.capture import simulate
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 from nail2nail.simulation.scenes import make_scene

@@ -65,10 +65,10 @@ def main() -> None:
                         help="time the unroll of saved scans (a `nail2nail scan` output folder)")
     args = parser.parse_args()
 
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.io.capture import read_capture
     from nail2nail.merge.fusion import fuse_scans
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
     from nail2nail.simulation.capture import simulate_capture
     from nail2nail.unroll import DEFAULT_METHOD, METHODS
 

@@ -59,7 +59,7 @@ import sourceafis
 
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.io.prints import read_print_image
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig
 from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
@@ -82,9 +82,9 @@ def best_calibration(out: Path, rig, scale: float):
     calibration (one shared projector, distortion in the model, refined on the target's
     surface) is fitted to the cylindrical target's capture, both under plain patterns.
     """
-    from nail2nail.io.calibration import load_calibration, save_calibration
-    from nail2nail.patterns import default_pattern_set, make_patterns
+    from nail2nail.calibration.files import load_calibration, save_calibration
     from nail2nail.pipeline import best_calibration, plane_distortion
+    from nail2nail.scan.patterns import default_pattern_set, make_patterns
 
     path = out / "calib" / f"rig_best_v2_scale{scale:g}.json"  # v2: mark model
     if path.is_file():

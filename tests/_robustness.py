@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nail2nail.calibration.files import CameraCalibration, RigCalibration, save_calibration
 from nail2nail.io._json import write_json
-from nail2nail.io.calibration import CameraCalibration, RigCalibration, save_calibration
 from nail2nail.io.capture import write_frame, write_manifest
 
 

@@ -5,7 +5,8 @@ Y) or a sphere; the hit point is projected into the projector for its ``(xp, yp)
 ground truth (``xyz`` exact unless noise is asked for), so merge errors are known in advance.
 
 Tests run with ``--import-mode=importlib``: import it after adding the ``tests`` folder to
-``sys.path`` (``sys.path.insert(0, str(Path(__file__).parent))``, as tests/test_merge.py does).
+``sys.path`` (``sys.path.insert(0, str(Path(__file__).parent))``, as
+tests/test_merge_correspondence.py does).
 Nothing here runs at import time.
 """
 
@@ -13,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nail2nail.camera_models import Pinhole, look_at
-from nail2nail.reconstruction import Scan
+from nail2nail.calibration.camera_models import Pinhole, look_at
+from nail2nail.scan.results import Scan
 
 __all__ = [
     "camera_ring",

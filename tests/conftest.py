@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,23 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 PACKAGE_DATA = REPO / "src" / "nail2nail" / "data"
+
+#: CI sets NAIL2NAIL_CI=1 (.ci/run): there a test that cannot run (../shared not beside the
+#: checkout, no headless browser) fails instead of skipping.
+CI = os.environ.get("NAIL2NAIL_CI", "") not in ("", "0")
+
+
+def skip_unless_ci(reason: str) -> None:
+    """Skip the calling test for `reason`, or fail it under CI (:data:`CI`)."""
+    if CI:
+        pytest.fail(f"{reason} (NAIL2NAIL_CI is set: CI must run this test)")
+    pytest.skip(reason)
+
+
+def pytest_sessionstart(session) -> None:
+    """Under CI, ../shared must be beside the checkout: the thesis tables are read from it."""
+    if CI and not SHARED_DATA.is_dir():
+        raise pytest.UsageError(f"NAIL2NAIL_CI is set but {SHARED_DATA} is missing")
 
 
 def thesis_table_path(camera: int) -> Path:

@@ -22,10 +22,10 @@ import pytest
 
 from nail2nail.batch import find_captures, inputs_hash, local_client, process_batch
 from nail2nail.batch.tasks import run_capture
+from nail2nail.calibration.files import RigCalibration, save_calibration
 from nail2nail.cli import main
 from nail2nail.cli._batch import process_options
 from nail2nail.cli._main import build_parser
-from nail2nail.io.calibration import RigCalibration, save_calibration
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from nail2nail.calibration.files import load_calibration
 from nail2nail.cli import main
-from nail2nail.io.calibration import load_calibration
 
 
 def test_calibrate_json_and_file(tmp_path, table_paths, capsys):
@@ -59,7 +59,7 @@ def test_bad_table_exits_2_without_output(tmp_path, capsys):
     ],
 )
 def test_bad_projector_distortion_in_calibration_file(tmp_path, distortion, message):
-    from nail2nail.io.calibration import RigCalibration, save_calibration
+    from nail2nail.calibration.files import RigCalibration, save_calibration
 
     good = RigCalibration.from_dict(
         {"format": "nail2nail-calibration", "version": 1,

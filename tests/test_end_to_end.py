@@ -8,17 +8,18 @@ import json
 import numpy as np
 import pytest
 
-from nail2nail.calibration import calibrate_from_observations
-from nail2nail.camera_models import dlt_from_pinhole
+from nail2nail.calibration.camera_models import dlt_from_pinhole
+from nail2nail.calibration.files import CameraCalibration, RigCalibration, load_calibration
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.calibration.observe import target_observations
+from nail2nail.calibration.target import calibrate_from_observations
 from nail2nail.cli import main
-from nail2nail.io.calibration import CameraCalibration, RigCalibration, load_calibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.io.mat5 import read_mat5
-from nail2nail.markers import TargetGeometry
-from nail2nail.phase import decode
-from nail2nail.scanning import scan_capture, target_observations
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.decoding import decode
 from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
 
 SCALE = 0.5
 
@@ -67,7 +68,7 @@ def test_calibration_from_target_capture_finds_marks(captures, joint_calibration
     assert all(s["camera_rms_px"] < 0.3 for s in summary.values())
     # The fitted cameras project the target's volume where the true ones do (focal length and
     # distance trade off along the narrow field of view, so compare projections, not centres).
-    rig = read_capture(captures / "target", load=False).rig()
+    rig = Rig.from_capture(read_capture(captures / "target", load=False))
     _, xyz = TargetGeometry().all_marks()
     for cam_true, cam in zip(rig.cameras, calib.cameras, strict=True):
         err = cam.camera.project(xyz) - cam_true.project(xyz)
@@ -87,7 +88,7 @@ def test_scan_after_target_calibration_is_within_15_um(captures, joint_calibrati
 def test_opencv_form_gives_the_dlt_scan(captures):
     """The rig's pinhole (OpenCV) calibration and its DLT form give the same scan."""
     capture = read_capture(captures / "finger", load=False)
-    pinhole = RigCalibration.from_dict(ideal_calibration(capture.rig()))
+    pinhole = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
     dlt = RigCalibration(cameras=[
         CameraCalibration(c.name, dlt_from_pinhole(c.camera), dlt_from_pinhole(c.projector))
         for c in pinhole.cameras])
@@ -105,7 +106,7 @@ def test_camera_lens_distortion_in_the_opencv_model(tmp_path):
     rig = default_rig(0.25, projector_distortion="none", camera_distortion=(-0.3, 0, 0, 0, 0))
     simulate_capture(tmp_path / "finger", "finger", rig=rig, seed=1)
     capture = read_capture(tmp_path / "finger", load=False)
-    calib = RigCalibration.from_dict(ideal_calibration(capture.rig()))
+    calib = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
     assert np.any(calib.cameras[0].camera.dist)
     for scan in scan_capture(capture, calib):
         d = surface_distance_um(scan, read_truth(tmp_path / "finger", scan.name))

@@ -41,17 +41,17 @@ from hypothesis import strategies as st
 from PIL import Image
 
 import nail2nail
+from nail2nail.calibration.files import RigCalibration, load_calibration
 from nail2nail.io._json import read_json
 from nail2nail.io._npz import read_npz
-from nail2nail.io.calibration import RigCalibration, load_calibration
 from nail2nail.io.capture import Capture, read_capture, read_frame, write_frame, write_manifest
 from nail2nail.io.mat5 import MAT5_SUFFIXES, mat5_paths, read_mat5, write_mat5
 from nail2nail.io.ply import PlyData, read_ply, write_ply
 from nail2nail.io.points import REQUIRED_COLUMNS, PointsTable, read_points, thesis_table
 from nail2nail.io.prints import read_print_image, write_print_image
 from nail2nail.io.scans import load_scan_npz, load_scans, save_scans
-from nail2nail.patterns import Frequency, PatternSet
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.patterns import Frequency, PatternSet
+from nail2nail.scan.results import Scan
 from nail2nail.simulation.rig import Rig, default_rig, load_rig, save_rig
 
 # --------------------------------------------------------------------------------------------

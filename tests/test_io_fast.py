@@ -21,7 +21,7 @@ from PIL import Image
 
 from nail2nail.io import capture as capture_module
 from nail2nail.io._atomic import write_npz
-from nail2nail.io.capture import frame_intensities, read_capture, write_frame, write_manifest
+from nail2nail.io.capture import read_capture, write_frame, write_manifest
 from nail2nail.io.mat5 import mat5_paths, read_mat5, write_mat5
 from nail2nail.io.ply import read_ply, write_ply, write_scan_ply
 from nail2nail.io.scans import (
@@ -31,7 +31,8 @@ from nail2nail.io.scans import (
     save_scan_npz,
     save_scans,
 )
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.inputs import frame_intensities
+from nail2nail.scan.results import Scan
 
 ARRAYS = ("xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")
 QUIET_NAN = np.array([0x7FC00000], np.uint32).view(np.float32)[0]  # np.nan

@@ -31,7 +31,6 @@ from nail2nail.merge.correspondence import (
     _eroded,
     _grid_nearest,
     _grid_nearest_pixels,
-    _refine_kernel,
     _relative_modulation,
     _without_jumps,
     correspond,
@@ -39,14 +38,15 @@ from nail2nail.merge.correspondence import (
     nearest_bruteforce,
     nearest_grid,
     nearest_kdtree,
+    refine_subpixel,
     sample_pixels,
     valid_mask,
     view_cosine,
 )
 from nail2nail.merge.statistics import _middle, local_outliers
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.results import Scan
 
-SIZE = (96, 120)  # (width, height), as tests/test_merge.py
+SIZE = (96, 120)  # (width, height), as tests/test_merge_correspondence.py
 
 
 @pytest.fixture(scope="module")
@@ -157,12 +157,13 @@ def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border
     keep = child_inner[nr, nc]
     rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
     if refine:
-        sub_r, sub_c, residual, xyz_child = _refine_kernel(
-            np.ascontiguousarray(child.xp, dtype=np.float64),
-            np.ascontiguousarray(child.yp, dtype=np.float64),
-            np.ascontiguousarray(child.xyz, dtype=np.float64),
-            parent.xp[rows, cols].astype(np.float64), parent.yp[rows, cols].astype(np.float64),
-            nr, nc, 2, 1.5)
+        f8 = np.float64
+        sub_r, sub_c, residual = refine_subpixel(
+            np.asarray(child.xp, f8), np.asarray(child.yp, f8),
+            parent.xp[rows, cols].astype(f8), parent.yp[rows, cols].astype(f8), nr, nc)
+        xyz_child = np.full((nr.size, 3), np.nan)
+        ok = np.isfinite(sub_r)
+        xyz_child[ok] = bilinear(np.asarray(child.xyz, f8), sub_r[ok], sub_c[ok])[0]
         finite = np.isfinite(residual) & np.isfinite(xyz_child).all(axis=-1)
     else:
         sub_r, sub_c, residual = nr.astype(np.float64), nc.astype(np.float64), np.sqrt(dist2)
@@ -637,16 +638,12 @@ def test_fusion_call_with_a_quality_dict_still_works(holed):
 
 
 def test_refinement_reads_float32_as_its_float64_copy(noisy):
-    m = correspond(noisy[0], noisy[1], stride=2)
-    child = noisy[1]
-    tx = noisy[0].xp[tuple(m.parent_rc.T)].astype(float)
-    ty = noisy[0].yp[tuple(m.parent_rc.T)].astype(float)
-    nr, nc = m.child_nearest.T
-    single = _refine_kernel(child.xp, child.yp, child.xyz, tx, ty, nr, nc, 2, 1.5)
-    double = _refine_kernel(child.xp.astype(float), child.yp.astype(float),
-                            child.xyz.astype(float), tx, ty, nr, nc, 2, 1.5)
-    for a, b in zip(single, double, strict=True):
-        assert _same(a, b)
+    wide = [replace(s, xp=s.xp.astype(float), yp=s.yp.astype(float), xyz=s.xyz.astype(float))
+            for s in noisy[:2]]
+    single = correspond(noisy[0], noisy[1], stride=2)
+    double = correspond(*wide, stride=2)
+    for name in ("parent_rc", "child_rc", "xyz_child", "residual_px"):
+        assert _same(getattr(single, name), getattr(double, name)), name
 
 
 # -- figures ---------------------------------------------------------------------------------

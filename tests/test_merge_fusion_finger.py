@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.files import RigCalibration
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.merge import REJECT_REASONS, correspond
 from nail2nail.merge.fusion import fuse_scans
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
 from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
 
 SCALE = 0.5
 
@@ -26,7 +26,7 @@ def finger(tmp_path_factory):
     out = tmp_path_factory.mktemp("finger")
     simulate_capture(out, "finger", rig=default_rig(SCALE, projector_distortion="none"), seed=3)
     capture = read_capture(out, load=False)
-    calib = RigCalibration.from_dict(ideal_calibration(capture.rig()))
+    calib = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
     # scan_capture scales max_gradient (stated for a 1024 x 1280 camera) to the camera's size
     scans = scan_capture(capture, calib, max_gradient=2.0)
     return out, scans

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nail2nail.calibration.distortion import THESIS_CENTER, THESIS_RHO
 from nail2nail.cli import main
-from nail2nail.distortion import THESIS_CENTER, THESIS_RHO
 
 
 @pytest.fixture(scope="module")

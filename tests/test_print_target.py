@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from nail2nail.boards import Board, board_sheet, detect_board, target_wrap_sheet
+from nail2nail.calibration.boards import Board, board_sheet, detect_board, target_wrap_sheet
+from nail2nail.calibration.markers import TargetGeometry
 from nail2nail.cli import main
-from nail2nail.markers import TargetGeometry
 
 SVG = "{http://www.w3.org/2000/svg}"
 
@@ -199,7 +199,7 @@ def test_calibrate_capture_with_mark_diameter(target_without_rig, tmp_path, caps
 
 def test_dark_marks_are_not_found():
     """Dark marks on a light cylinder fail with a message that says why."""
-    from nail2nail.markers import find_target_marks, mark_diameter_px
+    from nail2nail.calibration.markers import find_target_marks, mark_diameter_px
     from nail2nail.simulation import default_rig, simulate
     from nail2nail.simulation.scenes import make_scene
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nail2nail.calibration.files import RigCalibration, save_calibration
 from nail2nail.cli import main
-from nail2nail.io.calibration import RigCalibration, save_calibration
 from nail2nail.io.capture import read_capture
 from nail2nail.io.scans import load_scans
 from nail2nail.simulation.capture import simulate_capture
@@ -129,7 +129,7 @@ def test_bad_input_writes_nothing(capture, tmp_path, capsys):
 
 def test_capture_object_api(capture, tmp_path):
     """The library call takes objects as well as paths."""
-    from nail2nail.io.calibration import load_calibration
+    from nail2nail.calibration.files import load_calibration
     from nail2nail.process import process_capture
 
     finger, calib = capture

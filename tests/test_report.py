@@ -298,8 +298,8 @@ def test_missing_statistics_are_shown_as_dashes(processed_finger, tmp_path):
 
 
 def test_projector_panel_from_the_capture(processed_finger, tmp_path):
-    from nail2nail.patterns import PANEL_SIZE as DEFAULT_PANEL
     from nail2nail.report.inputs import find_inputs, projector_panel
+    from nail2nail.scan.patterns import PANEL_SIZE as DEFAULT_PANEL
 
     assert projector_panel(find_inputs(processed_finger)) == DEFAULT_PANEL  # as simulated
     out = _renamed_copy(processed_finger, tmp_path, {})

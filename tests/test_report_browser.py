@@ -21,9 +21,16 @@ from pathlib import Path
 
 import pytest
 from _browser import Browser, changed_fraction, drawn_fraction, opened, unavailable_reason
+from conftest import skip_unless_ci
 
 _REASON = unavailable_reason()
-pytestmark = pytest.mark.skipif(_REASON is not None, reason=f"headless browser: {_REASON}")
+
+
+@pytest.fixture(autouse=True)
+def _browser_available() -> None:
+    """Skip without a headless browser; under CI (NAIL2NAIL_CI) fail instead."""
+    if _REASON is not None:
+        skip_unless_ci(f"headless browser: {_REASON}")
 
 DRAWN = 0.02  # the 3D view covers at least this fraction of its canvas with non-background
 CHANGED = 0.05  # a rotation or a new colouring changes at least this fraction of its pixels

@@ -9,13 +9,14 @@ import shutil
 import numpy as np
 import pytest
 
+from nail2nail.calibration.files import load_calibration
 from nail2nail.io._json import write_json
-from nail2nail.io.calibration import load_calibration
 from nail2nail.io.points import PointsTable, write_points
 from nail2nail.io.scans import load_scans
-from nail2nail.reconstruction import _panel_of_points
 from nail2nail.report import calibration, capture, distortion
 from nail2nail.report.inputs import find_inputs
+from nail2nail.scan.results import Reason
+from nail2nail.scan.triangulation import _panel_of_points
 
 
 def _cells(body: str) -> list[str]:
@@ -48,8 +49,35 @@ def test_capture_section_without_capture(processed_finger, tmp_path):
     (out / "process.json").write_text(json.dumps(summary))
     section = capture.section(find_inputs(out))
     assert "not there any more" in section.body
-    assert "derived from the stored arrays" in section.body
+    # the reasons travel with the scans: the validity map needs no capture to decode again
+    assert "decoder&#x27;s per-pixel reasons" in section.body
     assert section.body.count("data:image/png") == 3  # the maps and coverage still
+
+
+def test_capture_section_reason_counts_are_the_scans(processed_finger):
+    """The table of decoder reasons counts the bits the scans stored (Scan.reason)."""
+    inputs = find_inputs(processed_finger)
+    body = capture.section(inputs).body
+    scans = load_scans(inputs.scans)
+    for scan in scans:
+        assert scan.reason is not None and scan.reason.shape == scan.shape
+        assert not np.any(scan.mask & (scan.reason != 0))  # valid pixels have no reason
+    row = _rows(body, "no 3D point")[0]
+    assert [int(v.replace(",", "")) for v in row[1:]] == [
+        int(np.count_nonzero(s.reason & Reason.NO_POINT)) for s in scans]
+
+
+def test_capture_section_of_scans_without_reasons(processed_finger, tmp_path):
+    """Scan files that do not store the reasons (older ones): the map is derived from the
+    stored arrays, and says so."""
+    out = tmp_path / "out"
+    shutil.copytree(processed_finger, out)
+    for path in (out / "scans").glob("*.npz"):
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files if k != "reason"}
+        np.savez(path, **arrays)
+    section = capture.section(find_inputs(out))
+    assert "derived from the stored arrays" in section.body
 
 
 def test_sections_missing(tmp_path):
@@ -102,7 +130,7 @@ def test_calibration_section_without_points(processed_finger):
 
 def test_distortion_section(processed_finger, tmp_path):
     section = distortion.section(find_inputs(processed_finger))
-    rho = load_calibration(find_inputs(processed_finger).calibration).projector_distortion["rho"]
+    rho = load_calibration(find_inputs(processed_finger).calibration).projector_distortion.rho
     assert section.status == "ok" and f"{rho:.6f}" in _cells(section.body)
     assert section.body.count("data:image/png") == 1
     # demo layout: projector_distortion.json wins, the thesis estimate beside it

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from _robustness import _calibration, _capture, _one_error_line, _scan_dir
 
+from nail2nail.calibration.files import load_calibration
 from nail2nail.cli import main
 from nail2nail.io._json import read_json, write_json
-from nail2nail.io.calibration import load_calibration
 from nail2nail.io.capture import read_capture, read_frame, write_frame
 from nail2nail.io.scans import load_scans, save_scans
 
@@ -96,7 +96,7 @@ def test_camera_names_are_plain(tmp_path, capsys, name):
 
 
 def test_save_scans_refuses_path_names(tmp_path):
-    from nail2nail.reconstruction import Scan
+    from nail2nail.scan.results import Scan
 
     nan = np.full((2, 2), np.nan)
     scan = Scan(name="../escape", xyz=np.full((2, 2, 3), np.nan), xp=nan, yp=nan,

@@ -9,11 +9,12 @@ import pytest
 from _robustness import _calibration, _one_error_line
 from PIL import Image
 
+from nail2nail.calibration.files import load_calibration
+from nail2nail.calibration.observe import target_observations
 from nail2nail.cli import main
 from nail2nail.io._json import read_json, write_json
-from nail2nail.io.calibration import load_calibration
 from nail2nail.io.capture import read_capture
-from nail2nail.scanning import kept_fraction, scan_capture, target_observations
+from nail2nail.scan.capture import kept_fraction, scan_capture
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig, ideal_calibration, save_rig
 

@@ -27,8 +27,8 @@ import nail2nail
 assert nail2nail.__file__.startswith(sys.argv[1]), nail2nail.__file__
 import nail2nail.merge  # its kernel is cached too
 from nail2nail.cli import main
-from nail2nail.patterns import PatternSet, make_patterns
-from nail2nail.phase import decode
+from nail2nail.scan.patterns import PatternSet, make_patterns
+from nail2nail.scan.decoding import decode
 ps = PatternSet(x=[(1, 3), (8, 4)], panel_size=(64, 4))
 d = decode(make_patterns(ps), ps, saturation=1.01, method="numba")
 assert np.abs(d.xp - np.arange(64)).max() < 0.05
@@ -105,7 +105,7 @@ def test_normal_case_no_warning(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "NUMBA_CACHE_DIR=None" in result.stdout
     assert "Warning" not in result.stderr, result.stderr
-    assert any((pkg / "nail2nail" / "__pycache__").glob("*.nbi"))
+    assert any((pkg / "nail2nail").rglob("__pycache__/*.nbi"))  # beside the kernels' modules
 
 
 def test_no_writable_directory_at_all(monkeypatch, tmp_path):

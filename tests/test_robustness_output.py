@@ -26,7 +26,7 @@ from nail2nail.cli import main
 from nail2nail.io._atomic import atomic_directory, atomic_files
 from nail2nail.io.capture import read_capture
 from nail2nail.io.scans import save_scans
-from nail2nail.patterns import PatternSet
+from nail2nail.scan.patterns import PatternSet
 from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.rig import default_rig
 
@@ -187,8 +187,8 @@ def test_merge_bad_option_writes_nothing(scan_dir, tmp_path, capsys, extra):
 
 # -- unroll ----------------------------------------------------------------------------------
 def test_unroll_writer_failure_keeps_old_print(scan_dir, tmp_path, monkeypatch, capsys):
+    import nail2nail.cli._unroll as unroll_command
     import nail2nail.io.rolled as rolled_io
-    import nail2nail.unroll as unroll
 
     out = tmp_path / "print"
     out.mkdir()
@@ -196,7 +196,7 @@ def test_unroll_writer_failure_keeps_old_print(scan_dir, tmp_path, monkeypatch, 
     (out / "print.png").write_bytes(b"old print")
     old = _snapshot(out)
     fake = SimpleNamespace(ppi=500.0, image=np.zeros((8, 8), np.uint8))
-    monkeypatch.setattr(unroll, "unroll_scans", lambda *a, **k: fake)
+    monkeypatch.setattr(unroll_command, "unroll_scans", lambda *a, **k: fake)
     real = rolled_io.write_print_image
 
     def failing(path, image, **k):

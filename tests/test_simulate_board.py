@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from nail2nail.boards import Board, default_board, detect_board
+from nail2nail.calibration.boards import Board, default_board, detect_board
 from nail2nail.cli import main
 from nail2nail.io.capture import read_capture, read_truth
-from nail2nail.patterns import PatternSet
-from nail2nail.phase import decode
+from nail2nail.scan.decoding import decode
+from nail2nail.scan.patterns import PatternSet
 from nail2nail.simulation import default_rig
 from nail2nail.simulation.board_poses import board_pose_checks, board_poses, rig_working_point
 from nail2nail.simulation.rig import Rig

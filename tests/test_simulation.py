@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.files import RigCalibration
 from nail2nail.simulation.render import camera_geometry, projector_radiance, render_frames
 from nail2nail.simulation.rig import (
     Photometry,
@@ -36,7 +36,7 @@ def test_default_rig_layout():
     assert rig.camera_names == ["cam0", "cam1", "cam2"]
     assert rig.projector.size == (1280, 1040)
     np.testing.assert_allclose(rig.projector.K[:2, 2], [640, 1000])
-    assert rig.projector_distortion == {"center": [640.0, 1000.0], "rho": -0.004}
+    assert rig.projector_distortion.to_dict() == {"center": [640.0, 1000.0], "rho": -0.004}
     for cam, az in zip(rig.cameras, (-45, 0, 45), strict=True):
         assert cam.size == (1024, 1280)
         c = cam.center
@@ -89,7 +89,7 @@ def test_ideal_calibration_is_a_calibration_file(rig_quarter):
     xyz = np.array([[1.0, 2.0, 3.0]])
     np.testing.assert_allclose(calib.cameras[1].camera.project(xyz),
                                rig_quarter.cameras[1].project(xyz))
-    assert calib.projector_distortion["rho"] == -0.004
+    assert calib.projector_distortion.rho == -0.004
 
 
 @settings(max_examples=30, deadline=None)
@@ -257,7 +257,7 @@ def test_geometry_reused_under_other_patterns(rig_quarter, tmp_path):
     """simulate(geometry=...) renders the same frames as casting the rays again, and
     write_capture writes what simulate_capture writes."""
     from nail2nail.io.capture import read_capture
-    from nail2nail.patterns import PatternSet, make_patterns
+    from nail2nail.scan.patterns import PatternSet, make_patterns
     from nail2nail.simulation.capture import simulate, write_capture
 
     ps = PatternSet(x=[(1, 3), (8, 3)], y=[(1, 3), (8, 3)], panel_size=rig_quarter.panel_size)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from nail2nail.cli import main
 from nail2nail.io.capture import read_capture
-from nail2nail.phase import decode
+from nail2nail.scan.decoding import decode
 from nail2nail.simulation.conditions import RANGES, Conditions, draw_conditions
 from nail2nail.simulation.render import aperture_weights, camera_geometry, render_frames
 from nail2nail.simulation.rig import Photometry, default_rig
@@ -98,7 +98,7 @@ def test_sharp_grid_decodes_the_panel_coordinate(rig_quarter):
     coordinate within a few hundredths of a pixel, and the grid's dark gaps show in a
     uniform frame's brightness (a projector's screen-door pattern), which the soft model
     does not have."""
-    from nail2nail.patterns import default_pattern_set, make_patterns
+    from nail2nail.scan.patterns import default_pattern_set, make_patterns
 
     scene = make_scene("plane", rig=rig_quarter)
     g = camera_geometry(rig_quarter, scene, 1)

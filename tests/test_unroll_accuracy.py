@@ -20,7 +20,7 @@ from scipy.integrate import cumulative_trapezoid
 sys.path.insert(0, str(Path(__file__).parent))
 from _synthetic import camera_ring, make_projector
 
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.results import Scan
 from nail2nail.unroll import unroll_scans
 from nail2nail.unroll.accuracy import geometric_accuracy, similarity_fit
 

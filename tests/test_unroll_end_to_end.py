@@ -14,9 +14,9 @@ import json
 import numpy as np
 import pytest
 
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.files import RigCalibration
 from nail2nail.io.capture import Capture
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
 from nail2nail.simulation.capture import simulate
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 from nail2nail.unroll import DEFAULT_METHOD, RolledPrint, unroll_scans

@@ -14,9 +14,9 @@ import pytest
 import scipy.ndimage as ndi
 
 from nail2nail._quantile import weighted_quantiles
-from nail2nail.io.calibration import RigCalibration
+from nail2nail.calibration.files import RigCalibration
 from nail2nail.io.capture import Capture
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
 from nail2nail.simulation.capture import simulate
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 from nail2nail.unroll import _kernels as K

@@ -95,9 +95,9 @@ def patch_finger(request):
     """A virtual finger (half resolution) wearing a 9 × 12 mm patch of ridges, flat skin
     around it; its scans, which camera pixels see the patch and which the flat skin, each
     pixel's distance from the patch (mm), and the condition."""
-    from nail2nail.io.calibration import RigCalibration
+    from nail2nail.calibration.files import RigCalibration
     from nail2nail.io.capture import Capture
-    from nail2nail.scanning import scan_capture
+    from nail2nail.scan.capture import scan_capture
     from nail2nail.simulation.capture import simulate
     from nail2nail.simulation.conditions import draw_conditions
     from nail2nail.simulation.rig import default_rig, ideal_calibration

@@ -14,7 +14,7 @@ import scipy.ndimage as ndi
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from nail2nail.reconstruction import Scan
+from nail2nail.scan.results import Scan
 from nail2nail.unroll.quality import block_quality
 from nail2nail.unroll.render import (
     MM_PER_INCH,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from nail2nail.camera_models import (
+from nail2nail.calibration.camera_models import (
     Pinhole,
     dlt_from_pinhole,
     look_at,
@@ -18,6 +18,12 @@ from nail2nail.camera_models import (
     project_dlt,
     projection_matrix,
 )
+from nail2nail.calibration.files import (
+    CameraCalibration,
+    RigCalibration,
+    load_calibration,
+    save_calibration,
+)
 from nail2nail.cli import main
 from nail2nail.frames import (
     frame_transform,
@@ -25,20 +31,14 @@ from nail2nail.frames import (
     points_in_frame,
     scan_in_frame,
 )
-from nail2nail.io.calibration import (
-    CameraCalibration,
-    RigCalibration,
-    load_calibration,
-    save_calibration,
-)
 from nail2nail.io.capture import read_capture
 from nail2nail.io.ply import read_ply
 from nail2nail.io.scans import load_scans, read_scan_frame, save_scans
-from nail2nail.phase import decode
-from nail2nail.reconstruction import reconstruct_image
-from nail2nail.scanning import scan_capture
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.decoding import decode
+from nail2nail.scan.triangulation import reconstruct_image
 from nail2nail.simulation.capture import simulate_capture
-from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
 
 #: float32 storage of scan points: one unit in the last place is 1.5e-5 mm at 128..256 mm
 #: (the rig's points are 100..200 mm from either origin); a point rounded once in either frame
@@ -67,7 +67,7 @@ def finger(tmp_path_factory):
     root = tmp_path_factory.mktemp("frame")
     simulate_capture(root / "finger", "finger", rig=default_rig(0.25), seed=2)
     capture = read_capture(root / "finger", load=False)
-    world = ideal_calibration(capture.rig())
+    world = ideal_calibration(Rig.from_capture(capture))
     save_calibration(root / "world.json", RigCalibration.from_dict(world))
     save_calibration(root / "cam0.json", RigCalibration.from_dict(camera_centred(world)))
     return root

@@ -6,6 +6,6 @@ Conventions (pixel centres, frames, units): ``docs/conventions.md``.
 
 __version__ = "0.1.0"
 
-from ._numba_cache import configure_numba_cache as _configure_numba_cache
+from nail2nail._numba_cache import configure_numba_cache as _configure_numba_cache
 
 _configure_numba_cache()  # before any kernel is compiled with cache=True (issue 10)

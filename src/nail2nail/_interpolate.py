@@ -1,10 +1,17 @@
-"""Bilinear interpolation on pixel grids: the one implementation the stages share."""
+"""Bilinear interpolation on pixel grids: the one implementation the stages share.
+
+:func:`bilinear` is the NumPy form (values and derivatives at many positions);
+:func:`bilinear_value` is the same arithmetic for one position inside compiled kernels.
+"""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-__all__ = ["bilinear"]
+from nail2nail._numba_cache import cache_enabled
+
+__all__ = ["bilinear", "bilinear_value"]
 
 
 def bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
@@ -38,3 +45,22 @@ def bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
     d_dc = (f01 - f00) * (1 - fr) + (f11 - f10) * fr
     d_dr = bottom - top
     return value, d_dr, d_dc
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def bilinear_value(image, r, c):  # pragma: no cover - compiled
+    """:func:`bilinear`'s value of a 2-D `image` at one position ``(r, c)``, compiled.
+
+    Every value is read as float64 (a float32 image gives the result of its float64 copy);
+    positions outside the image are extrapolated from the nearest border cell, as
+    :func:`bilinear` does.
+    """
+    h, w = image.shape
+    r0 = min(max(int(np.floor(r)), 0), h - 2)
+    c0 = min(max(int(np.floor(c)), 0), w - 2)
+    fr, fc = r - r0, c - c0
+    f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
+    f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+    top = f00 + (f01 - f00) * fc
+    bottom = f10 + (f11 - f10) * fc
+    return top + (bottom - top) * fr

@@ -1,17 +1,16 @@
 """Where numba (and matplotlib) cache: beside the package, in the user's cache, or a fallback.
 
-``phase.py`` and ``merge/correspondence.py`` compile their kernels with ``cache=True``. Numba
-stores the cache in ``__pycache__`` beside the source, else in the user's cache directory
-(``$XDG_CACHE_HOME/numba`` or ``~/.cache/numba``); if neither can be written (a service account
-with no home, a read-only container) it raises ``RuntimeError: cannot cache function …: no
-locator available`` when the kernel is *defined*, so every command would die at import. Caching
-is an optimisation: :func:`configure_numba_cache`, run when ``nail2nail`` is imported, detects
-that case and points numba at a private temporary directory (``NUMBA_CACHE_DIR``), with one
-warning. Nothing changes when numba can cache as usual or ``NUMBA_CACHE_DIR`` is already set.
-Matplotlib (the figures) has the same need for a writable configuration directory and warns in
-two lines without one; in that case ``MPLCONFIGDIR`` gets a private directory too, and the one
-warning says so.
-"""
+``scan/kernels.py``, ``scan/rays.py``, ``merge/`` and ``unroll/`` compile their kernels with
+``cache=True``. Numba stores the cache in ``__pycache__`` beside the source, else in the user's
+cache directory (``$XDG_CACHE_HOME/numba`` or ``~/.cache/numba``); if neither can be written (a
+service account with no home, a read-only container) it raises ``RuntimeError: cannot cache
+function …: no locator available`` when the kernel is *defined*, so every command would die at
+import. Caching is an optimisation: :func:`configure_numba_cache`, run when ``nail2nail`` is
+imported, detects that case and points numba at a private temporary directory
+(``NUMBA_CACHE_DIR``), with one warning. Nothing changes when numba can cache as usual or
+``NUMBA_CACHE_DIR`` is already set. Matplotlib (the figures) has the same need for a writable
+configuration directory and warns in two lines without one; in that case ``MPLCONFIGDIR`` gets a
+private directory too, and the one warning says so. """
 
 from __future__ import annotations
 

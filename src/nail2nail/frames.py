@@ -7,7 +7,7 @@ another frame, chosen by name (``--frame`` of ``nail2nail scan`` and ``nail2nail
 - ``"world"``: the calibration's world frame (nothing changes);
 - a camera name (``"cam0"`` …): that camera's frame, ``x_cam = R x_world + t`` (OpenCV: ``x``
   right, ``y`` down, ``z`` forward, mm) with ``R``, ``t`` of its pinhole model; a DLT matrix is
-  decomposed first (:func:`nail2nail.camera_models.pinhole_from_dlt`: RQ decomposition,
+  decomposed first (:func:`nail2nail.calibration.camera_models.pinhole_from_dlt`: RQ decomposition,
   ``det R = +1``).
 
 The transform is recorded as ``T_frame_world`` (4×4, mm) in ``scan.json`` and
@@ -22,7 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._validation import as_matrix
+from nail2nail._validation import as_matrix
+from nail2nail.calibration.camera_models import Pinhole, pinhole_from_dlt
 
 __all__ = [
     "WORLD",
@@ -44,7 +45,7 @@ def frame_transform(calibration, frame: str = WORLD) -> np.ndarray:
     Parameters
     ----------
     calibration : RigCalibration
-        The rig's calibration (:mod:`nail2nail.io.calibration`).
+        The rig's calibration (:mod:`nail2nail.calibration.files`).
     frame : str
         ``"world"`` or the name of one of its cameras.
 
@@ -62,13 +63,12 @@ def frame_transform(calibration, frame: str = WORLD) -> np.ndarray:
     Examples
     --------
     >>> from nail2nail.simulation import default_rig, ideal_calibration
-    >>> from nail2nail.io.calibration import RigCalibration
+    >>> from nail2nail.calibration.files import RigCalibration
     >>> calib = RigCalibration.from_dict(ideal_calibration(default_rig(0.25)))
     >>> T = frame_transform(calib, "cam1")
     >>> np.round(points_in_frame(calib.cameras[1].camera.center, T), 9).tolist()
     [0.0, 0.0, 0.0]
     """
-    from .camera_models import Pinhole, pinhole_from_dlt
 
     if not isinstance(frame, str):
         raise ValueError(f"frame: expected 'world' or a camera name, got {frame!r}")
@@ -148,7 +148,7 @@ def vectors_in_frame(vectors, transform) -> np.ndarray:
 
 
 def scan_in_frame(scan, transform):
-    """A :class:`~nail2nail.reconstruction.Scan` with ``xyz`` and ``camera_center`` mapped by
+    """A :class:`~nail2nail.scan.results.Scan` with ``xyz`` and ``camera_center`` mapped by
     `transform` (the other images are frame-free); the identity returns `scan` itself."""
     T = _check_transform(transform)
     if np.array_equal(T, np.eye(4)):

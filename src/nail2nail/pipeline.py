@@ -5,7 +5,7 @@ Steps, each written under ``out``:
 1. ``captures/``: the virtual scanner renders the cylindrical target, a flat plane and the
    finger (thesis projector distortion, default multi-frequency patterns).
 2. ``distortion/``: the projector's optical centre and ρ, estimated from the plane (thesis
-   method and non-linear fit, :mod:`nail2nail.distortion`).
+   method and non-linear fit, :mod:`nail2nail.calibration.distortion`).
 3. The target and the finger are rendered again under patterns pre-distorted with the
    estimate's look-up table (the thesis's correction, appendix ``distortion2dlut``).
 4. ``calib/``: calibrations from the target captures: the thesis's per-camera DLT on plain
@@ -35,7 +35,32 @@ import os
 import time
 from pathlib import Path
 
-from ._progress import Stages
+from nail2nail._progress import Stages
+from nail2nail.calibration.distortion import (
+    ProjectorDistortion,
+    apply_lut,
+    distortion_lut,
+    estimate_from_decoded,
+)
+from nail2nail.calibration.files import save_calibration
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.calibration.observe import target_observations
+from nail2nail.calibration.target import calibrate_from_observations
+from nail2nail.io._atomic import atomic_directory
+from nail2nail.io._json import write_json
+from nail2nail.io.capture import read_capture
+from nail2nail.io.points import PointsTable, write_points
+from nail2nail.io.rolled import write_rolled_print
+from nail2nail.io.scans import save_scans
+from nail2nail.merge.report import write_merge
+from nail2nail.scan.capture import decode_cameras, scan_capture
+from nail2nail.scan.patterns import default_pattern_set, make_patterns
+from nail2nail.simulation.capture import simulate as simulate_frames
+from nail2nail.simulation.capture import write_capture
+from nail2nail.simulation.rig import default_rig
+from nail2nail.simulation.truth import truth_print_sampler, truth_skin_coordinates
+from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
+from nail2nail.unroll.accuracy import geometric_accuracy
 
 __all__ = ["CONFIGURATIONS", "best_calibration", "plane_distortion", "run_demo"]
 
@@ -55,7 +80,8 @@ def plane_distortion(plane_capture):
     """The projector's radial distortion estimated from a capture of a flat plane.
 
     Every camera's decoded projector coordinates go into the joint non-linear fit of
-    :func:`nail2nail.distortion.estimate_from_decoded` (centre, ρ and a homography per camera;
+    :func:`nail2nail.calibration.distortion.estimate_from_decoded` (centre, ρ and a homography per
+    camera;
     the thesis's model, eq. 3.15–3.16).
 
     Parameters
@@ -68,8 +94,6 @@ def plane_distortion(plane_capture):
     report
         The estimate; ``report.fit.center`` (2,) panel px and ``report.fit.rho``.
     """
-    from .distortion import estimate_from_decoded
-    from .scanning import decode_cameras
 
     return estimate_from_decoded(
         {name: (d.xp, d.yp, d.mask) for name, d in decode_cameras(plane_capture)})
@@ -86,7 +110,7 @@ def best_calibration(target_capture, *, center, rho, panel_size, observations=No
     Parameters
     ----------
     target_capture : Capture
-        A capture of the target (:class:`nail2nail.markers.TargetGeometry`).
+        A capture of the target (:class:`nail2nail.calibration.markers.TargetGeometry`).
     center : (2,) float
         Initial distortion centre, panel px.
     rho : float
@@ -102,9 +126,6 @@ def best_calibration(target_capture, *, center, rho, panel_size, observations=No
     -------
     RigCalibration
     """
-    from .calibration import calibrate_from_observations
-    from .markers import TargetGeometry
-    from .scanning import target_observations
 
     target = TargetGeometry()
     if observations is None:
@@ -150,20 +171,6 @@ def run_demo(
         (merge medians per configuration and object), ``"distortion"``, ``"calibration"``,
         ``"outputs"`` (every file written) …}; also written to ``out/summary.json``.
     """
-    from .calibration import calibrate_from_observations
-    from .distortion import apply_lut, distortion_lut
-    from .io._atomic import atomic_directory
-    from .io._json import write_json
-    from .io.calibration import save_calibration
-    from .io.capture import read_capture
-    from .io.points import PointsTable, write_points
-    from .io.scans import save_scans
-    from .merge.report import write_merge
-    from .patterns import default_pattern_set, make_patterns
-    from .scanning import scan_capture, target_observations
-    from .simulation.capture import simulate as simulate_frames
-    from .simulation.capture import write_capture
-    from .simulation.rig import default_rig
 
     rig = default_rig(scale, projector_distortion="thesis")  # checks `scale` before any write
     out = Path(out)
@@ -214,7 +221,8 @@ def run_demo(
         "before": calibrate_from_observations(obs_plain, model="dlt")[0],
         "thesis_lut": calibrate_from_observations(obs_lut, model="dlt")[0],
         "model_dlt": calibrate_from_observations(
-            obs_plain, model="dlt", projector_distortion={"center": list(center), "rho": rho}
+            obs_plain, model="dlt", projector_distortion=ProjectorDistortion(
+                (float(center[0]), float(center[1])), float(rho))
         )[0],
         "best": best_calibration(target_capture, center=center, rho=rho,
                                  panel_size=pattern_set.panel_size, observations=obs_best),
@@ -298,12 +306,6 @@ def run_demo(
 
 def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
     """Unroll with every method, compare each with the truth, write the default's print."""
-    from .io._atomic import atomic_directory
-    from .io._json import write_json
-    from .io.rolled import write_rolled_print
-    from .simulation.truth import truth_print_sampler, truth_skin_coordinates
-    from .unroll import DEFAULT_METHOD, METHODS, unroll_scans
-    from .unroll.accuracy import geometric_accuracy
 
     truth_uv = truth_skin_coordinates(capture_dir, [s.name for s in scans])
     _, sampler = truth_print_sampler(capture_dir)
@@ -325,7 +327,8 @@ def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
         write_json(tmp / "methods.json", methods)
         names.append("methods.json")
         if figures:
-            from .unroll.figures import save_print_figures
+            # Deferred: unroll.figures imports matplotlib, needed only when figures are drawn.
+            from nail2nail.unroll.figures import save_print_figures
 
             names += [str(Path(p).relative_to(tmp))
                       for p in save_print_figures(tmp, prints, maps)]

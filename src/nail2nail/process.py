@@ -4,7 +4,7 @@
 the stages of ``scan``, ``merge`` and ``unroll`` in one process, without writing and reading
 the scans in between, with the wall time of every stage and the peak memory in the summary
 (``OUT/process.json``). Each stage is the library function the stand-alone command calls
-(:func:`nail2nail.scanning.scan_capture`, :func:`nail2nail.merge.write_merge`,
+(:func:`nail2nail.scan.capture.scan_capture`, :func:`nail2nail.merge.write_merge`,
 :func:`nail2nail.unroll.unroll_scans`), so both paths give the same files.
 
 Output directory (written as a whole, :func:`nail2nail.io._atomic.atomic_directory`)::
@@ -21,9 +21,18 @@ from __future__ import annotations
 import os
 import sys
 
-from ._progress import Stages
-from ._timing import StepClock
-from .io.rolled import ROLLED_LENGTH_MM
+from nail2nail._progress import Stages
+from nail2nail._timing import StepClock
+from nail2nail.calibration.files import load_calibration
+from nail2nail.frames import frame_transform
+from nail2nail.io._atomic import atomic_directory, check_output_directory, relocate_paths
+from nail2nail.io._json import write_json
+from nail2nail.io.capture import read_capture
+from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
+from nail2nail.io.scans import save_scans
+from nail2nail.merge.report import parse_pairs, write_merge
+from nail2nail.scan.capture import MAX_GRADIENT, scan_capture
+from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
 
 __all__ = ["peak_rss_mb", "process_capture"]
 
@@ -47,7 +56,7 @@ def process_capture(
     out: str | os.PathLike,
     *,
     use: str = "xpyp",
-    max_gradient: float | None = 2.0,
+    max_gradient: float | None = MAX_GRADIENT,
     min_modulation: float = 0.03,
     allow_mirrored: bool = False,
     pairs=None,
@@ -80,7 +89,7 @@ def process_capture(
         Output directory, replaced as a whole once the job is complete; a non-empty directory
         without ``process.json`` is refused before any work.
     use, max_gradient, min_modulation, allow_mirrored
-        Scanning options (:func:`nail2nail.scanning.scan_capture`).
+        Scanning options (:func:`nail2nail.scan.capture.scan_capture`).
     pairs : list of (int, int) or str, optional
         Camera pairs of the merge report, as scan indices or as ``"0-1,1-2"``
         (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …``.
@@ -112,10 +121,10 @@ def process_capture(
         ``"world"`` or a camera's name (:func:`nail2nail.frames.frame_transform`); everything
         is computed in the world frame. Recorded with ``T_frame_world`` in ``process.json``.
     masks : mapping of str to (H, W) bool array or path-like, optional
-        User validity masks by camera (:func:`nail2nail.scanning.scan_capture`).
+        User validity masks by camera (:func:`nail2nail.scan.capture.scan_capture`).
     decode_options : dict, optional
         Further decoder thresholds (``min_albedo``, ``saturation``, ``unwrap_tolerance``,
-        ``erode`` …: :func:`nail2nail.phase.decode`), recorded in ``process.json``.
+        ``erode`` …: :func:`nail2nail.scan.decoding.decode`), recorded in ``process.json``.
 
     Returns
     -------
@@ -135,15 +144,6 @@ def process_capture(
         Bad input, naming the file (the capture, the calibration) and the problem; `out`
         holds its earlier content then.
     """
-    from .frames import frame_transform
-    from .io._atomic import atomic_directory, check_output_directory
-    from .io._json import read_json, write_json
-    from .io.calibration import load_calibration
-    from .io.capture import read_capture
-    from .io.scans import save_scans
-    from .merge.report import _relocate, parse_pairs, write_merge
-    from .scanning import scan_capture
-    from .unroll import DEFAULT_METHOD, METHODS
 
     method = DEFAULT_METHOD if method is None else method
     if unroll and method not in METHODS:
@@ -201,18 +201,13 @@ def process_capture(
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
-                                 transform=transform, progress=progress)
-        # merge.json names its files under this job's temporary directory: name them where
-        # the job directory will be once renamed
-        merge_json = tmp / "merge" / "merge.json"
-        write_json(merge_json, _relocate(read_json(merge_json), str(tmp), str(out)))
+                                 transform=transform, progress=progress,
+                                 final_dir=out / "merge")  # the job directory once renamed
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
                                  if k != "files"}
         if unroll:
-            from .io.rolled import write_rolled_print
-            from .unroll import unroll_scans
 
             say(f"unroll ({method})")
             with times.stage("unroll"):
@@ -228,7 +223,7 @@ def process_capture(
         summary["scan_seconds"] = {k: round(v, 3) for k, v in scan_parts.items()}
         summary["merge_seconds"] = merged["seconds"]
         summary["peak_rss_mb"] = _round(peak_rss_mb())
-        summary = _relocate(summary, str(tmp), str(out))
+        summary = relocate_paths(summary, str(tmp), str(out))
         write_json(tmp / "process.json", summary)
     say(f"done in {summary['seconds']['total']:.2f} s -> {out}")
     return summary

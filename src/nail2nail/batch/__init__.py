@@ -33,10 +33,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from .hashing import inputs_hash
-from .memory import capture_memory_mb, default_workers
-from .results import TABLE_CSV, TABLE_JSON, read_results, result_row, write_results
-from .tasks import clean_stale, run_capture
+from nail2nail._progress import progress_bar
+from nail2nail._validation import describe_error
+from nail2nail.batch.hashing import inputs_hash
+from nail2nail.batch.memory import capture_memory_mb, default_workers
+from nail2nail.batch.results import TABLE_CSV, TABLE_JSON, read_results, result_row, write_results
+from nail2nail.batch.tasks import clean_stale, run_capture
 
 __all__ = ["capture_memory_mb", "default_workers", "find_captures", "inputs_hash",
            "local_client", "process_batch", "result_row", "write_results"]
@@ -228,8 +230,6 @@ def _run(captures: list[Path], calibration: Path, out: Path, client, options: di
     """Submit a task per capture, gather the rows in the order of `captures`."""
     from distributed import as_completed
 
-    from .._progress import progress_bar
-    from .._validation import describe_error
 
     failures = {} if retry_failed else _previous_failures(out)
     futures = {}

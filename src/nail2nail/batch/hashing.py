@@ -13,7 +13,7 @@ import json
 import os
 from pathlib import Path
 
-from .. import __version__
+from nail2nail import __version__
 
 __all__ = ["inputs_hash"]
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
+from nail2nail.io.capture import read_capture
+
 __all__ = ["BASE_MB", "capture_memory_mb", "default_workers"]
 
 BASE_MB = 600.0
@@ -42,7 +44,6 @@ def capture_memory_mb(capture: str | os.PathLike) -> float:
     ValueError
         The manifest is missing or inconsistent (naming the file).
     """
-    from ..io.capture import read_capture
 
     manifest = read_capture(capture, load=False).manifest
     n_frames = int(manifest.get("n_frames", 0))

@@ -12,6 +12,9 @@ import io
 import os
 from pathlib import Path
 
+from nail2nail.io._atomic import atomic_path
+from nail2nail.io._json import read_json, write_json
+
 __all__ = ["TABLE_CSV", "TABLE_JSON", "read_results", "result_row", "write_results"]
 
 TABLE_JSON, TABLE_CSV = "batch.json", "batch.csv"  # in OUT, beside the job directories
@@ -38,7 +41,6 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
         wall time on its worker, hashing included; ``hash``: the inputs hash, ``None`` if it
         could not be computed); the job's figures are ``None``/empty when it failed.
     """
-    from ..io._json import read_json
 
     row = {"capture": Path(record["capture"]).name, "status": record["status"],
            "error": record["error"], "bad_input": bool(record.get("bad_input", False)),
@@ -83,8 +85,6 @@ def write_results(out: str | os.PathLike, rows: list[dict]) -> tuple[Path, Path]
     (``seconds_scan``, ``merge_median_um_0-1``, ``valid_pixels_cam0`` …), in order of first
     appearance; a capture without a value has an empty cell.
     """
-    from ..io._atomic import atomic_path
-    from ..io._json import write_json
 
     out = Path(out)
     json_path, csv_path = out / TABLE_JSON, out / TABLE_CSV
@@ -103,7 +103,6 @@ def write_results(out: str | os.PathLike, rows: list[dict]) -> tuple[Path, Path]
 def read_results(out: str | os.PathLike) -> list[dict]:
     """The rows of an earlier ``OUT/batch.json``; ``[]`` when there is none, or it is not a
     list of rows (unreadable, or not this command's): nothing to resume from."""
-    from ..io._json import read_json
 
     try:
         rows = read_json(Path(out) / TABLE_JSON)

@@ -13,8 +13,14 @@ import os
 import shutil
 import time
 from pathlib import Path
+from typing import Any, cast
 
-from .hashing import inputs_hash
+from nail2nail._validation import describe_error
+from nail2nail.batch.hashing import inputs_hash
+from nail2nail.io._atomic import OutputRefusedError
+from nail2nail.io._json import read_json, write_json
+from nail2nail.process import process_capture
+from nail2nail.report import write_report
 
 __all__ = ["BATCH_JSON", "bad_input", "clean_stale", "run_capture"]
 
@@ -30,7 +36,6 @@ def bad_input(exc: BaseException) -> bool:
     output path, which the user may clear) nor any other exception (file system, memory,
     internal errors), which are run again on the next call.
     """
-    from ..io._atomic import OutputRefusedError
 
     return isinstance(exc, ValueError) and not isinstance(exc, OutputRefusedError)
 
@@ -64,14 +69,12 @@ def clean_stale(out: str | os.PathLike, name: str) -> list[Path]:
 
 
 def _write_report(job: Path, points: int) -> None:
-    from ..report import write_report
 
     write_report(job, max_points=points)  # atomic, inside the job directory
 
 
 def _recorded_hash(marker: Path) -> str | None:
     """The hash that the job directory's marker records; ``None`` if unreadable (redo)."""
-    from ..io._json import read_json
 
     try:
         record = read_json(marker)
@@ -124,12 +127,10 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
         ``ran``: whether the job ran in this call (false when skipped, or its earlier failure
         was repeated).
     """
-    from .._validation import describe_error
-    from ..io._json import write_json
-    from ..process import process_capture
 
     start = time.perf_counter()
-    record = {"capture": str(capture), "out": str(out), "status": "failed", "error": None,
+    record: dict[str, Any] = {"capture": str(capture), "out": str(out), "status": "failed",
+                              "error": None,
               "bad_input": False, "hash": None, "ran": False, "worker": _worker_name()}
     job = Path(out)
     try:
@@ -142,7 +143,7 @@ def run_capture(capture: str, calibration: str, out: str, options: dict,
             record["status"] = "skipped"
         elif current:  # the job is current, its report missing: the report alone
             record["ran"] = True
-            _write_report(job, report_points)
+            _write_report(job, cast(int, report_points))  # wants_report: not None
             record["status"] = "done"
         elif failed and failed.get("bad_input") and failed.get("hash") == digest:
             record["error"] = failed["error"]  # the same inputs fail the same way

@@ -1,69 +1,27 @@
-"""Calibration of the cameras and the projector.
+"""Calibration: the cameras' and the projector's models, their files, and how they are fitted.
 
-Submodules
-----------
-:mod:`.dlt`
-    Least-squares (DLT) projection matrices per camera and per projector (thesis eq. 3.1–3.11),
-    the point-table calibration and the cross-check of two tables.
-:mod:`.observe`
-    Board views from pose captures: detection, decoding, the projector's board points.
-:mod:`.target`
-    Joint refinement of pinhole cameras and one shared projector on the thesis's machined
-    cylinder target (:mod:`nail2nail.markers`).
-:mod:`.board`
-    Cameras and projector from a flat board in several poses: Zhang's method per device, the
-    projector's board points through local homographies (Moreno & Taubin 2012), a joint bundle
-    adjustment.
+Modules, in the order the data flows through them:
 
-Every public name is re-exported here (``from nail2nail.calibration import X``); the private
-helpers that tests use are reachable as before.
+- :mod:`~nail2nail.calibration.camera_models`: pinhole cameras (OpenCV intrinsics and lens
+  distortion), DLT matrices and the conversions between them;
+- :mod:`~nail2nail.calibration.distortion`: the projector's radial distortion (thesis
+  eq. 3.15–3.42): the model, the look-up-table correction of the patterns, its estimation;
+- :mod:`~nail2nail.calibration.files`: a rig's calibration (:class:`RigCalibration`) and its
+  JSON file form; :mod:`~nail2nail.calibration.opencv_files`: OpenCV's calibration files;
+- :mod:`~nail2nail.calibration.boards`: printed flat boards (checkerboard, ChArUco, circles),
+  rendering and detection; :mod:`~nail2nail.calibration.markers`: the thesis's cylindrical
+  target and its reference marks;
+- :mod:`~nail2nail.calibration.observe`: board and target observations from decoded captures;
+- :mod:`~nail2nail.calibration.dlt`: least-squares (DLT) projection matrices (thesis
+  eq. 3.1–3.11), the point-table calibration and its cross-check;
+- :mod:`~nail2nail.calibration.target`: joint refinement of pinhole cameras and one projector
+  on the cylindrical target;
+- :mod:`~nail2nail.calibration.board`: cameras and projector from a flat board in several poses
+  (Zhang's method, local homographies, one bundle adjustment).
+
+The first three are models and files that the scan stage (:mod:`nail2nail.scan`) reads; the
+others fit them and themselves decode and triangulate with :mod:`nail2nail.scan`. So this
+package re-exports nothing: import from its modules
+(``from nail2nail.calibration.dlt import calibrate_points``), which keeps the scan stage free
+of the fitting code.
 """
-
-from .board import (
-    BoardCalibration,
-    BoardView,
-    calibrate_board,
-    calibrate_device,
-)
-from .dlt import METHODS as METHODS
-from .dlt import MIN_POINTS as MIN_POINTS
-from .dlt import (
-    CalibrationReport,
-    CrossCheck,
-    calibrate_points,
-    check_calibration_points,
-    crosscheck,
-    fit_projection_matrix,
-    reprojection_errors,
-)
-from .observe import BoardCaptures, board_views, projector_points
-from .target import (
-    JointCalibration,
-    TargetObservations,
-    calibrate_from_observations,
-    calibrate_rig_joint,
-)
-from .target import _mark_centroids as _mark_centroids
-from .target import _mark_quadrature as _mark_quadrature
-from .target import _ray_cylinder as _ray_cylinder
-
-__all__ = [
-    "BoardCalibration",
-    "BoardCaptures",
-    "BoardView",
-    "CalibrationReport",
-    "CrossCheck",
-    "JointCalibration",
-    "TargetObservations",
-    "board_views",
-    "calibrate_board",
-    "calibrate_device",
-    "calibrate_from_observations",
-    "calibrate_points",
-    "calibrate_rig_joint",
-    "check_calibration_points",
-    "crosscheck",
-    "fit_projection_matrix",
-    "projector_points",
-    "reprojection_errors",
-]

@@ -21,13 +21,13 @@ Steps (:func:`calibrate_board`):
    intrinsics, distortions, device poses and board poses on the camera residuals (camera px)
    and projector residuals (panel px), the projector with OpenCV's distortion or the thesis's
    radial model (eq. 3.34; centre tied to the principal point, as
-   :func:`nail2nail.calibration.calibrate_rig_joint`); after a first fit each group of points
+   :func:`nail2nail.calibration.target.calibrate_rig_joint`); after a first fit each group of points
    (a camera's, the projector's through each camera) is weighted by the inverse of its noise
    estimated from the residuals, points beyond 5 of those standard deviations are dropped and
    the fit is repeated.
 
 The result is a :class:`BoardCalibration` whose :meth:`~BoardCalibration.rig_calibration` is a
-:class:`nail2nail.io.calibration.RigCalibration` of pinhole models (the same projector for
+:class:`nail2nail.calibration.files.RigCalibration` of pinhole models (the same projector for
 every camera).
 
 References
@@ -44,10 +44,11 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
 
-from ..camera_models import Pinhole
-from ..distortion import ideal_from_panel
-from ..io.calibration import CameraCalibration, RigCalibration
+from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.calibration.distortion import ProjectorDistortion, ideal_from_panel
+from nail2nail.calibration.files import CameraCalibration, RigCalibration
 
 __all__ = [
     "PROJECTOR_MODELS",
@@ -147,7 +148,7 @@ class BoardCalibration:
     camera_names: list
     cameras: list
     projector: Pinhole
-    projector_distortion: dict | None
+    projector_distortion: ProjectorDistortion | None
     board_poses: dict
     camera_rms_px: dict
     projector_rms_px: float
@@ -160,7 +161,7 @@ class BoardCalibration:
     projector_model: str = "opencv"
 
     def rig_calibration(self, *, extra: dict | None = None) -> RigCalibration:
-        """The calibration as a :class:`~nail2nail.io.calibration.RigCalibration` (pinhole
+        """The calibration as a :class:`~nail2nail.calibration.files.RigCalibration` (pinhole
         cameras, the same projector for every camera)."""
         cameras = [CameraCalibration(name, cam, self.projector, size=cam.size)
                    for name, cam in zip(self.camera_names, self.cameras, strict=True)]
@@ -181,7 +182,8 @@ class BoardCalibration:
             "views_used": [list(v) for v in self.views_used],
             "views_refused": [list(v) for v in self.views_refused],
             "points_dropped": self.points_dropped,
-            "projector_distortion": self.projector_distortion,
+            "projector_distortion": (None if self.projector_distortion is None
+                                     else self.projector_distortion.to_dict()),
         }
 
 
@@ -257,8 +259,8 @@ def calibrate_device(object_points, image_points, size, *, name: str = "device",
              | (0 if 4 in free else cv2.CALIB_FIX_K3)
              | (0 if 2 in free else cv2.CALIB_ZERO_TANGENT_DIST))
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(obj, img, tuple(int(v) for v in size),
-                                                     None, None, flags=flags, criteria=criteria)
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(  # type: ignore[call-overload]
+        obj, img, tuple(int(v) for v in size), None, None, flags=flags, criteria=criteria)
     model = Pinhole(K=K, R=np.eye(3), t=np.zeros(3), dist=np.ravel(dist)[:5], size=size)
     return model, [_transform(r, t) for r, t in zip(rvecs, tvecs, strict=True)], float(rms)
 
@@ -392,8 +394,6 @@ def calibrate_board(
         An unknown model or world, a camera with fewer than :data:`MIN_VIEWS` usable views, no
         projector points in enough poses, or a device that shares no pose with the others.
     """
-    from scipy.optimize import least_squares
-
     if camera_distortion not in CAMERA_DISTORTION:
         raise ValueError(f"camera_distortion: expected one of {tuple(CAMERA_DISTORTION)}, got "
                          f"{camera_distortion!r}")
@@ -412,8 +412,34 @@ def calibrate_board(
     if world != "board" and world not in names:
         raise ValueError(f"world: expected 'board' or a camera name {names}, got {world!r}")
     thesis = projector_model == "thesis"
+    used, refused = _usable_views(views, obj, camera_sizes)
+    poses = sorted({v.pose for v in used})
 
-    used, refused = [], []
+    # 1. Zhang's method per camera, then for the projector on its points of every pose
+    init, T_dev_board = _initial_devices(used, obj, camera_sizes, projector_size, poses,
+                                         camera_distortion=camera_distortion)
+    # 2. the rig
+    devices = [*names, "projector"]
+    T_dev_world, T_world_board = _initial_poses(
+        T_dev_board, devices, poses, ("board", poses[0]) if world == "board" else world)
+    # 3. bundle adjustment, then again with each group of points weighted by its noise
+    free_dist = {n: list(CAMERA_DISTORTION[camera_distortion]) for n in names}
+    free_dist["projector"] = [] if thesis else list(range(5))
+    problem = _BundleAdjustment(devices, poses, world, free_dist, thesis)
+    x0 = problem.start(init, T_dev_world, T_world_board)
+    blocks = _observation_blocks(used, devices, names, obj, poses)
+    x = problem.solve(x0, blocks)
+    blocks, dropped = problem.reweighted(x, blocks, outlier_sigma)
+    x = problem.solve(x, blocks)
+    return _board_result(problem, x, blocks, names, camera_sizes, projector_size, used,
+                         refused, dropped, world, projector_model)
+
+
+def _usable_views(views, obj: np.ndarray, camera_sizes: dict) -> tuple[list, list]:
+    """The views with at least :data:`MIN_FEATURES` features, and those refused (warned)."""
+    names = list(camera_sizes)
+    used: list = []
+    refused: list = []
     for v in views:
         if v.camera not in camera_sizes:
             raise ValueError(f"view of pose {v.pose}: unknown camera {v.camera!r} (has {names})")
@@ -423,13 +449,18 @@ def calibrate_board(
         (used if len(v.ids) >= MIN_FEATURES else refused).append(v)
     for v in refused:
         warnings.warn(f"{v.camera}: pose {v.pose} has {len(v.ids)} board features (fewer than "
-                      f"{MIN_FEATURES}); view skipped", stacklevel=2)
-    poses = sorted({v.pose for v in used})
+                      f"{MIN_FEATURES}); view skipped", stacklevel=3)
+    return used, refused
 
-    # 1. Zhang's method per camera, then for the projector on its points of every pose
+
+def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_size, poses,
+                     *, camera_distortion: str) -> tuple[dict, dict]:
+    """Zhang's method (:func:`calibrate_device`) per camera, then for the projector on its
+    board points of every pose (averaged over the cameras that measured them):
+    ``(models by device, T_device_board by (device, pose))``."""
     T_dev_board: dict = {}
     init: dict = {}
-    for name in names:
+    for name in camera_sizes:
         mine = [v for v in used if v.camera == name]
         model, T, _ = calibrate_device([obj[v.ids] for v in mine], [v.xy_camera for v in mine],
                                        camera_sizes[name], name=f"camera {name}",
@@ -446,12 +477,12 @@ def calibrate_board(
                 xy.append(v.xy_projector[ok])
         if not ids:
             continue
-        ids, xy = np.concatenate(ids), np.concatenate(xy)
-        uniq, inv = np.unique(ids, return_inverse=True)
+        all_ids, all_xy = np.concatenate(ids), np.concatenate(xy)
+        uniq, inv = np.unique(all_ids, return_inverse=True)
         if len(uniq) < MIN_FEATURES:
             continue
         mean = np.zeros((len(uniq), 2))
-        np.add.at(mean, inv, xy)
+        np.add.at(mean, inv, all_xy)
         mean /= np.bincount(inv)[:, None]
         proj_obj.append(obj[uniq])
         proj_img.append(mean)
@@ -459,42 +490,12 @@ def calibrate_board(
     model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector")
     init["projector"] = model
     T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
+    return init, T_dev_board
 
-    # 2. the rig
-    devices = [*names, "projector"]
-    T_dev_world, T_world_board = _initial_poses(
-        T_dev_board, devices, poses, ("board", poses[0]) if world == "board" else world)
 
-    # 3. bundle adjustment: per device fx, fy, cx, cy, its free distortion terms (the thesis
-    # projector: k = ρ³) and 6 for its pose; 6 per board pose; the world device's (or the first
-    # board pose's) pose is fixed.
-    layout, x0 = {}, []
-
-    def add(key, values):
-        layout[key] = slice(sum(len(v) for v in x0), sum(len(v) for v in x0) + len(values))
-        x0.append(np.asarray(values, dtype=float))
-
-    free_dist = {n: list(CAMERA_DISTORTION[camera_distortion]) for n in names}
-    free_dist["projector"] = [] if thesis else list(range(5))
-    for dev in devices:
-        m = init[dev]
-        add((dev, "intr"), [m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]])
-        if dev == "projector" and thesis:
-            # OpenCV's k1 on normalised panel coordinates is -ρ³ f² of eq. 3.34 to first order
-            add((dev, "k"), [-m.dist[0] / (m.K[0, 0] * m.K[1, 1]) * _K_SCALE])
-        if free_dist[dev]:
-            add((dev, "dist"), m.dist[free_dist[dev]])
-        if dev != world:
-            T = T_dev_world[dev]
-            add((dev, "pose"), [*_rvec(T[:3, :3]), *T[:3, 3]])
-    for pose in poses:
-        if world == "board" and pose == poses[0]:
-            continue
-        T = T_world_board[pose]
-        add(("board", pose), [*_rvec(T[:3, :3]), *T[:3, 3]])
-    x0 = np.concatenate(x0)
-
-    # observations, per device: pose index per point, board point, measurement, camera of origin
+def _observation_blocks(used: list, devices: list, names: list, obj: np.ndarray,
+                        poses: list) -> list[dict]:
+    """Per device: pose index per point, board point, measurement, camera of origin, weight."""
     pose_index = {p: i for i, p in enumerate(poses)}
     blocks = []
     for dev in devices:
@@ -512,16 +513,60 @@ def calibrate_board(
         blocks.append({"device": dev, "pose": np.concatenate(pi), "xyz": obj[np.concatenate(ids)],
                        "meas": np.concatenate(meas), "camera": np.concatenate(cam),
                        "weight": np.ones(sum(len(p) for p in pi))})
+    return blocks
 
-    def unpack(x):
-        R_wb = np.repeat(np.eye(3)[None], len(poses), axis=0)
-        t_wb = np.zeros((len(poses), 3))
-        for pose, i in pose_index.items():
+
+class _BundleAdjustment:
+    """The joint fit of :func:`calibrate_board`: per device fx, fy, cx, cy, its free
+    distortion terms (the thesis projector: ``k = ρ³``) and 6 for its pose; 6 per board pose;
+    the world device's (or the first board pose's) pose is fixed."""
+
+    def __init__(self, devices: list, poses: list, world: str, free_dist: dict,
+                 thesis: bool) -> None:
+        self.devices, self.poses, self.world = devices, poses, world
+        self.free_dist, self.thesis = free_dist, thesis
+        self.pose_index = {p: i for i, p in enumerate(poses)}
+        self.layout: dict = {}
+
+    def start(self, init: dict, T_dev_world: dict, T_world_board: dict) -> np.ndarray:
+        """The parameter vector of the initial models and poses (and its layout)."""
+        x0: list = []
+
+        def add(key, values):
+            self.layout[key] = slice(sum(len(v) for v in x0),
+                                     sum(len(v) for v in x0) + len(values))
+            x0.append(np.asarray(values, dtype=float))
+
+        for dev in self.devices:
+            m = init[dev]
+            add((dev, "intr"), [m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]])
+            if dev == "projector" and self.thesis:
+                # OpenCV's k1 on normalised panel coordinates is -ρ³ f² of eq. 3.34 to first
+                # order
+                add((dev, "k"), [-m.dist[0] / (m.K[0, 0] * m.K[1, 1]) * _K_SCALE])
+            if self.free_dist[dev]:
+                add((dev, "dist"), m.dist[self.free_dist[dev]])
+            if dev != self.world:
+                T = T_dev_world[dev]
+                add((dev, "pose"), [*_rvec(T[:3, :3]), *T[:3, 3]])
+        for pose in self.poses:
+            if self.world == "board" and pose == self.poses[0]:
+                continue
+            T = T_world_board[pose]
+            add(("board", pose), [*_rvec(T[:3, :3]), *T[:3, 3]])
+        return np.concatenate(x0)
+
+    def unpack(self, x):
+        """``(R_world_board (P, 3, 3), t_world_board (P, 3), {device: (R, t)})`` of `x`."""
+        layout = self.layout
+        R_wb = np.repeat(np.eye(3)[None], len(self.poses), axis=0)
+        t_wb = np.zeros((len(self.poses), 3))
+        for pose, i in self.pose_index.items():
             if ("board", pose) in layout:
                 p = x[layout["board", pose]]
                 R_wb[i], t_wb[i] = _rotations(p[:3])[0], p[3:]
         dev_pose = {}
-        for dev in devices:
+        for dev in self.devices:
             if (dev, "pose") in layout:
                 p = x[layout[dev, "pose"]]
                 dev_pose[dev] = (_rotations(p[:3])[0], p[3:])
@@ -529,103 +574,111 @@ def calibrate_board(
                 dev_pose[dev] = (np.eye(3), np.zeros(3))
         return R_wb, t_wb, dev_pose
 
-    def block_residuals(x, block, R_wb, t_wb, dev_pose):
+    def distortion(self, x, dev) -> np.ndarray:
+        """The device's five OpenCV distortion terms, its free ones from `x`."""
+        dist = np.zeros(5)
+        if self.free_dist[dev]:
+            dist[self.free_dist[dev]] = x[self.layout[dev, "dist"]]
+        return dist
+
+    def projector_rho(self, x) -> float:
+        """The thesis projector's ρ (eq. 3.34)."""
+        return float(np.cbrt(x[self.layout["projector", "k"]][0] / _K_SCALE))
+
+    def block_residuals(self, x, block, R_wb, t_wb, dev_pose) -> np.ndarray:
+        """Reprojection residuals ``(N, 2)`` of one device's block, px."""
         dev = block["device"]
         R, t = dev_pose[dev]
         xyz_world = np.einsum("nij,nj->ni", R_wb[block["pose"]], block["xyz"]) + t_wb[block["pose"]]
         xyz_dev = xyz_world @ R.T + t
-        intr = x[layout[dev, "intr"]]
-        if dev == "projector" and thesis:
-            rho = float(np.cbrt(x[layout[dev, "k"]][0] / _K_SCALE))
-            ideal = ideal_from_panel(block["meas"], intr[2:4], rho)
+        intr = x[self.layout[dev, "intr"]]
+        if dev == "projector" and self.thesis:
+            ideal = ideal_from_panel(block["meas"], intr[2:4], self.projector_rho(x))
             return _project(intr, np.zeros(5), xyz_dev) - ideal
-        return _project(intr, distortion(x, dev), xyz_dev) - block["meas"]
+        return _project(intr, self.distortion(x, dev), xyz_dev) - block["meas"]
 
-    def distortion(x, dev):
-        dist = np.zeros(5)
-        if free_dist[dev]:
-            dist[free_dist[dev]] = x[layout[dev, "dist"]]
-        return dist
-
-    def residuals(x, blocks):
-        R_wb, t_wb, dev_pose = unpack(x)
-        return np.concatenate([(b["weight"][:, None] * block_residuals(x, b, R_wb, t_wb,
-                                                                       dev_pose)).ravel()
+    def residuals(self, x, blocks) -> np.ndarray:
+        R_wb, t_wb, dev_pose = self.unpack(x)
+        return np.concatenate([(b["weight"][:, None] * self.block_residuals(x, b, R_wb, t_wb,
+                                                                            dev_pose)).ravel()
                                for b in blocks])
 
-    def solve(x_start, blocks):
-        # Levenberg–Marquardt (MINPACK) on the dense finite-difference Jacobian: the narrow
-        # field makes focal length and distance nearly interchangeable, a valley along which a
-        # trust-region solver on the sparse Jacobian crawls; a few hundred parameters at most
-        return least_squares(residuals, x_start, x_scale="jac", method="lm", ftol=1e-12,
+    def solve(self, x_start, blocks) -> np.ndarray:
+        """Levenberg–Marquardt (MINPACK) on the dense finite-difference Jacobian: the narrow
+        field makes focal length and distance nearly interchangeable, a valley along which a
+        trust-region solver on the sparse Jacobian crawls; a few hundred parameters at most."""
+        return least_squares(self.residuals, x_start, x_scale="jac", method="lm", ftol=1e-12,
                              xtol=1e-12, gtol=1e-12, max_nfev=100 * (len(x_start) + 1),
                              args=(blocks,)).x
 
-    x = solve(x0, blocks)
-    # second pass: each group of points (a camera's; the projector's through each camera) is
-    # weighted by 1 / its noise, estimated from the first fit's residuals (the projector
-    # points through an oblique camera carry its detection error times the steep fringe
-    # gradient), and outliers are dropped
-    R_wb, t_wb, dev_pose = unpack(x)
-    dropped = 0
-    for i, b in enumerate(blocks):
-        r = np.hypot(*block_residuals(x, b, R_wb, t_wb, dev_pose).T)
-        keep = np.ones(len(r), dtype=bool)
-        weight = np.ones(len(r))
-        for cam in np.unique(b["camera"]):
-            group = b["camera"] == cam
-            # per-coordinate sigma: the median of |r| of a 2D Gaussian is 1.1774 sigma
-            sigma = max(float(np.median(r[group])) / 1.1774, 1e-6)
-            weight[group] = 1.0 / sigma
-            keep[group] = r[group] <= outlier_sigma * sigma
-        dropped += int((~keep).sum())
-        blocks[i] = {**{k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in b.items()},
-                     "weight": weight[keep] / np.median(weight)}
-    x = solve(x, blocks)
+    def reweighted(self, x, blocks: list, outlier_sigma: float) -> tuple[list, int]:
+        """Each group of points (a camera's; the projector's through each camera) weighted by
+        1 / its noise, estimated from the fit's residuals (the projector points through an
+        oblique camera carry its detection error times the steep fringe gradient), outliers
+        dropped: ``(blocks, points dropped)``."""
+        R_wb, t_wb, dev_pose = self.unpack(x)
+        dropped = 0
+        out = list(blocks)
+        for i, b in enumerate(blocks):
+            r = np.hypot(*self.block_residuals(x, b, R_wb, t_wb, dev_pose).T)
+            keep = np.ones(len(r), dtype=bool)
+            weight = np.ones(len(r))
+            for cam in np.unique(b["camera"]):
+                group = b["camera"] == cam
+                # per-coordinate sigma: the median of |r| of a 2D Gaussian is 1.1774 sigma
+                sigma = max(float(np.median(r[group])) / 1.1774, 1e-6)
+                weight[group] = 1.0 / sigma
+                keep[group] = r[group] <= outlier_sigma * sigma
+            dropped += int((~keep).sum())
+            out[i] = {**{k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in b.items()},
+                      "weight": weight[keep] / np.median(weight)}
+        return out, dropped
 
-    # results
-    R_wb, t_wb, dev_pose = unpack(x)
+
+def _rms(r: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
+
+
+def _board_result(problem: _BundleAdjustment, x, blocks: list, names: list, camera_sizes: dict,
+                  projector_size, used: list, refused: list, dropped: int, world: str,
+                  projector_model: str) -> BoardCalibration:
+    """The :class:`BoardCalibration` of the fitted parameters `x`: models, poses, RMS."""
+    R_wb, t_wb, dev_pose = problem.unpack(x)
     models = {}
-    for dev in devices:
-        intr = x[layout[dev, "intr"]]
+    for dev in problem.devices:
+        intr = x[problem.layout[dev, "intr"]]
         K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
         size = projector_size if dev == "projector" else camera_sizes[dev]
-        dist = distortion(x, dev)
         R, t = dev_pose[dev]
-        models[dev] = Pinhole(K=K, R=R, t=t, dist=dist, size=size)
+        models[dev] = Pinhole(K=K, R=R, t=t, dist=problem.distortion(x, dev), size=size)
     pdist = None
-    if thesis:
-        intr = x[layout["projector", "intr"]]
-        pdist = {"center": [float(intr[2]), float(intr[3])],
-                 "rho": float(np.cbrt(x[layout["projector", "k"]][0] / _K_SCALE))}
-    res = {b["device"]: block_residuals(x, b, R_wb, t_wb, dev_pose) for b in blocks}
-
-    def rms(r):
-        return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
-
+    if problem.thesis:
+        intr = x[problem.layout["projector", "intr"]]
+        pdist = ProjectorDistortion(center=(float(intr[2]), float(intr[3])),
+                                    rho=problem.projector_rho(x))
+    res = {b["device"]: problem.block_residuals(x, b, R_wb, t_wb, dev_pose) for b in blocks}
     bmap = {b["device"]: b for b in blocks}
     pose_rms = {}
-    for pose, i in pose_index.items():
-        pose_rms[pose] = {
-            "camera": {n: rms(res[n][bmap[n]["pose"] == i]) for n in names
-                       if np.any(bmap[n]["pose"] == i)},
-            "projector": rms(res["projector"][bmap["projector"]["pose"] == i]),
-        }
     T_board = {}
-    for pose, i in pose_index.items():
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R_wb[i], t_wb[i]
-        T_board[pose] = T
+    for pose, i in problem.pose_index.items():
+        pose_rms[pose] = {
+            "camera": {n: _rms(res[n][bmap[n]["pose"] == i]) for n in names
+                       if np.any(bmap[n]["pose"] == i)},
+            "projector": _rms(res["projector"][bmap["projector"]["pose"] == i]),
+        }
+        T_pose = np.eye(4)
+        T_pose[:3, :3], T_pose[:3, 3] = R_wb[i], t_wb[i]
+        T_board[pose] = T_pose
     return BoardCalibration(
         camera_names=names,
         cameras=[models[n] for n in names],
         projector=models["projector"],
         projector_distortion=pdist,
         board_poses=T_board,
-        camera_rms_px={n: rms(res[n]) for n in names},
-        projector_rms_px=rms(res["projector"]),
+        camera_rms_px={n: _rms(res[n]) for n in names},
+        projector_rms_px=_rms(res["projector"]),
         projector_rms_by_camera_px={
-            n: rms(res["projector"][bmap["projector"]["camera"] == j])
+            n: _rms(res["projector"][bmap["projector"]["camera"] == j])
             for j, n in enumerate(names)},
         pose_rms_px=pose_rms,
         views_used=[(v.camera, v.pose) for v in used],

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_points
-from ..camera_models import project_dlt
+from nail2nail._validation import as_points
+from nail2nail.calibration.camera_models import project_dlt
+from nail2nail.scan.triangulation import reconstruct_points, reconstruct_points_lsq
 
 __all__ = [
     "CalibrationReport",
@@ -104,7 +105,7 @@ def fit_projection_matrix(xyz_world, xy_image, *, method: str = "thesis") -> np.
     >>> rng = np.random.default_rng(0)
     >>> M = np.array([[900., 10, 300, 5000], [5, 950, 200, 4000], [0.01, 0.02, 0.5, 1]])
     >>> xyz = rng.uniform(-10, 10, (20, 3))
-    >>> from nail2nail.camera_models import project_dlt
+    >>> from nail2nail.calibration.camera_models import project_dlt
     >>> bool(np.allclose(fit_projection_matrix(xyz, project_dlt(M, xyz)), M))
     True
     """
@@ -200,7 +201,6 @@ def calibrate_points(
         Projector coordinate(s) used for reconstruction: ``"yp"`` is eq. 3.12–3.14 exactly,
         ``"xpyp"`` the over-determined least-squares variant.
     """
-    from ..reconstruction import reconstruct_points, reconstruct_points_lsq
 
     if use not in ("yp", "xp", "xpyp"):
         raise ValueError(f"use: expected 'yp', 'xp' or 'xpyp', got {use!r}")

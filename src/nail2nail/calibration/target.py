@@ -1,6 +1,7 @@
 """Joint calibration of the cameras and one shared projector on the thesis's cylinder target.
 
-The thesis's machined cylinder carries marks at known positions (:mod:`nail2nail.markers`);
+The thesis's machined cylinder carries marks at known positions
+(:mod:`nail2nail.calibration.markers`);
 :func:`calibrate_rig_joint` refines pinhole cameras and one projector with the thesis's radial
 distortion (eq. 3.34) on the marks' camera and decoded projector coordinates, optionally with
 dense surface constraints; :func:`calibrate_from_observations` is the entry point of
@@ -13,9 +14,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distortion import ideal_from_panel
-from ..io.calibration import CameraCalibration, RigCalibration
-from .dlt import calibrate_points, check_calibration_points, fit_projection_matrix
+from nail2nail.calibration.camera_models import Pinhole, dlt_from_pinhole, pinhole_from_dlt
+from nail2nail.calibration.distortion import (
+    ProjectorDistortion,
+    as_projector_distortion,
+    ideal_from_panel,
+)
+from nail2nail.calibration.dlt import (
+    calibrate_points,
+    check_calibration_points,
+    fit_projection_matrix,
+)
+from nail2nail.calibration.files import CameraCalibration, RigCalibration
+from nail2nail.scan.triangulation import reconstruct_points_ray
 
 __all__ = [
     "JointCalibration",
@@ -68,15 +79,15 @@ class JointCalibration:
         One pinhole model per camera.
     projector : Pinhole
         The one projector model shared by every camera.
-    projector_distortion : dict or None
-        ``{"center": [x, y], "rho": ρ}`` (eq. 3.34; centre = the projector's principal point).
+    projector_distortion : ProjectorDistortion or None
+        The radial model (eq. 3.34; centre = the projector's principal point).
     camera_rms_px, projector_rms_px : list of float
         RMS reprojection residual per camera, camera px and projector panel px.
     """
 
     cameras: list
-    projector: object
-    projector_distortion: dict | None
+    projector: Pinhole
+    projector_distortion: ProjectorDistortion | None
     camera_rms_px: list
     projector_rms_px: list
 
@@ -93,7 +104,6 @@ def _pack(model) -> np.ndarray:
 def _unpack(p: np.ndarray, size) -> object:
     from scipy.spatial.transform import Rotation
 
-    from ..camera_models import Pinhole
 
     K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
     return Pinhole(K=K, R=Rotation.from_rotvec(p[4:7]).as_matrix(), t=p[7:10], size=size)
@@ -194,7 +204,7 @@ def calibrate_rig_joint(
     distortion : bool
         Estimate the projector's radial distortion ρ (else ρ = 0).
     initial_rho : float
-        Starting value of ρ (e.g. from :mod:`nail2nail.distortion`'s estimate).
+        Starting value of ρ (e.g. from :mod:`nail2nail.calibration.distortion`'s estimate).
     initial_center : (2,) float, optional
         The distortion centre that goes with `initial_rho`; the starting projector model is
         fitted to the panel coordinates undistorted with both.
@@ -209,7 +219,8 @@ def calibrate_rig_joint(
         Weight of a surface residual (mm) relative to the reprojection residuals (px); the
         default, about the cameras' px per mm, makes 1 µm count like 0.03 px.
     target : TargetGeometry, optional
-        The cylindrical mark target (:class:`nail2nail.markers.TargetGeometry`) whose marks the
+        The cylindrical mark target (:class:`nail2nail.calibration.markers.TargetGeometry`) whose
+        marks the
         observations measured (their ``grid`` identities are needed). With it, a camera residual
         compares a measured mark centroid with the modelled centroid of the mark's projected
         disc (or ring), not with the projection of its centre: seen obliquely on the curved
@@ -224,8 +235,6 @@ def calibrate_rig_joint(
     """
     from scipy.optimize import least_squares
 
-    from ..camera_models import dlt_from_pinhole, pinhole_from_dlt
-    from ..reconstruction import reconstruct_points_ray
 
     if not observations:
         raise ValueError("observations: need at least one camera")
@@ -312,7 +321,8 @@ def calibrate_rig_joint(
         ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
         res_p = proj.project(mark_point(cam, obs, quad)) - ideal
         proj_rms.append(float(np.sqrt(np.nanmean(res_p**2))))
-    dist = {"center": proj.K[:2, 2].tolist(), "rho": float(rho)} if distortion else None
+    dist = (ProjectorDistortion(center=(float(proj.K[0, 2]), float(proj.K[1, 2])), rho=float(rho))
+            if distortion else None)
     return JointCalibration(cams, proj, dist, cam_rms, proj_rms)
 
 
@@ -333,7 +343,7 @@ def calibrate_from_observations(
     Parameters
     ----------
     observations : list of TargetObservations
-        One per camera (e.g. :func:`nail2nail.scanning.target_observations`).
+        One per camera (e.g. :func:`nail2nail.calibration.observe.target_observations`).
     model : {"dlt", "joint"}
         ``"dlt"``: each camera and its own projector matrix (thesis eq. 3.11).
         ``"joint"``: pinhole cameras and one shared projector with radial distortion
@@ -344,13 +354,13 @@ def calibrate_from_observations(
         Projector panel ``(W, H)``, px.
     surface : callable, optional
         Joint model: the target's signed distance in mm (e.g.
-        :meth:`nail2nail.markers.TargetGeometry.signed_distance`) for dense constraints.
+        :meth:`nail2nail.calibration.markers.TargetGeometry.signed_distance`) for dense constraints.
     initial_distortion : dict, optional
         Joint model: starting ``{"center", "rho"}`` (e.g. the flat-plane estimate).
     projector_distortion : dict, optional
         DLT model: a known ``{"center", "rho"}``; the decoded panel coordinates are undistorted
         first and the calibration carries the distortion, so that scans compensate it in the
-        model (:func:`nail2nail.reconstruction.reconstruct_image`) instead of with
+        model (:func:`nail2nail.scan.triangulation.reconstruct_image`) instead of with
         pre-distorted patterns.
     target : TargetGeometry, optional
         Joint model: the mark target, to model the marks' measured centroids
@@ -371,12 +381,11 @@ def calibrate_from_observations(
     summary = {}
     if model == "dlt":
         cameras = []
+        dist = as_projector_distortion(projector_distortion)
         for obs in observations:
             xy_projector = obs.xy_projector
-            if projector_distortion is not None:
-                xy_projector = ideal_from_panel(
-                    xy_projector, projector_distortion["center"], projector_distortion["rho"]
-                )
+            if dist is not None:
+                xy_projector = dist.ideal_from_panel(xy_projector)
             report = calibrate_points(
                 obs.xyz_world, obs.xy_camera, xy_projector, method=method, use=use
             )
@@ -392,12 +401,7 @@ def calibrate_from_observations(
             }
         calib = RigCalibration(
             cameras=cameras,
-            projector_distortion=None
-            if projector_distortion is None
-            else {
-                "center": [float(c) for c in projector_distortion["center"]],
-                "rho": float(projector_distortion["rho"]),
-            },
+            projector_distortion=dist,
             extra={"model": "dlt", "method": method},
         )
         return calib, summary

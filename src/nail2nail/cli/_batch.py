@@ -10,9 +10,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..io._json import dumps_json
-from ._process import add_process_options, process_options
-from ._report import add_report_options, check_report_options
+from nail2nail.batch import default_workers, find_captures, local_client, process_batch
+from nail2nail.cli._process import add_process_options, process_options
+from nail2nail.cli._report import add_report_options, check_report_options
+from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run"]
 
@@ -53,7 +54,6 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..batch import default_workers, find_captures, local_client, process_batch
 
     options = process_options(args)
     check_report_options(args)

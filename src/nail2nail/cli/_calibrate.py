@@ -7,15 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration import calibrate_points
-from ..io._json import dumps_json
-from ..io.calibration import (
+from nail2nail.calibration.dlt import calibrate_points
+from nail2nail.calibration.files import (
     CameraCalibration,
     RigCalibration,
     check_handedness,
     save_calibration,
 )
-from ..io.points import read_points
+from nail2nail.cli._calibrate_capture import run_capture
+from nail2nail.io._json import dumps_json
+from nail2nail.io.points import read_points
 
 __all__ = ["add_parser", "format_table", "report_dict", "run"]
 
@@ -56,7 +57,7 @@ def add_parser(sub) -> None:
 
 
 def report_dict(report, labels) -> dict:
-    """JSON summary of a :class:`~nail2nail.calibration.CalibrationReport`."""
+    """JSON summary of a :class:`~nail2nail.calibration.dlt.CalibrationReport`."""
     return {
         "method": report.method,
         "use": report.use,
@@ -107,7 +108,6 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--mark-diameter-px: expected a diameter > 2 px, got "
                          f"{args.mark_diameter_px:g}")
     if args.source.is_dir():
-        from ._calibrate_capture import run_capture
 
         return run_capture(args)
     table = read_points(args.source)

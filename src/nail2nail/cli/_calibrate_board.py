@@ -7,17 +7,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import Stages
-from ..calibration.board import CAMERA_DISTORTION, PROJECTOR_MODELS, calibrate_board
-from ..calibration.observe import board_views
-from ..io._json import dumps_json
-from ..io.calibration import check_handedness, save_calibration
+from nail2nail._progress import Stages
+from nail2nail.calibration.board import CAMERA_DISTORTION, PROJECTOR_MODELS, calibrate_board
+from nail2nail.calibration.boards import BOARD_KINDS, Board
+from nail2nail.calibration.files import check_handedness, save_calibration
+from nail2nail.calibration.observe import board_views
+from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
-    from ..boards import BOARD_KINDS
 
     p = sub.add_parser(
         "calibrate-board",
@@ -60,7 +60,6 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..boards import Board
 
     board = Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
                   marker=args.marker)
@@ -100,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"projector ({args.projector_model}): RMS {result.projector_rms_px:.4f} px")
     if result.projector_distortion:
         d = result.projector_distortion
-        print(f"projector distortion: centre {np.round(d['center'], 2).tolist()} px, "
-              f"rho {d['rho']:.6f}")
+        print(f"projector distortion: centre {np.round(d.center, 2).tolist()} px, "
+              f"rho {d.rho:.6f}")
     for pose, r in poses.items():
         cams = ", ".join(f"{c} {v:.4f}" for c, v in r["camera"].items())
         print(f"pose {pose}: cameras {cams} px; projector {r['projector']:.4f} px")

@@ -7,15 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import Stages
-from ..calibration import calibrate_from_observations
-from ..io._atomic import atomic_files
-from ..io._json import dumps_json
-from ..io.calibration import check_handedness, save_calibration
-from ..io.capture import read_capture
-from ..io.points import PointsTable, write_points
-from ..markers import TargetGeometry
-from ..scanning import target_observations
+from nail2nail._progress import Stages
+from nail2nail.calibration.files import check_handedness, save_calibration
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.calibration.observe import target_observations
+from nail2nail.calibration.target import calibrate_from_observations
+from nail2nail.io._atomic import atomic_files
+from nail2nail.io._json import dumps_json
+from nail2nail.io.capture import read_capture
+from nail2nail.io.points import PointsTable, write_points
 
 __all__ = ["run_capture"]
 
@@ -59,14 +59,15 @@ def run_capture(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps_json({"output": str(args.output), "model": args.model, "cameras": summary,
                           "points_tables": tables,
-                          "projector_distortion": calib.projector_distortion}, indent=2))
+                          "projector_distortion": calib.to_dict()["projector_distortion"]},
+                         indent=2))
     else:
         for name, s in summary.items():
             print(f"{name}: {s['points']} marks, " + ", ".join(
                 f"{k} {np.round(v, 4).tolist()}" for k, v in s.items() if k != "points"))
         if calib.projector_distortion:
             d = calib.projector_distortion
-            print(f"projector distortion: centre {np.round(d['center'], 2).tolist()} px, "
-                  f"rho {d['rho']:.6f}")
+            print(f"projector distortion: centre {np.round(d.center, 2).tolist()} px, "
+                  f"rho {d.rho:.6f}")
         print(f"wrote {args.output} and {len(tables)} points tables")
     return 0

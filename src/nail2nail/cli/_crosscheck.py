@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration import calibrate_points, crosscheck
-from ..io._json import dumps_json
-from ..io.points import read_points
+from nail2nail.calibration.dlt import calibrate_points, crosscheck
+from nail2nail.io._json import dumps_json
+from nail2nail.io.points import read_points
 
 __all__ = ["add_parser", "run"]
 

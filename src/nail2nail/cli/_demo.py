@@ -7,11 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration import calibrate_points, crosscheck
-from ..io._json import dumps_json
-from ..io.points import thesis_table
-from ._calibrate import format_table
-from ._report import add_report_options, check_report_options
+from nail2nail.calibration.dlt import calibrate_points, crosscheck
+from nail2nail.cli._calibrate import format_table
+from nail2nail.cli._report import add_report_options, check_report_options
+from nail2nail.io._json import dumps_json
+from nail2nail.io.points import thesis_table
+from nail2nail.pipeline import format_summary, run_demo
+from nail2nail.report import write_report
 
 __all__ = ["add_parser", "run", "thesis_part"]
 
@@ -57,7 +59,6 @@ def thesis_part(quiet: bool) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..pipeline import format_summary, run_demo
 
     if not args.scale > 0:
         raise ValueError(f"--scale: expected a positive number, got {args.scale}")
@@ -68,7 +69,6 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(args.out, scale=args.scale, progress=True)
     result["thesis"] = thesis
     if args.report:
-        from ..report import write_report
 
         result["report"] = str(write_report(args.out, max_points=args.report_points,
                                             progress=True))

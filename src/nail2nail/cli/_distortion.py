@@ -14,15 +14,18 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from .._progress import Stages
-from .._validation import as_int
-from ..distortion import (
+from nail2nail._progress import Stages
+from nail2nail._validation import as_int
+from nail2nail.calibration.distortion import (
     ProjectorDistortion,
     estimate_from_decoded,
     grid_from_decoded,
 )
-from ..io._atomic import atomic_directory, atomic_path
-from ..io._json import dumps_json, write_json
+from nail2nail.io._atomic import atomic_directory, atomic_path
+from nail2nail.io._json import dumps_json, write_json
+from nail2nail.io.capture import read_capture
+from nail2nail.scan.capture import decode_cameras
+from nail2nail.simulation.rig import Rig
 
 __all__ = ["add_parser", "run"]
 
@@ -49,8 +52,6 @@ def add_parser(sub) -> None:
 
 def _load(capture_dir: Path):
     """Decoded maps, camera models and ground truth of a capture (if it records them)."""
-    from ..io.capture import read_capture
-    from ..scanning import decode_cameras
 
     capture = read_capture(capture_dir, load=False)
     manifest = capture.manifest
@@ -66,10 +67,10 @@ def _load(capture_dir: Path):
         albedo[name] = decoded.albedo
     truth, models = None, {}
     if isinstance(manifest.get("rig"), dict):
-        rig = capture.rig()
+        rig = Rig.from_capture(capture)
         models = dict(zip(rig.camera_names, rig.cameras, strict=True))
-        if rig.projector_distortion is not None:
-            truth = ProjectorDistortion.from_dict(rig.projector_distortion)
+        truth = rig.projector_distortion
+    assert capture.pattern_set is not None  # decode_cameras refused a capture without one
     return views, albedo, models, truth, capture.pattern_set.panel_size
 
 

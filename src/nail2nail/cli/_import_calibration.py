@@ -1,8 +1,8 @@
 """``nail2nail import-calibration`` and ``nail2nail export-calibration``: OpenCV calibrations.
 
-Thin command layer over :mod:`nail2nail.io.opencv_calibration` (``cv2.FileStorage`` XML and
+Thin command layer over :mod:`nail2nail.calibration.opencv_files` (``cv2.FileStorage`` XML and
 YAML files in the SLStudio, OpenCV ``stereo_calib`` or nail2nail multi-camera layout) and the
-rig calibration JSON of :mod:`nail2nail.io.calibration`.
+rig calibration JSON of :mod:`nail2nail.calibration.files`.
 """
 
 from __future__ import annotations
@@ -10,9 +10,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..io._json import dumps_json
-from ..io.calibration import load_calibration, save_calibration
-from ..io.opencv_calibration import LAYOUTS, read_opencv_calibration, write_opencv_calibration
+from nail2nail.calibration.files import load_calibration, save_calibration
+from nail2nail.calibration.opencv_files import (
+    LAYOUTS,
+    read_opencv_calibration,
+    write_opencv_calibration,
+)
+from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run_export", "run_import"]
 

@@ -13,42 +13,57 @@ lines on stderr.
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 import traceback
 import warnings
 
-from .._progress import is_quiet, quiet
-from .._validation import describe_error, one_line
+from nail2nail._progress import is_quiet, quiet
+from nail2nail._validation import describe_error, one_line
+from nail2nail.cli import (
+    _batch,
+    _calibrate,
+    _calibrate_board,
+    _crosscheck,
+    _demo,
+    _distortion,
+    _import_calibration,
+    _merge,
+    _patterns,
+    _print_target,
+    _process,
+    _report,
+    _scan,
+    _simulate,
+    _unroll,
+)
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "build_parser", "main"]
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1
 EXIT_INTERRUPTED = 130
-REPORT_URL = "the nail2nail issue tracker"
 QUIET_HELP = ("no progress bars or stage lines on stderr (shown only when stderr is a terminal) "
               "and no informational lines; errors and warnings are still printed")
 
 # Subcommand modules, in pipeline order.
-COMMANDS = [
-    "calibrate",
-    "calibrate_board",
-    "import_calibration",
-    "crosscheck",
-    "simulate",
-    "print_target",
-    "patterns",
-    "scan",
-    "distortion",
-    "merge",
-    "unroll",
-    "report",
-    "process",
-    "batch",
-    "demo",
-]
+COMMANDS = (
+    _calibrate,
+    _calibrate_board,
+    _import_calibration,
+    _crosscheck,
+    _simulate,
+    _print_target,
+    _patterns,
+    _scan,
+    _distortion,
+    _merge,
+    _unroll,
+    _report,
+    _process,
+    _batch,
+    _demo,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,13 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"nail2nail.cli._{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"nail2nail.cli._{name}":
-                raise
-            continue  # subcommand not built yet
+    for module in COMMANDS:
         module.add_parser(sub)
     for p in sub.choices.values():  # also after the subcommand; SUPPRESS keeps a leading -q
         p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
@@ -115,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(
             f"{command}: internal error: {type(exc).__name__}: {one_line(exc)} "
-            f"(a bug: please report it to {REPORT_URL} with the command line; "
+            "(a bug: please report it with the command line and the traceback; "
             "NAIL2NAIL_DEBUG=1 shows the traceback)",
             file=sys.stderr,
         )

@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .._validation import as_int
-from ..io._json import dumps_json
-from ..io.scans import load_scans, read_scan_frame
-from ..merge.report import parse_pairs, write_merge
+from nail2nail._validation import as_int
+from nail2nail.io._json import dumps_json
+from nail2nail.io.scans import load_scans, read_scan_frame
+from nail2nail.merge.report import parse_pairs, write_merge
 
 __all__ = ["add_parser", "run"]
 

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
 
-from ..io._atomic import atomic_directory, atomic_path
-from ..io._json import dumps_json, write_json
-from ..patterns import (
+from nail2nail.calibration.distortion import apply_lut, distortion_lut, load_projector_distortion
+from nail2nail.io._atomic import atomic_directory, atomic_path
+from nail2nail.io._json import dumps_json, write_json
+from nail2nail.scan.patterns import (
     PatternSet,
     default_pattern_set,
     frame_table,
@@ -95,7 +97,8 @@ def _scheme_set(args: argparse.Namespace) -> PatternSet:
                              "--reference and --directions are for the gray schemes (give a "
                              "--spec for another PMP set)")
         return default_pattern_set()
-    common = dict(complementary=not args.no_complementary, directions=tuple(args.directions))
+    common: dict[str, Any] = dict(complementary=not args.no_complementary,
+                                  directions=tuple(args.directions))
     if args.reference is not None:
         common["reference"] = args.reference
     if scheme == "gray-phase":
@@ -109,7 +112,6 @@ def run(args: argparse.Namespace) -> int:
     # Hook: pre-distortion of the frames (``--predistort RIG.json``) is applied here.
     lut = None
     if args.predistort is not None:
-        from ..distortion import apply_lut, distortion_lut, load_projector_distortion
 
         predistortion = load_projector_distortion(args.predistort)
         if predistortion is None or predistortion.rho == 0:
@@ -133,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         ],
     }
     if lut is not None:
+        assert predistortion is not None  # lut is made from it
         manifest["predistortion"] = predistortion.to_dict()
     if grid is not None:
         manifest["grid"] = "grid.png"

@@ -5,8 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..boards import BOARD_KINDS
-from ..io._json import dumps_json
+from nail2nail.calibration.boards import (
+    BOARD_KINDS,
+    Board,
+    board_sheet,
+    default_board,
+    target_wrap_sheet,
+)
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run"]
 
@@ -43,7 +50,6 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..boards import Board, board_sheet, default_board, target_wrap_sheet
 
     if args.output.suffix.lower() not in (".svg", ".pdf"):
         raise ValueError(f"--output: expected a .svg or .pdf file name, got {args.output}")
@@ -52,7 +58,6 @@ def run(args: argparse.Namespace) -> int:
     if args.what == "cylinder":
         if board_options:
             raise ValueError(f"{board_options[0]}: only with print-target board")
-        from ..markers import TargetGeometry
 
         geometry = TargetGeometry()
         sheet = target_wrap_sheet(geometry)

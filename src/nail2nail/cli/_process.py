@@ -9,10 +9,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..io._json import dumps_json
-from ._report import add_report_options, check_report_options
-from ._scan import add_scan_options, decode_options, masks, max_gradient
-from ._unroll import add_unroll_options, check_unroll_options, unroll_options
+from nail2nail.cli._report import add_report_options, check_report_options
+from nail2nail.cli._scan import add_scan_options, decode_options, masks, max_gradient
+from nail2nail.cli._unroll import add_unroll_options, check_unroll_options, unroll_options
+from nail2nail.io._json import dumps_json
+from nail2nail.merge.report import parse_pairs
+from nail2nail.process import process_capture
+from nail2nail.report import write_report
 
 __all__ = ["add_parser", "add_process_options", "process_options", "run"]
 
@@ -58,7 +61,6 @@ def add_process_options(p: argparse.ArgumentParser) -> None:
 
 def process_options(args: argparse.Namespace) -> dict:
     """The keyword arguments of :func:`nail2nail.process.process_capture` from `args`."""
-    from ..merge.report import parse_pairs
 
     check_unroll_options(args)
     options = decode_options(args)
@@ -74,13 +76,11 @@ def process_options(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..process import process_capture
 
     options = process_options(args)  # checks the options before any work
     check_report_options(args)
     summary = process_capture(args.capture, args.calib, args.out, progress=True, **options)
     if args.report:
-        from ..report import write_report
 
         summary["report"] = str(write_report(args.out, max_points=args.report_points,
                                              progress=True))

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nail2nail.report import write_report
+
 __all__ = ["add_parser", "run"]
 
 
@@ -41,7 +43,6 @@ def check_report_options(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report import write_report
 
     check_report_options(args)
     path = write_report(args.out_dir, args.out, max_points=args.report_points, progress=True)

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
+from typing import Any
 
-from ..frames import frame_transform
-from ..io._json import dumps_json
-from ..io.calibration import load_calibration
-from ..io.capture import read_capture
-from ..io.scans import save_scans
-from ..scanning import scan_capture
+from nail2nail.calibration.files import load_calibration
+from nail2nail.frames import frame_transform
+from nail2nail.io._json import dumps_json
+from nail2nail.io.capture import read_capture
+from nail2nail.io.masks import parse_mask_option
+from nail2nail.io.scans import save_scans
+from nail2nail.scan.capture import MAX_GRADIENT, scan_capture
+from nail2nail.scan.inputs import ERODE, MIN_ALBEDO, MIN_MODULATION, SATURATION, UNWRAP_TOLERANCE
 
 __all__ = ["add_parser", "add_scan_options", "decode_options", "max_gradient", "run"]
 
@@ -21,10 +25,10 @@ def add_scan_options(p) -> None:
                    help="projector coordinates for triangulation (default: both)")
     g = p.add_argument_group(
         "decoder thresholds",
-        "Per-pixel validity checks of the decoder (nail2nail.phase.decode). Intensities are "
-        "fractions of the frames' full scale (255 for 8-bit, 2**bits - 1 for deeper frames), so "
-        "the same values hold at every bit depth.")
-    g.add_argument("--min-modulation", type=float, default=0.03,
+        "Per-pixel validity checks of the decoder (nail2nail.scan.decoding.decode). "
+        "Intensities are fractions of the frames' full scale (255 for 8-bit, 2**bits - 1 for "
+        "deeper frames), so the same values hold at every bit depth.")
+    g.add_argument("--min-modulation", type=float, default=MIN_MODULATION,
                    help="smallest accepted fringe amplitude B of the phase frequencies, fraction "
                    "of full scale (default 0.03 = 7.7 grey levels of 8-bit amplitude; the phase "
                    "noise is sqrt(2/N) * noise / B for N steps)")
@@ -32,22 +36,23 @@ def add_scan_options(p) -> None:
                    help="smallest accepted amplitude of the coarser frequencies that only unwrap "
                    "(e.g. a 1-period cue) and of Gray-code bits' contrast, fraction of full "
                    "scale (default: --min-modulation)")
-    g.add_argument("--min-albedo", type=float, default=0.02,
+    g.add_argument("--min-albedo", type=float, default=MIN_ALBEDO,
                    help="smallest accepted mean intensity over all frames, fraction of full "
                    "scale: darker pixels are shadow (default 0.02)")
-    g.add_argument("--saturation", type=float, default=254.5 / 255,
+    g.add_argument("--saturation", type=float, default=SATURATION,
                    help="a pixel is saturated when any frame reaches this fraction of full "
                    "scale (default 254.5/255: the top grey level)")
-    g.add_argument("--unwrap-tolerance", type=float, default=0.25, metavar="PERIODS",
+    g.add_argument("--unwrap-tolerance", type=float, default=UNWRAP_TOLERANCE / (2 * math.pi),
+                   metavar="PERIODS",
                    help="largest accepted disagreement between a frequency and the coarser one "
                    "that unwraps it, in periods of the finer fringe (default 0.25 = pi/2 rad)")
-    g.add_argument("--erode", type=int, default=1, metavar="PX",
+    g.add_argument("--erode", type=int, default=ERODE, metavar="PX",
                    help="drop valid pixels within this many camera pixels of an invalid one "
                    "(blur mixes their signal with the neighbour's; default 1, 0 keeps them)")
     g.add_argument("--mask", action="append", default=[], metavar="CAMERA=IMAGE",
                    help="a validity mask for one camera (an image of its size, non-zero = keep), "
                    "applied after decoding; repeat for several cameras")
-    p.add_argument("--max-gradient", type=float, default=2.0,
+    p.add_argument("--max-gradient", type=float, default=MAX_GRADIENT,
                    help="drop steep pixels (grazing view): those whose projector coordinates "
                    "change faster than this many projector px per camera px of a 1024 x 1280 "
                    "camera, scaled by sqrt(1024*1280 / (W*H)) for W x H cameras, so that it "
@@ -97,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
                           extra={"capture": str(args.capture), "calibration": str(args.calib)},
                           frame=args.frame, transform=transform)
-    summary = {"out": str(args.out), "cameras": {}}
+    summary: dict[str, Any] = {"out": str(args.out), "cameras": {}}
     for cam in manifest["cameras"]:
         files = {k: str(args.out / v) for k, v in cam.items() if k in ("npz", "ply")}
         if "mat5" in cam:
@@ -113,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def decode_options(args: argparse.Namespace) -> dict:
-    """The decoder thresholds of ``add_scan_options`` as :func:`nail2nail.phase.decode` takes
+    """The decoder thresholds of ``add_scan_options`` as :func:`nail2nail.scan.decoding.decode`
+    takes
     them (``--unwrap-tolerance`` in periods becomes radians), checked."""
     import math
 
@@ -142,7 +148,6 @@ def decode_options(args: argparse.Namespace) -> dict:
 
 def masks(args: argparse.Namespace) -> dict[str, str]:
     """``--mask CAMERA=IMAGE`` entries as ``{camera: path}``, the files checked to exist."""
-    from ..io.masks import parse_mask_option
 
     out = parse_mask_option(args.mask)
     for name, path in out.items():

@@ -6,9 +6,14 @@ import argparse
 import time
 from pathlib import Path
 
-from ..boards import BOARD_KINDS
-from ..io._json import dumps_json
-from ..simulation.scenes import SCENES
+from nail2nail.calibration.boards import BOARD_KINDS, Board, default_board
+from nail2nail.io._json import dumps_json
+from nail2nail.io.prints import read_print_image
+from nail2nail.simulation.board_poses import simulate_board_captures
+from nail2nail.simulation.capture import _configure_rig, read_pattern_dir, simulate_capture
+from nail2nail.simulation.conditions import draw_conditions
+from nail2nail.simulation.rig import load_rig
+from nail2nail.simulation.scenes import SCENES, make_scene
 
 __all__ = ["add_parser", "run"]
 
@@ -28,7 +33,7 @@ def add_parser(sub) -> None:
                    help="directory of panel PNGs to project: one written by `nail2nail "
                    "patterns` (its frames and pattern set, any scheme, recorded in capture.json "
                    "so that scan decodes it), or any PNGs, sorted by name, recorded without a "
-                   "pattern set (default: the default pattern set of nail2nail.patterns)")
+                   "pattern set (default: the default pattern set of nail2nail.scan.patterns)")
     p.add_argument("--projector-distortion", choices=["thesis", "none"],
                    help="projector radial distortion (default: the rig's; thesis for the "
                    "default rig)")
@@ -75,8 +80,6 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..simulation.capture import read_pattern_dir, simulate_capture
-    from ..simulation.rig import load_rig
 
     if args.scale is not None and not args.scale > 0:
         raise ValueError(f"--scale: expected a positive number, got {args.scale}")
@@ -88,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
     print_image = None
     print_ppi = args.print_ppi
     if args.print_image is not None:
-        from ..io.prints import read_print_image
 
         print_image, file_ppi = read_print_image(args.print_image)
         print_ppi = print_ppi or file_ppi or 500.0
@@ -107,14 +109,11 @@ def run(args: argparse.Namespace) -> int:
         return _run_poses(args, board, rig, patterns, names, start, pattern_set)
     scene = args.scene
     if conditions is not None:
-        from ..simulation.scenes import make_scene
 
         scene = make_scene("finger", rig=rig, seed=args.seed, **conditions[0].finger_options(
             print_image=print_image, print_ppi=print_ppi or 500.0))
         print_image = None  # wrapped by the scene already
     if board is not None:
-        from ..simulation.capture import _configure_rig
-        from ..simulation.scenes import make_scene
 
         rig = _configure_rig(rig, scale=args.scale,
                              projector_distortion=args.projector_distortion)
@@ -154,8 +153,6 @@ def run(args: argparse.Namespace) -> int:
 def _conditions_rig(args, rig):
     """``(Conditions, Rig)``: the conditions drawn from ``--conditions`` and the rig with their
     optics (the given ``--rig``'s geometry, else the default rig's), at ``--scale``."""
-    from ..simulation.capture import _configure_rig
-    from ..simulation.conditions import draw_conditions
 
     drawn = draw_conditions(args.conditions)
     if rig is None:
@@ -169,7 +166,6 @@ def _conditions_rig(args, rig):
 
 def _board_from_args(args):
     """The Board of ``--scene board`` (None for other scenes); options checked first."""
-    from ..boards import Board, default_board
 
     given = [f"--{k}" for k in ("board", "rows", "cols", "spacing", "marker", "dictionary",
                                 "pose", "poses") if getattr(args, k) is not None]
@@ -197,7 +193,6 @@ def _board_from_args(args):
 
 
 def _run_poses(args, board, rig, patterns, names, start, pattern_set) -> int:
-    from ..simulation.board_poses import simulate_board_captures
 
     summary = simulate_board_captures(
         args.out, args.poses, board=board, rig=rig, scale=args.scale,

@@ -11,9 +11,11 @@ import argparse
 import time
 from pathlib import Path
 
-from .._progress import Stages
-from ..io._json import dumps_json
-from ..unroll import DEFAULT_LENGTH_MM, DEFAULT_METHOD, METHODS, MIN_CLARITY
+from nail2nail._progress import Stages
+from nail2nail.io._json import dumps_json
+from nail2nail.io.rolled import write_rolled_print
+from nail2nail.io.scans import load_scans
+from nail2nail.unroll import DEFAULT_LENGTH_MM, DEFAULT_METHOD, METHODS, MIN_CLARITY, unroll_scans
 
 __all__ = ["add_parser", "add_unroll_options", "check_unroll_options", "run", "unroll_options"]
 
@@ -91,9 +93,6 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.rolled import write_rolled_print
-    from ..io.scans import load_scans
-    from ..unroll import unroll_scans
 
     check_unroll_options(args)
     step = Stages(3, prefix="unroll: ")  # stderr, a terminal only, not with --quiet

@@ -24,6 +24,7 @@ __all__ = [
     "atomic_files",
     "atomic_path",
     "check_output_directory",
+    "relocate_paths",
     "save_figure",
     "write_npz",
 ]
@@ -247,3 +248,14 @@ def _zlib_level(compress) -> int | None:
     if isinstance(compress, (int, np.integer)) and 0 <= compress <= 9:
         return int(compress)
     raise ValueError(f"compress: expected a bool or a zlib level 0 … 9, got {compress!r}")
+
+
+def relocate_paths(obj, old: str, new: str):
+    """`obj` with every string path under `old` moved under `new` (dicts and lists walked)."""
+    if isinstance(obj, dict):
+        return {k: relocate_paths(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [relocate_paths(v, old, new) for v in obj]
+    if isinstance(obj, str) and (obj == old or obj.startswith(old + os.sep)):
+        return new + obj[len(old):]
+    return obj

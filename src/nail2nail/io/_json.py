@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ._atomic import atomic_path
+from nail2nail.io._atomic import atomic_path
 
 __all__ = ["dumps_json", "json_ready", "read_json", "write_json"]
 

@@ -18,14 +18,20 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
 
-from .._validation import as_name, check_format, check_unique, confined_path, describe_error
-from ._atomic import atomic_path
-from ._json import read_json, write_json
-from ._npz import read_npz
+from nail2nail._validation import as_name, check_format, check_unique, confined_path, describe_error
+from nail2nail.io._atomic import atomic_path
+from nail2nail.io._json import read_json, write_json
+from nail2nail.io._npz import read_npz
+from nail2nail.scan.inputs import frame_intensities
+from nail2nail.scan.patterns import PatternSet
+
+if TYPE_CHECKING:
+    from PIL import ImageFile
 
 __all__ = [
     "CAPTURE_FORMAT",
@@ -61,7 +67,7 @@ class Capture:
 
     path: Path
     manifest: dict
-    pattern_set: object = None
+    pattern_set: PatternSet | None = None
     frames: dict = field(default_factory=dict)
 
     @property
@@ -157,28 +163,6 @@ class Capture:
             _run_in_order(load, len(files))
         return stack
 
-    def rig(self):
-        """The rig stored in the manifest (virtual scanner), as a ``simulation.rig.Rig``."""
-        if "rig" not in self.manifest:
-            raise KeyError(f"{self.path}: the manifest holds no rig")
-        from ..simulation.rig import Rig
-
-        return Rig.from_dict(self.manifest["rig"], where=f"{self.path / MANIFEST}: rig")
-
-
-def frame_intensities(values, bit_depth: int = 8) -> np.ndarray:
-    """Frame values of `bit_depth` bits (``raw=True`` of :func:`read_frame`) as ``float32``.
-
-    ``values / (2**bit_depth - 1)`` in ``[0, 1]``, exactly what :func:`read_frame` returns; any
-    shape (a frame, a stack, a band of rows of a stack).
-
-    Examples
-    --------
-    >>> frame_intensities(np.array([0, 51, 255], np.uint8)).tolist()
-    [0.0, 0.20000000298023224, 1.0]
-    """
-    return np.asarray(values).astype(np.float32) / np.float32(2**bit_depth - 1)
-
 
 def read_frame(path: str | os.PathLike, *, bit_depth: int = 8, raw: bool = False) -> np.ndarray:
     """One frame as ``(H, W) float32`` in ``[0, 1]``.
@@ -258,7 +242,7 @@ def _header_shape(path: Path) -> tuple[int, int] | None:
 _DIRECT_MODES = {np.dtype(np.uint8): "L", np.dtype("<u2"): "I;16"}
 
 
-def _decode_into(im: Image.Image, out: np.ndarray) -> bool:
+def _decode_into(im: ImageFile.ImageFile, out: np.ndarray) -> bool:
     """Decode the opened PNG `im` into `out`'s memory if its mode and size fit; say if done.
 
     Pillow decodes into the image memory it finds on the image (``ImageFile.load``), here one
@@ -393,7 +377,6 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
                              f"missing (first {missing[0]})")
     pattern_set = None
     if manifest.get("pattern_set") is not None:
-        from ..patterns import PatternSet
 
         try:
             pattern_set = PatternSet.from_dict(manifest["pattern_set"])

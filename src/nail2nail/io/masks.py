@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from typing import cast
 
 import numpy as np
 from PIL import Image
@@ -42,7 +43,7 @@ def read_mask(path: str | os.PathLike, *, shape: tuple[int, int] | None = None) 
     except (OSError, Image.DecompressionBombError) as exc:
         raise ValueError(f"{os.fspath(path)}: cannot read the mask image ({exc})") from exc
     if values.ndim == 3:
-        values = values.any(axis=-1)
+        values = cast(np.ndarray, values.any(axis=-1))
     if values.ndim != 2:
         raise ValueError(f"{os.fspath(path)}: a mask must be a 2D image, got shape "
                          f"{values.shape}")

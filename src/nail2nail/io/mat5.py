@@ -23,7 +23,8 @@ Files
 
 Round trip: :func:`read_mat5` returns the float32 arrays bit-exactly on valid pixels and NaN on
 invalid ones; albedo and intensity come back quantised to 8 bits, and ``modulation`` (not stored)
-as ``intensity / 2`` (``intensity = 2 B``, :class:`nail2nail.phase.Decoded`). Writing what was read
+as ``intensity / 2`` (``intensity = 2 B``, :class:`nail2nail.scan.results.Decoded`). Writing what
+was read
 reproduces the files byte for byte.
 """
 
@@ -37,8 +38,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ..reconstruction import Scan
-from ._atomic import atomic_path
+from nail2nail.io._atomic import atomic_path
+from nail2nail.scan.results import Scan
 
 __all__ = ["MAT5_SUFFIXES", "mat5_paths", "read_mat5", "write_mat5"]
 
@@ -137,7 +138,7 @@ def write_mat5(prefix: str | os.PathLike, scan: Scan) -> list[Path]:
     Raises
     ------
     TypeError, ValueError
-        If `scan` is not a :class:`~nail2nail.reconstruction.Scan` of consistent shapes.
+        If `scan` is not a :class:`~nail2nail.scan.results.Scan` of consistent shapes.
     """
     _check_scan(scan)
     xyz = np.asarray(scan.xyz, dtype=np.float32)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import as_points
-from ._atomic import atomic_path
+from nail2nail._validation import as_points
+from nail2nail.io._atomic import atomic_path
 
 __all__ = ["PlyData", "read_ply", "write_ply", "write_scan_ply"]
 
@@ -169,7 +169,7 @@ def _write_binary(path, header: list[str], vertex: np.ndarray, faces: np.ndarray
 
 
 def write_scan_ply(path: str | os.PathLike, scan) -> Path:
-    """Write the valid points of a :class:`~nail2nail.reconstruction.Scan` with albedo as grey.
+    """Write the valid points of a :class:`~nail2nail.scan.results.Scan` with albedo as grey.
 
     Points are the pixels with ``scan.mask`` and finite ``xyz``, in row-major pixel order; the
     colour is ``round(255 albedo)`` in R, G and B (NaN as 0).

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_path
+from nail2nail.io._atomic import atomic_path
 
 __all__ = ["REQUIRED_COLUMNS", "PointsTable", "read_points", "thesis_table", "write_points"]
 

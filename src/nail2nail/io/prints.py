@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from ._atomic import atomic_path
+from nail2nail.io._atomic import atomic_path
 
 __all__ = ["read_print_image", "write_print_image"]
 

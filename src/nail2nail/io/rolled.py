@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_directory, atomic_path
-from ._json import write_json
-from .prints import write_print_image
+from nail2nail.io._atomic import atomic_directory, atomic_path
+from nail2nail.io._json import write_json
+from nail2nail.io.prints import write_print_image
 
 __all__ = ["ROLLED_FORMAT", "write_rolled_print"]
 

@@ -3,7 +3,7 @@
 Layout (``docs/capture-format.md``)::
 
     SCAN_DIR/scan.json      manifest: cameras, their files, valid pixel counts
-    SCAN_DIR/cam0.npz       every array of a :class:`~nail2nail.reconstruction.Scan`
+    SCAN_DIR/cam0.npz       every array of a :class:`~nail2nail.scan.results.Scan`
     SCAN_DIR/cam0C.bmp …    the legacy mat5 set of the camera (C, I, X, Y, Z, XP, YP)
     SCAN_DIR/cam0.ply       binary PLY point cloud with albedo as colour
 
@@ -17,14 +17,18 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .._validation import as_name, check_format, check_unique, confined_path
-from ..reconstruction import Scan
-from ._atomic import atomic_directory, write_npz
-from ._json import read_json, write_json
-from ._npz import read_npz
+from nail2nail._validation import as_name, check_format, check_unique, confined_path
+from nail2nail.frames import WORLD, _check_transform, invert_transform, scan_in_frame
+from nail2nail.io._atomic import atomic_directory, write_npz
+from nail2nail.io._json import read_json, write_json
+from nail2nail.io._npz import read_npz
+from nail2nail.io.mat5 import write_mat5
+from nail2nail.io.ply import write_scan_ply
+from nail2nail.scan.results import Scan
 
 __all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "read_scan_frame", "save_scan_npz",
            "save_scans"]
@@ -65,9 +69,13 @@ def save_scan_npz(path: str | os.PathLike, scan: Scan, *, compress: bool | int =
         arrays.update({key: getattr(scan, key) for key in _ARRAYS})
     if scan.camera_center is not None:
         arrays["camera_center"] = np.asarray(scan.camera_center, dtype=float)
+    if scan.reason is not None:
+        arrays["reason"] = np.asarray(scan.reason)
+    levels: bool | int | dict[str, int] = compress
     if not compress:  # the float values stored; the pixel bits shrink 20 times in no time
-        compress = {key: 1 for key in arrays if key.endswith((".bits", ".where"))}
-    write_npz(path, arrays, compress=compress)
+        levels = {key: 1 for key in arrays if key.endswith((".bits", ".where"))
+                  or key == "reason"}
+    write_npz(path, arrays, compress=levels)
 
 
 def _pack(key: str, value: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
@@ -135,7 +143,11 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     if "name" in data and (data["name"].shape != () or data["name"].dtype.kind != "U"):
         raise ValueError(f"{path}: name must be a string, got {data['name'].dtype} "
                          f"{data['name'].shape}")
-    return Scan(name=name, camera_center=center, **arrays)
+    reason = data.get("reason")
+    if reason is not None and (reason.shape != shape or reason.dtype != np.uint8):
+        raise ValueError(f"{path}: reason must be a uint8 array of shape {shape} (mask "
+                         f"{shape}), got {reason.dtype} {reason.shape}")
+    return Scan(name=name, camera_center=center, reason=reason, **arrays)
 
 
 def _describe(array: np.ndarray) -> str:
@@ -222,7 +234,6 @@ def save_scans(
     for i, scan in enumerate(scans):
         as_name(scan.name, f"scans[{i}].name")
     check_unique([scan.name for scan in scans], "scans")
-    from ..frames import WORLD, _check_transform, scan_in_frame
 
     if not isinstance(frame, str) or not frame:
         raise ValueError(f"frame: expected 'world' or a camera name, got {frame!r}")
@@ -240,16 +251,14 @@ def save_scans(
 def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
                  compress: bool | int) -> dict:
     def write(scan: Scan) -> dict:
-        entry = {"name": scan.name, "npz": f"{scan.name}.npz",
+        entry: dict[str, Any] = {"name": scan.name, "npz": f"{scan.name}.npz",
                  "valid_pixels": int(np.count_nonzero(scan.mask)), "shape": list(scan.shape)}
         save_scan_npz(out / entry["npz"], scan, compress=compress)
         if mat5:
-            from .mat5 import write_mat5
 
             write_mat5(out / scan.name, scan)
             entry["mat5"] = scan.name
         if ply:
-            from .ply import write_scan_ply
 
             write_scan_ply(out / f"{scan.name}.ply", scan)
             entry["ply"] = f"{scan.name}.ply"
@@ -284,7 +293,6 @@ def _read_manifest(scan_dir: Path) -> tuple[Path, dict]:
 def _manifest_frame(manifest: dict, where: str) -> tuple[str, np.ndarray]:
     """``(frame, T_frame_world)`` of a manifest (``"world"`` and the identity when absent:
     scan directories written before issue 12)."""
-    from ..frames import WORLD, _check_transform
 
     frame = manifest.get("frame", WORLD)
     if not isinstance(frame, str) or not frame:
@@ -340,7 +348,6 @@ def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Sca
         plain or not unique, an ``npz`` path leading outside `scan_dir`, a bad ``frame`` or
         ``T_frame_world``), or a bad ``.npz``.
     """
-    from ..frames import invert_transform, scan_in_frame
 
     if frame not in ("world", "stored"):
         raise ValueError(f"frame: expected 'world' or 'stored', got {frame!r}")

@@ -15,7 +15,7 @@ Modules, in the order the data flows through them:
   projector-space merge is compared with.
 """
 
-from .correspondence import (
+from nail2nail.merge.correspondence import (
     DROP_REASONS,
     REJECT_REASONS,
     Correspondence,
@@ -28,9 +28,9 @@ from .correspondence import (
     valid_mask,
     view_cosine,
 )
-from .fusion import SuperScan, fuse_scans, write_super_mat5, write_super_ply
-from .report import parse_pairs, write_merge
-from .statistics import local_outliers, merge_statistics
+from nail2nail.merge.fusion import SuperScan, fuse_scans, write_super_mat5, write_super_ply
+from nail2nail.merge.report import parse_pairs, write_merge
+from nail2nail.merge.statistics import local_outliers, merge_statistics
 
 __all__ = [
     "DROP_REASONS",

@@ -3,7 +3,7 @@
 Aligning each camera's scan to its neighbour by iterative closest points hides calibration
 errors that a rigid motion can absorb, but not those that bend the scan (a projector distortion
 absorbed differently by each camera's matrices). nail2nail's merge instead comes from the
-calibration itself (:func:`nail2nail.calibration.calibrate_rig_joint`); this module measures
+calibration itself (:func:`nail2nail.calibration.target.calibrate_rig_joint`); this module measures
 what ICP would give. Open3D is an optional dependency: ``pip install nail2nail[icp]``.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..reconstruction import Scan
+from nail2nail.scan.results import Scan
 
 __all__ = ["icp_align", "transform_scan"]
 

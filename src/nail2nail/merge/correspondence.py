@@ -41,11 +41,11 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
-from .._interpolate import bilinear
-from .._numba_cache import cache_enabled
-from .._validation import as_int
-from ..reconstruction import Scan
-from .statistics import _middle, local_outliers, merge_statistics
+from nail2nail._interpolate import bilinear, bilinear_value
+from nail2nail._numba_cache import cache_enabled
+from nail2nail._validation import as_int
+from nail2nail.merge.statistics import _middle, local_outliers, merge_statistics
+from nail2nail.scan.results import Scan
 
 __all__ = [
     "DROP_REASONS",
@@ -78,7 +78,7 @@ _NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
 def _check_scan(scan, name: str) -> Scan:
     if not isinstance(scan, Scan):
         raise TypeError(
-            f"{name}: expected a nail2nail.reconstruction.Scan, got {type(scan).__name__}"
+            f"{name}: expected a nail2nail.scan.results.Scan, got {type(scan).__name__}"
         )
     mask = np.asarray(scan.mask)
     if mask.ndim != 2 or mask.dtype != bool:
@@ -620,7 +620,8 @@ class _ScanImages:
                 grid = np.zeros_like(inner)
                 grid[::stride, ::stride] = True
                 inner = inner & grid
-            self._pixels[key] = (n_sampled, *np.nonzero(inner))
+            inner_rows, inner_cols = np.nonzero(inner)
+            self._pixels[key] = (n_sampled, inner_rows, inner_cols)
         return self._pixels[key]
 
     @property
@@ -685,7 +686,7 @@ class _ProjectorGrid:
         self.start, self.sindex, self.sx, self.sy, self.cell_of = _grid_build(
             x, y, self.x0, self.y0, self.cell, self.nx, self.ny)
         self._tree = None
-        self._empty = None
+        self._empty: np.ndarray | None = None
 
     @property
     def empty(self) -> np.ndarray:
@@ -1133,44 +1134,8 @@ def _refine_one(xp, yp, r0, c0, tx, ty, iterations, max_shift):
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _bilinear_xyz(xyz, r, c, out):
     """`out` (3,) ← the bilinear interpolation of `xyz` (H, W, 3) at ``(r, c)``, float64."""
-    f8 = np.float64
-    h, w = xyz.shape[0], xyz.shape[1]
-    ri = min(max(int(np.floor(r)), 0), h - 2)
-    ci = min(max(int(np.floor(c)), 0), w - 2)
-    fr, fc = r - ri, c - ci
     for j in range(3):
-        p00, p01 = f8(xyz[ri, ci, j]), f8(xyz[ri, ci + 1, j])
-        p10, p11 = f8(xyz[ri + 1, ci, j]), f8(xyz[ri + 1, ci + 1, j])
-        top = p00 + (p01 - p00) * fc
-        bottom = p10 + (p11 - p10) * fc
-        out[j] = top + (bottom - top) * fr
-
-
-# cache on disk unless no directory at all can hold numba's cache (nail2nail._numba_cache)
-@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
-def _refine_kernel(xp, yp, xyz, target_xp, target_yp, rows, cols, iterations, max_shift):
-    """Compiled :func:`refine_subpixel` plus bilinear interpolation of ``xyz`` (same arithmetic).
-
-    `xp`, `yp`, `xyz` may be float32 or float64: every value is read as float64, so float32
-    images give the results of their float64 copies without the copies.
-    """
-    n = rows.size
-    out_r = np.empty(n)
-    out_c = np.empty(n)
-    out_res = np.empty(n)
-    out_xyz = np.empty((n, 3))
-    for i in range(n):
-        r, c, res, bad = _refine_one(xp, yp, rows[i], cols[i], target_xp[i], target_yp[i],
-                                     iterations, max_shift)
-        if bad:
-            out_r[i] = np.nan
-            out_c[i] = np.nan
-            out_res[i] = np.nan
-            out_xyz[i] = np.nan
-            continue
-        out_r[i], out_c[i], out_res[i] = r, c, res
-        _bilinear_xyz(xyz, r, c, out_xyz[i])
-    return out_r, out_c, out_res, out_xyz
+        out[j] = bilinear_value(xyz[:, :, j], r, c)
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
@@ -1244,37 +1209,11 @@ def _take_rows_kernel(v, index):
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
-def _bilinear_values(image, r, c):
-    """The value of :func:`nail2nail._interpolate.bilinear` (same arithmetic), compiled."""
-    h, w = image.shape
-    out = np.empty(r.size)
-    for i in range(r.size):
-        r0 = min(max(int(np.floor(r[i])), 0), h - 2)
-        c0 = min(max(int(np.floor(c[i])), 0), w - 2)
-        fr, fc = r[i] - r0, c[i] - c0
-        f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
-        f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
-        top = f00 + (f01 - f00) * fc
-        bottom = f10 + (f11 - f10) * fc
-        out[i] = top + (bottom - top) * fr
-    return out
-
-
-@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _bilinear_at_least(image, rc, threshold, ok):
-    """``ok &= value >= threshold``, value the :func:`_bilinear_values` of `image` at the rows
-    and columns ``rc`` (N, 2) (integer or float, read as float64)."""
-    h, w = image.shape
+    """``ok &= value >= threshold``, value the :func:`~nail2nail._interpolate.bilinear_value`
+    of `image` at the rows and columns ``rc`` (N, 2) (integer or float, read as float64)."""
     for i in range(rc.shape[0]):
-        r, c = np.float64(rc[i, 0]), np.float64(rc[i, 1])
-        r0 = min(max(int(np.floor(r)), 0), h - 2)
-        c0 = min(max(int(np.floor(c)), 0), w - 2)
-        fr, fc = r - r0, c - c0
-        f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
-        f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
-        top = f00 + (f01 - f00) * fc
-        bottom = f10 + (f11 - f10) * fc
-        if not top + (bottom - top) * fr >= threshold:
+        if not bilinear_value(image, np.float64(rc[i, 0]), np.float64(rc[i, 1])) >= threshold:
             ok[i] = False
 
 
@@ -1479,7 +1418,7 @@ def correspond(
     Raises
     ------
     TypeError
-        If a scan is not a :class:`~nail2nail.reconstruction.Scan`.
+        If a scan is not a :class:`~nail2nail.scan.results.Scan`.
     ValueError
         On inconsistent shapes, a bad option, or a child without valid pixels.
 
@@ -1598,9 +1537,9 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
 
     child_inner = child_images.inner(max_jump_px, border_px)
     if refine:  # one compiled pass: border test, refinement, residual test, world points
-        images = (child_inner, _float_image(child.xp), _float_image(child.yp),
-                  _float_image(child.xyz), _float_image(parent.xp), _float_image(parent.yp),
-                  _float_image(parent.xyz))
+        kernel_images = (child_inner, _float_image(child.xp), _float_image(child.yp),
+                         _float_image(child.xyz), _float_image(parent.xp),
+                         _float_image(parent.yp), _float_image(parent.xyz))
         n = rows.size
         out = {"parent_rc": np.empty((n, 2), dtype=np.intp),
                "child_nearest": np.empty((n, 2), dtype=np.intp),
@@ -1609,7 +1548,7 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
                "distance": np.empty(n)}
         buffers = tuple(out.values())
         counts = _in_chunks(
-            lambda a, b: _pairs_kernel(rows[a:b], cols[a:b], nr[a:b], nc[a:b], *images,
+            lambda a, b: _pairs_kernel(rows[a:b], cols[a:b], nr[a:b], nc[a:b], *kernel_images,
                                        _NEWTON_STEPS, _MAX_SHIFT_PX, float(max_residual_px),
                                        *(v[a:b] for v in buffers)), n, workers)
         # the chunks' pairs, moved down to follow each other (copies only when threaded)
@@ -1672,9 +1611,10 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         live = reason < 0
         if distance is None:
             distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
-        out = local_outliers(pr[live], pc[live], distance[live], block_px=outlier_block_px,
-                             floor_mm=outlier_mm, k_mad=outlier_mad)
-        reason[np.flatnonzero(live)[out]] = 2
+        outliers = local_outliers(pr[live], pc[live], distance[live],
+                                  block_px=outlier_block_px, floor_mm=outlier_mm,
+                                  k_mad=outlier_mad)
+        reason[np.flatnonzero(live)[outliers]] = 2
     for code, name in enumerate(REJECT_REASONS):
         dropped[name] = int(np.count_nonzero(reason == code))
 

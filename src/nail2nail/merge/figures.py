@@ -16,10 +16,10 @@ from matplotlib.cm import ScalarMappable
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from .._numba_cache import cache_enabled
-from ..io._atomic import atomic_path
-from .correspondence import Correspondence
-from .statistics import merge_statistics
+from nail2nail._numba_cache import cache_enabled
+from nail2nail.io._atomic import atomic_path
+from nail2nail.merge.correspondence import Correspondence
+from nail2nail.merge.statistics import merge_statistics
 
 __all__ = [
     "plot_correspondence_images",

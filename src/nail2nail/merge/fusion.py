@@ -35,11 +35,13 @@ import numba
 import numpy as np
 import scipy.ndimage
 
-from .._numba_cache import cache_enabled
-from .._timing import StepClock
-from .._validation import as_int
-from ..reconstruction import Scan
-from .correspondence import (
+from nail2nail._interpolate import bilinear_value
+from nail2nail._numba_cache import cache_enabled
+from nail2nail._timing import StepClock
+from nail2nail._validation import as_int
+from nail2nail.io.mat5 import write_mat5
+from nail2nail.io.ply import write_ply
+from nail2nail.merge.correspondence import (
     REJECT_REASONS,
     Correspondence,
     CorrespondenceCache,
@@ -50,6 +52,7 @@ from .correspondence import (
     valid_mask,
     view_cosine,
 )
+from nail2nail.scan.results import Scan
 
 __all__ = [
     "SuperScan",
@@ -94,20 +97,6 @@ def _dot3(a0, a1, a2, b0, b1, b2):
 def _norm3(a0, a1, a2):
     """``np.linalg.norm`` of a float64 3-vector."""
     return np.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
-
-
-@numba.njit(**_JIT)
-def _bilinear(image, r, c):
-    """:func:`nail2nail._interpolate.bilinear`'s value at one position (same arithmetic)."""
-    h, w = image.shape
-    r0 = min(max(int(np.floor(r)), 0), h - 2)
-    c0 = min(max(int(np.floor(c)), 0), w - 2)
-    fr, fc = r - r0, c - c0
-    f00, f01 = image[r0, c0], image[r0, c0 + 1]
-    f10, f11 = image[r0 + 1, c0], image[r0 + 1, c0 + 1]
-    top = f00 + (f01 - f00) * fc
-    bottom = f10 + (f11 - f10) * fc
-    return top + (bottom - top) * fr
 
 
 _STEP_R = (1, 0, 1, 1)  # the four lines through a pixel (spikes): column, row, diagonals
@@ -321,7 +310,7 @@ def _ownership_kernel(keep, index, score, other_score, parent_rc, child_rc, by_p
         if by_priority:
             lose = other_first
         else:
-            other = _bilinear(other_score, child_rc[k, 0], child_rc[k, 1])
+            other = bilinear_value(other_score, child_rc[k, 0], child_rc[k, 1])
             mine = score[r, c]
             lose = other > mine or (other == mine and other_first)
         if lose and index[r, c] >= 0:
@@ -353,7 +342,7 @@ def _fusion_add(keep, index, w_sum, acc, count, parent_rc, child_rc, xyz_child,
         i = index[parent_rc[k, 0], parent_rc[k, 1]]
         if i < 0 or not keep[i]:
             continue
-        w = _bilinear(other_weight, child_rc[k, 0], child_rc[k, 1])
+        w = bilinear_value(other_weight, child_rc[k, 0], child_rc[k, 1])
         w_sum[i] += w
         for d in range(3):
             acc[i, d] += w * xyz_child[k, d]
@@ -1470,7 +1459,6 @@ def write_super_mat5(
     list of Path
         The seven files of the set.
     """
-    from ..io.mat5 import write_mat5
 
     return write_mat5(prefix, super_mat5_scan(superscan, gap_px=gap_px))
 
@@ -1483,7 +1471,6 @@ def write_super_ply(path: str | os.PathLike, superscan: SuperScan) -> Path:
     Path
         `path`.
     """
-    from ..io.ply import write_ply
 
     names = ", ".join(s.name for s in superscan.scans)
     return write_ply(path, superscan.vertices, colors=superscan.colors,

@@ -15,13 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import progress_bar
-from .._timing import StepClock
-from .._validation import as_int
-from ..io._atomic import atomic_directory, write_npz
-from ..io._json import write_json
-from .correspondence import CorrespondenceCache, correspond
-from .fusion import fuse_scans, write_super_mat5, write_super_ply
+from nail2nail._progress import progress_bar
+from nail2nail._timing import StepClock
+from nail2nail._validation import as_int
+from nail2nail.frames import _check_transform, superscan_in_frame
+from nail2nail.io._atomic import atomic_directory, relocate_paths, write_npz
+from nail2nail.io._json import write_json
+from nail2nail.merge.correspondence import CorrespondenceCache, correspond
+from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
 
 __all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
 
@@ -97,6 +98,7 @@ def write_merge(
     progress: bool = False,
     frame: str = "world",
     transform=None,
+    final_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
@@ -139,6 +141,10 @@ def write_merge(
         The frame the super scan's PLY and mat5 are written in, and its ``T_frame_world``
         (:func:`nail2nail.frames.frame_transform`); everything is computed in the world frame
         (figures included). Recorded as ``super_scan.frame`` and ``super_scan.T_frame_world``.
+    final_dir : path-like, optional
+        Where `out` will be once a caller renames the directory that holds it (``process``
+        writes into a temporary job directory): the paths in ``merge.json`` and in the returned
+        summary name the files there. Default: `out`.
 
     Returns
     -------
@@ -155,7 +161,8 @@ def write_merge(
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
-    pairs = parse_pairs(None, len(scans)) if pairs is None else [tuple(p) for p in pairs]
+    pairs = (parse_pairs(None, len(scans)) if pairs is None
+             else [(int(p[0]), int(p[1])) for p in pairs])
     for i, j in pairs:
         if not (0 <= i < len(scans) and 0 <= j < len(scans)) or i == j:
             raise ValueError(f"pairs: ({i}, {j}) is not a pair of two of the {len(scans)} scans")
@@ -163,7 +170,6 @@ def write_merge(
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
     border_px = as_int(border_px, "border_px", minimum=1)  # as correspond: checked up front
-    from ..frames import _check_transform
 
     transform = np.eye(4) if transform is None else _check_transform(transform)
     out = Path(out)
@@ -172,20 +178,9 @@ def write_merge(
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
                                mat5=mat5, progress=progress, frame=frame, transform=transform)
-        summary = _relocate(summary, str(tmp), str(out))
+        summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
-
-
-def _relocate(obj, old: str, new: str):
-    """`obj` with every string path under `old` moved under `new` (dicts and lists walked)."""
-    if isinstance(obj, dict):
-        return {k: _relocate(v, old, new) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_relocate(v, old, new) for v in obj]
-    if isinstance(obj, str) and (obj == old or obj.startswith(old + os.sep)):
-        return new + obj[len(old):]
-    return obj
 
 
 #: A camera pair keeping less than this fraction of the pairs found gets a warning.
@@ -279,7 +274,6 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                     sup.colors, elev, azim, f"super scan ({view}): {sup.n_vertices} points")
         files = {}
         if data:
-            from ..frames import superscan_in_frame
 
             written = sup if transform is None else superscan_in_frame(sup, transform)
             files["ply"] = str(write_super_ply(out / "super.ply", written))
@@ -317,7 +311,8 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 def _pair_figures(corr, parent_albedo, child_albedo, out: Path, key: str, stride: int) -> dict:
     """The four figures of one camera pair: ``{heatmap, histogram, points3d, marked}`` paths."""
-    from .figures import (  # matplotlib only when figures are drawn
+    # Deferred: merge.figures imports matplotlib (0.9 s), needed only when figures are drawn.
+    from nail2nail.merge.figures import (
         plot_correspondence_images,
         plot_correspondences_3d,
         plot_merge_heatmap,
@@ -340,7 +335,7 @@ def _pair_figures(corr, parent_albedo, child_albedo, out: Path, key: str, stride
 
 def _render(vertices, path: Path, normals, colors, elev, azim, title) -> Path:
     """:func:`nail2nail.merge.figures.render_points` of the super scan."""
-    from .figures import render_points
+    from nail2nail.merge.figures import render_points  # deferred, as in _pair_figures
 
     return render_points(vertices, path, normals=normals, colors=colors, elev=elev, azim=azim,
                          title=title)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._numba_cache import cache_enabled
-from .._validation import as_int
+from nail2nail._numba_cache import cache_enabled
+from nail2nail._validation import as_int
 
 __all__ = ["local_outliers", "merge_statistics"]
 

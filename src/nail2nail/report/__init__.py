@@ -24,8 +24,12 @@ import os
 import time
 from pathlib import Path
 
-from .._progress import Stages
-from .inputs import ReportInputs, find_inputs
+from nail2nail import __version__
+from nail2nail._progress import Stages
+from nail2nail.io._atomic import atomic_path
+from nail2nail.report import calibration, capture, distortion, merge, overview, prints, viewer
+from nail2nail.report._html import page_html
+from nail2nail.report.inputs import ReportInputs, find_inputs
 
 __all__ = ["ReportInputs", "build_report", "find_inputs", "write_report"]
 
@@ -57,8 +61,6 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
     """
     import matplotlib
 
-    from . import calibration, capture, distortion, merge, overview, prints, viewer
-    from ._html import page_html
 
     inputs = find_inputs(out_dir)
     say = Stages(enabled=progress, prefix="report: ")
@@ -73,7 +75,6 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
                 sections.append(module.section(inputs, max_points=max_points))
             else:
                 sections.append(module.section(inputs))
-    from .. import __version__
 
     title = f"nail2nail scan report: {inputs.root.resolve().name}"
     subtitle = (f"{inputs.kind} directory {inputs.root.resolve()} · written "
@@ -96,7 +97,6 @@ def write_report(out_dir: str | os.PathLike, path: str | os.PathLike | None = No
     Path
         The report written.
     """
-    from ..io._atomic import atomic_path
 
     path = Path(out_dir) / "report.html" if path is None else Path(path)
     if path.is_dir():

@@ -59,6 +59,7 @@ def png_data_uri(image, *, max_size: int | None = None) -> str:
     max_size : int, optional
         Longest side in pixels: larger images are shrunk (Lanczos), aspect kept.
     """
+    im: Image.Image
     if isinstance(image, (str, os.PathLike)):
         im = Image.open(image)
         im.load()
@@ -72,7 +73,7 @@ def png_data_uri(image, *, max_size: int | None = None) -> str:
     if max_size is not None and max(im.size) > max_size:
         factor = max_size / max(im.size)
         im = im.resize((max(1, round(im.width * factor)), max(1, round(im.height * factor))),
-                       Image.LANCZOS)
+                       Image.Resampling.LANCZOS)
     buffer = io.BytesIO()
     im.save(buffer, format="PNG", optimize=False, compress_level=6)
     return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")

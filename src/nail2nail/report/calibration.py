@@ -10,9 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._html import Section, figure_html, note_html, table_html
-from ._plot import fmt, new_figure
-from .inputs import ReportInputs, projector_panel
+from nail2nail.calibration.camera_models import Pinhole, pinhole_from_dlt, project_dlt
+from nail2nail.calibration.files import load_calibration
+from nail2nail.io.points import read_points
+from nail2nail.report._html import Section, figure_html, note_html, table_html
+from nail2nail.report._plot import fmt, new_figure
+from nail2nail.report.inputs import ReportInputs, projector_panel
+from nail2nail.scan.triangulation import _panel_of_points
 
 __all__ = ["section"]
 
@@ -20,8 +24,7 @@ ID, TITLE = "calibration", "Calibration"
 
 
 def _pinhole(model, size):
-    """A :class:`~nail2nail.camera_models.Pinhole` of a pinhole or DLT model."""
-    from ..camera_models import Pinhole, pinhole_from_dlt
+    """A :class:`~nail2nail.calibration.camera_models.Pinhole` of a pinhole or DLT model."""
 
     return model if isinstance(model, Pinhole) else pinhole_from_dlt(model, size=size)
 
@@ -61,8 +64,6 @@ def residuals(calib, camera: str, table) -> tuple[np.ndarray, np.ndarray]:
         Projection minus observation, px (camera pixels; projector panel pixels through the
         radial model).
     """
-    from ..camera_models import project_dlt
-    from ..reconstruction import _panel_of_points
 
     cam = calib.camera(camera)
     xyz = table.xyz_world
@@ -74,8 +75,6 @@ def residuals(calib, camera: str, table) -> tuple[np.ndarray, np.ndarray]:
 
 def section(inputs: ReportInputs) -> Section:
     """The calibration section of the report of `inputs` (``inputs.calibration``)."""
-    from ..io.calibration import load_calibration
-    from ..io.points import read_points
 
     if inputs.calibration is None:
         return Section(ID, TITLE, note_html(
@@ -87,8 +86,8 @@ def section(inputs: ReportInputs) -> Section:
     if calib.projector_distortion:
         d = calib.projector_distortion
         body.append(note_html(f"Projector radial distortion in the model: centre "
-                              f"({d['center'][0]:.2f}, {d['center'][1]:.2f}) px, "
-                              f"ρ = {d['rho']:.6f}."))
+                              f"({d.center[0]:.2f}, {d.center[1]:.2f}) px, "
+                              f"ρ = {d.rho:.6f}."))
     rows, found = [], {}
     for cam in calib.cameras:
         tsv = path.parent / f"{path.stem}_points_{cam.name}.tsv"

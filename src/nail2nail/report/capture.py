@@ -3,13 +3,13 @@
 Three parts:
 
 * **Frames**: up to six evenly spaced frames of every camera, as thumbnails labelled with the
-  frame index and what the pattern set projects in it (``nail2nail.patterns.frame_table``).
+  frame index and what the pattern set projects in it (``nail2nail.scan.patterns.frame_table``).
 * **Decode quality**: every camera's fringe amplitude (modulation) map with its threshold, and
   a map of why each pixel is or is not in the scan: valid; outside the user's mask; decoded but
   rejected by the decoder's checks (saturation, unwrapping, outside the panel, edge, steep, no
   3D point); fringe amplitude below ``min_modulation``; no signal (mean intensity below
   ``min_albedo``). With the capture at hand its frames are decoded again
-  (:func:`nail2nail.phase.decode`, the fused kernel, the scan's options: about a second per
+  (:func:`nail2nail.scan.decoding.decode`, the fused kernel, the scan's options: about a second per
   full-resolution camera) for the decoder's exact per-pixel reasons; otherwise the classes are
   derived from the scan's stored arrays, and the caption says so.
 * **Coverage**: valid pixels per camera (of the image and of its lit pixels) and each camera's
@@ -18,11 +18,23 @@ Three parts:
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from ._html import Section, escape, figure_html, image_html, note_html, table_html
-from ._plot import decimate, extent, fmt, new_figure
-from .inputs import ReportInputs
+from nail2nail.io._json import read_json
+from nail2nail.io.capture import read_capture, read_frame
+from nail2nail.io.masks import read_mask
+from nail2nail.io.scans import load_scans
+from nail2nail.report._html import Section, escape, figure_html, image_html, note_html, table_html
+from nail2nail.report._plot import decimate, extent, fmt, new_figure
+from nail2nail.report.inputs import ReportInputs
+from nail2nail.scan.capture import MAX_GRADIENT, MIN_KEPT_FRACTION, kept_fraction
+from nail2nail.scan.inputs import DECODE_DEFAULTS
+from nail2nail.scan.patterns import frame_table
+from nail2nail.scan.results import LOW_MODULATION as LOW_MODULATION_BIT
+from nail2nail.scan.results import REASON_NAMES, Reason
+from nail2nail.scan.results import SHADOW as SHADOW_BIT
 
 __all__ = ["section"]
 
@@ -40,10 +52,6 @@ CLASSES = ("valid", "outside the user mask", "decoded, rejected by the checks",
 COLORS = ("#2ca02c", "#9467bd", "#d62728", "#ff9f1c", "#d9d9d9")
 VALID, USER_MASK, REJECTED, LOW_MODULATION, NO_SIGNAL = range(5)
 
-#: Decoder options of ``scan_capture`` (defaults) that ``process.json`` may override.
-_DECODE_KEYS = ("min_modulation", "cue_modulation", "min_albedo", "saturation",
-                "unwrap_tolerance", "erode")
-
 
 def section(inputs: ReportInputs) -> Section:
     """The capture section of the report of `inputs`.
@@ -60,9 +68,8 @@ def section(inputs: ReportInputs) -> Section:
     Section
         ``status`` ``"missing"`` when neither the capture nor the scans are there, ``"warn"``
         when a camera keeps few of its lit pixels (less than
-        :data:`nail2nail.scanning.MIN_KEPT_FRACTION`) or the capture cannot be read.
+        :data:`nail2nail.scan.capture.MIN_KEPT_FRACTION`) or the capture cannot be read.
     """
-    from ..io.scans import load_scans
 
     options = _scan_options(inputs)
     status, body = "ok", []
@@ -82,7 +89,7 @@ def section(inputs: ReportInputs) -> Section:
                               "decode quality maps or coverage.", "missing"))
         return Section(ID, TITLE, "".join(body), status=status)
     scans = load_scans(inputs.scans, frame="stored")
-    classes, counts, exact = _pixel_classes(scans, capture, options)
+    classes, counts, exact = _pixel_classes(scans, options)
     body.append("<h3>Decode quality</h3>")
     body.append(_modulation_figure(scans, options["min_modulation"]))
     body.append(_validity_figure(scans, classes, options, exact))
@@ -104,18 +111,12 @@ def section(inputs: ReportInputs) -> Section:
 # ------------------------------------------------------------------------------------------------
 def _scan_options(inputs: ReportInputs) -> dict:
     """The decoder's options the scans were made with: ``process.json``'s ``options``, else
-    the defaults of :func:`nail2nail.scanning.scan_capture` (what ``demo`` and ``scan`` use
+    the defaults of :func:`nail2nail.scan.capture.scan_capture` (what ``demo`` and ``scan`` use
     unless told otherwise)."""
-    import inspect
-
-    from ..phase import decode
-
-    defaults = {k: p.default for k, p in inspect.signature(decode).parameters.items()
-                if k in _DECODE_KEYS}
-    options = {**defaults, "max_gradient": 2.0, "masks": {}}
+    options: dict[str, Any] = {**DECODE_DEFAULTS, "max_gradient": MAX_GRADIENT, "masks": {}}
     given = inputs.summary.get("options") if inputs.kind == "process" else None
     if isinstance(given, dict):
-        options.update({k: given[k] for k in (*_DECODE_KEYS, "max_gradient", "masks")
+        options.update({k: given[k] for k in (*DECODE_DEFAULTS, "max_gradient", "masks")
                         if k in given})
     if options["min_modulation"] is None:
         options["min_modulation"] = 0.0
@@ -124,7 +125,6 @@ def _scan_options(inputs: ReportInputs) -> dict:
 
 def _open_capture(inputs: ReportInputs):
     """``(Capture or None, note)``: the capture read without its frames, or why not."""
-    from ..io.capture import read_capture
 
     if inputs.capture is None:
         named = inputs.summary.get("capture")
@@ -143,7 +143,6 @@ def _open_capture(inputs: ReportInputs):
 
 def _frame_labels(capture) -> list[str]:
     """What every frame shows, from the capture's pattern set (or its pattern files)."""
-    from ..patterns import frame_table
 
     n_frames = len(capture.manifest["cameras"][0]["frames"])
     if capture.pattern_set is None:
@@ -165,7 +164,6 @@ def _frame_labels(capture) -> list[str]:
 
 def _thumbnails(capture) -> str:
     """Up to :data:`N_THUMBNAILS` evenly spaced frames of every camera."""
-    from ..io.capture import read_frame
 
     labels = _frame_labels(capture)
     bit_depth = capture.bit_depth
@@ -196,7 +194,6 @@ def _thumbnails(capture) -> str:
 # ------------------------------------------------------------------------------------------------
 def _user_masks(scans, options) -> dict:
     """The user masks the scans were cut with, by camera (files that are still there)."""
-    from ..io.masks import read_mask
 
     masks = {}
     for scan in scans:
@@ -209,39 +206,36 @@ def _user_masks(scans, options) -> dict:
     return masks
 
 
-def _pixel_classes(scans, capture, options):
+def _pixel_classes(scans, options):
     """Per camera, the validity class of every pixel (:data:`CLASSES`).
 
     Returns
     -------
     classes : dict of str to (H, W) uint8
     counts : dict of str to dict, or None
-        Pixels per decoder reason bit (and ``"no 3D point"``, ``"user mask"``), when the
-        capture was decoded again.
+        Pixels per :class:`~nail2nail.scan.results.Reason` bit and ``"outside the user
+        mask"``, when every scan carries its reasons (``Scan.reason``, stored by the scan).
     exact : bool
-        Whether the classes come from the decoder's reasons (else from the stored arrays).
+        Whether the classes come from the scans' reasons (else from the stored arrays, for
+        scan files that do not store them).
     """
-    masks = _user_masks(scans, options)
-    reasons = _decoder_reasons(scans, capture, options) if capture is not None else None
-    classes, counts = {}, {} if reasons is not None else None
+    exact = all(scan.reason is not None for scan in scans)
+    masks = {} if exact else _user_masks(scans, options)
+    classes, counts = {}, {} if exact else None
     for scan in scans:
         valid = np.asarray(scan.mask, bool)
-        user = masks.get(scan.name)
         out = np.full(scan.shape, REJECTED, np.uint8)
-        if reasons is not None:
-            from .. import phase
-
-            reason = reasons[scan.name]
-            decoded = reason == 0
-            out[reason & phase.LOW_MODULATION != 0] = LOW_MODULATION
-            out[reason & phase.SHADOW != 0] = NO_SIGNAL
-            cut = decoded & ~valid & (~user if user is not None else False)
+        if exact:
+            reason = scan.reason
+            out[reason & LOW_MODULATION_BIT != 0] = LOW_MODULATION
+            out[reason & SHADOW_BIT != 0] = NO_SIGNAL
+            cut = (reason == 0) & ~valid  # kept by the decoder and the triangulation
             counts[scan.name] = {
-                **{name: int(np.count_nonzero(reason & bit)) for name, bit in _REASON_BITS},
-                "no 3D point": int(np.count_nonzero(decoded & ~valid & ~cut)),
+                **{REASON_NAMES[bit]: int(np.count_nonzero(reason & bit)) for bit in Reason},
                 "outside the user mask": int(np.count_nonzero(cut)),
             }
         else:  # from the stored arrays: the decoder's first two checks, the rest lumped
+            user = masks.get(scan.name)
             modulation = np.nan_to_num(scan.modulation, nan=0.0)
             out[modulation < options["min_modulation"]] = LOW_MODULATION
             out[~(np.nan_to_num(scan.albedo, nan=0.0) >= options["min_albedo"])] = NO_SIGNAL
@@ -250,37 +244,7 @@ def _pixel_classes(scans, capture, options):
             out[cut] = USER_MASK
         out[valid] = VALID
         classes[scan.name] = out
-    return classes, counts, reasons is not None
-
-
-_REASON_BITS = (("low modulation", 1), ("saturated", 2), ("shadow (no signal)", 4),
-                ("unwrap error", 8), ("outside the panel", 16), ("edge", 32), ("steep", 64))
-
-
-def _decoder_reasons(scans, capture, options) -> dict | None:
-    """The decoder's per-pixel reasons (:attr:`nail2nail.phase.Decoded.reason`) of every
-    scanned camera, its frames decoded again with the scan's options; None when a camera
-    cannot be (no pattern set, other size, unreadable frames)."""
-    from ..phase import decode
-    from ..scanning import gradient_limit
-
-    if capture.pattern_set is None or not {s.name for s in scans} <= set(capture.camera_names):
-        return None
-    decode_options = {k: options[k] for k in _DECODE_KEYS}
-    reasons = {}
-    for scan in scans:
-        try:
-            frames = capture.load_frames(scan.name, raw=True)
-            if frames.shape[1:] != scan.shape:
-                return None
-            reasons[scan.name] = decode(
-                frames, capture.pattern_set, full_scale=2**capture.bit_depth - 1,
-                method="numba", max_gradient=gradient_limit(options["max_gradient"],
-                                                            frames.shape),
-                **decode_options).reason
-        except (ValueError, TypeError):
-            return None
-    return reasons
+    return classes, counts, exact
 
 
 def _map_axes(fig, n: int):
@@ -324,10 +288,10 @@ def _validity_figure(scans, classes: dict, options: dict, exact: bool) -> str:
         ax.set_title(scan.name, fontsize=10)
     fig.legend([Patch(color=c) for c in COLORS], CLASSES, loc="outside lower center", ncol=3,
                fontsize=8, frameon=False)
-    how = ("from the decoder's per-pixel reasons (the capture decoded again with the scan's "
-           "options)" if exact else
-           f"derived from the stored arrays (capture not available): no signal = mean intensity "
-           f"below min_albedo {options['min_albedo']:g}, below the threshold = amplitude below "
+    how = ("from the decoder's per-pixel reasons, stored with the scans" if exact else
+           f"derived from the stored arrays (the scan files do not store the reasons): no "
+           f"signal = mean intensity below min_albedo {options['min_albedo']:g}, below the "
+           f"threshold = amplitude below "
            f"min_modulation {options['min_modulation']:g}; the decoder's other rejections "
            "(saturation, unwrapping, outside the panel, edge, steep, no 3D point) are not told "
            "apart")
@@ -335,7 +299,7 @@ def _validity_figure(scans, classes: dict, options: dict, exact: bool) -> str:
 
 
 def _reason_table(scans, counts: dict) -> str:
-    names = [name for name, _ in _REASON_BITS] + ["no 3D point", "outside the user mask"]
+    names = [*REASON_NAMES.values(), "outside the user mask"]
     rows = [[name, *(fmt(counts[s.name][name]) for s in scans)] for name in names]
     return table_html(rows, ["decoder reason", *(s.name for s in scans)],
                       caption="Pixels per decoder reason (a pixel can have several).")
@@ -346,7 +310,6 @@ def _reason_table(scans, counts: dict) -> str:
 # ------------------------------------------------------------------------------------------------
 def _super_scan_cameras(inputs: ReportInputs) -> dict:
     """``merge.json``'s ``super_scan.cameras`` (``{name: {"owned", "fused"}}``), or {}."""
-    from ..io._json import read_json
 
     if inputs.merge is None:
         return {}
@@ -359,7 +322,6 @@ def _super_scan_cameras(inputs: ReportInputs) -> dict:
 
 def _coverage(scans, inputs: ReportInputs, min_modulation: float) -> tuple[str, list[str]]:
     """The coverage table and bar chart; warnings for cameras that keep few lit pixels."""
-    from ..scanning import MIN_KEPT_FRACTION, kept_fraction
 
     share = _super_scan_cameras(inputs)
     owned_total = sum(int(c.get("owned", 0)) for c in share.values() if isinstance(c, dict))
@@ -367,7 +329,7 @@ def _coverage(scans, inputs: ReportInputs, min_modulation: float) -> tuple[str, 
     for scan in scans:
         valid, lit = kept_fraction(scan, min_modulation)
         n_pixels = scan.mask.size
-        cam = share.get(scan.name) if isinstance(share.get(scan.name), dict) else {}
+        cam: dict = share[scan.name] if isinstance(share.get(scan.name), dict) else {}
         owned = cam.get("owned")
         part = 100 * owned / owned_total if owned is not None and owned_total else None
         stats.append((scan.name, valid, lit, part))

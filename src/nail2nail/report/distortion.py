@@ -3,18 +3,26 @@
 From ``projector_distortion.json`` (``demo``'s ``distortion/``: the non-linear fit with its
 standard deviations and RMS, the thesis method beside it) or else the calibration's
 ``projector_distortion`` ``{center, rho}``. The figure draws a regular panel grid as the
-projector shows it under the radial model (thesis eq. 3.15–3.16, :mod:`nail2nail.distortion`)
+projector shows it under the radial model (thesis eq. 3.15–3.16,
+:mod:`nail2nail.calibration.distortion`)
 and the LUT-corrected grid, the displacement magnified; a second plot gives the radial
 displacement against the radius from the optical centre.
 """
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
-from ._html import Section, figure_html, note_html, table_html
-from ._plot import fmt, new_figure
-from .inputs import ReportInputs, projector_panel
+from nail2nail.calibration.distortion import grid_from_decoded, ideal_from_panel
+from nail2nail.io._json import read_json
+from nail2nail.io.capture import read_capture
+from nail2nail.report._html import Section, figure_html, image_html, note_html, table_html
+from nail2nail.report._plot import fmt, new_figure
+from nail2nail.report.inputs import ReportInputs, projector_panel
+from nail2nail.scan.decoding import decode
+from nail2nail.scan.patterns import PatternSet
 
 __all__ = ["section"]
 
@@ -26,7 +34,6 @@ SPACING = 64
 
 def _estimate(inputs: ReportInputs) -> tuple[dict | None, str]:
     """``({"center", "rho", …}, source)`` of the distortion estimate, or ``(None, why)``."""
-    from ..io._json import read_json
 
     if inputs.distortion is not None:
         data = read_json(inputs.distortion)
@@ -69,25 +76,24 @@ def section(inputs: ReportInputs) -> Section:
 def _plane_grids(plane, camera: str | None, center: np.ndarray, rho: float) -> str:
     """The thesis's Figures 19 and 20 drawn from the decoded plane capture (one camera):
     the plain grid as projected, and the grid of the ideal coordinates (LUT-corrected)."""
-    from ..distortion import grid_from_decoded
-    from ..io.capture import read_capture
-    from ..phase import decode
-    from ._html import image_html
 
     try:
         capture = read_capture(plane, load=False)
         names = capture.camera_names
         name = camera if camera in names else names[len(names) // 2]
-        decoded = decode(capture.load_frames(name, raw=True), capture.pattern_set,
+        decoded = decode(capture.load_frames(name, raw=True), cast(PatternSet, capture.pattern_set),
                          full_scale=2**capture.bit_depth - 1, method="numba")
     except (ValueError, TypeError) as exc:
         return note_html(f"{plane}: the plane capture cannot be decoded ({exc}).", "warn")
     if decoded.xp is None or decoded.yp is None:
         return ""
+    assert capture.pattern_set is not None  # decode refused a capture without one
     panel = capture.pattern_set.panel_size
     images = [grid_from_decoded(decoded.xp, decoded.yp, decoded.mask, panel_size=panel,
-                                spacing=SPACING, background=decoded.albedo, **extra)
-              for extra in ({}, {"center": center, "rho": rho})]
+                                spacing=SPACING, background=decoded.albedo),
+              grid_from_decoded(decoded.xp, decoded.yp, decoded.mask, panel_size=panel,
+                                spacing=SPACING, background=decoded.albedo, center=center,
+                                rho=rho)]
     return ('<div class="row">'
             + image_html(images[0], f"{name}: the plain {SPACING}-px grid on the plane, from "
                                     "the decoded coordinates (thesis Figure 19)", max_size=400)
@@ -99,7 +105,6 @@ def _plane_grids(plane, camera: str | None, center: np.ndarray, rho: float) -> s
 def _grid_figure(center: np.ndarray, rho: float, panel: tuple[int, int]) -> str:
     """A panel grid (`panel` ``(W, H)`` px) as shown under the radial model, and corrected;
     radial displacement."""
-    from ..distortion import ideal_from_panel
 
     width, height = panel
     fig = new_figure(9.0, 3.6)

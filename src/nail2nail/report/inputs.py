@@ -23,7 +23,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..io._json import read_json
+from nail2nail.io._json import read_json
+from nail2nail.scan.patterns import PANEL_SIZE
 
 __all__ = ["ReportInputs", "find_inputs", "projector_panel"]
 
@@ -150,8 +151,8 @@ def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
 
 def projector_panel(inputs: ReportInputs) -> tuple[int, int]:
     """The projector panel ``(W, H)`` px: the capture manifest's ``projector.size``, else
-    the thesis's :data:`nail2nail.patterns.PANEL_SIZE` (no capture, or a manifest without it)."""
-    from ..patterns import PANEL_SIZE
+    the thesis's :data:`nail2nail.scan.patterns.PANEL_SIZE` (no capture, or a manifest without
+    it)."""
 
     if inputs.capture is not None:
         try:

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..io._json import read_json
-from ._html import Section, escape, figure_html, image_html, note_html, table_html
-from ._plot import fmt, percent
-from .inputs import ReportInputs
+from nail2nail.io._json import read_json
+from nail2nail.report._html import Section, escape, figure_html, image_html, note_html, table_html
+from nail2nail.report._plot import fmt, percent
+from nail2nail.report.inputs import ReportInputs
 
 __all__ = ["THRESHOLD_MM", "above_threshold", "section"]
 

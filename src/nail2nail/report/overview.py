@@ -7,11 +7,11 @@ scan's size, the print's size and ridge clarity, the time of every stage and the
 
 from __future__ import annotations
 
-from ..io._json import read_json
-from ._html import Section, escape, note_html, table_html
-from .inputs import ReportInputs
-from .merge import above_threshold
-from .prints import MIN_CLARITY
+from nail2nail.io._json import read_json
+from nail2nail.report._html import Section, escape, note_html, table_html
+from nail2nail.report.inputs import ReportInputs
+from nail2nail.report.merge import above_threshold
+from nail2nail.report.prints import MIN_CLARITY
 
 __all__ = ["section"]
 

@@ -9,10 +9,10 @@ print and of the unrolling methods.
 
 from __future__ import annotations
 
-from ..io._json import read_json
-from ._html import Section, image_html, note_html, table_html
-from ._plot import fmt, percent
-from .inputs import ReportInputs
+from nail2nail.io._json import read_json
+from nail2nail.report._html import Section, image_html, note_html, table_html
+from nail2nail.report._plot import fmt, percent
+from nail2nail.report.inputs import ReportInputs
 
 __all__ = ["MIN_CLARITY", "section"]
 
@@ -56,6 +56,7 @@ def _geometry_rows(meta: dict) -> list[list]:
 
 
 def _methods(inputs: ReportInputs) -> str:
+    assert inputs.print is not None  # the section is drawn only when there is a print
     path = inputs.print / "methods.json"
     if not path.is_file():
         return ""

@@ -28,8 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._html import Section, escape, json_for_script, note_html
-from .inputs import ReportInputs
+from nail2nail.frames import invert_transform
+from nail2nail.io._json import read_json
+from nail2nail.io.ply import read_ply
+from nail2nail.io.scans import load_scans
+from nail2nail.report._html import Section, escape, json_for_script, note_html
+from nail2nail.report.inputs import ReportInputs
 
 __all__ = ["MIN_VERTICES", "cluster_vertices", "libraries", "section", "viewer_data"]
 
@@ -127,7 +131,6 @@ def _cluster_mean(labels: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
 
 def _world_points(inputs: ReportInputs, points: np.ndarray) -> np.ndarray:
     """Super-scan vertices (written in ``super_scan.frame``) in the world frame."""
-    from ..frames import invert_transform
 
     info = _merge_summary(inputs).get("super_scan", {})
     transform = np.asarray(info.get("T_frame_world", np.eye(4)), dtype=float)
@@ -138,7 +141,6 @@ def _world_points(inputs: ReportInputs, points: np.ndarray) -> np.ndarray:
 
 
 def _merge_summary(inputs: ReportInputs) -> dict:
-    from ..io._json import read_json
 
     return read_json(inputs.merge / "merge.json") if inputs.merge is not None else {}
 
@@ -147,7 +149,6 @@ def _vertex_cameras(points: np.ndarray, inputs: ReportInputs) -> tuple[np.ndarra
     """Index of the camera whose scan point is nearest to each vertex; the camera names."""
     from scipy.spatial import cKDTree
 
-    from ..io.scans import load_scans
 
     if inputs.scans is None:
         return np.full(len(points), -1), []
@@ -209,7 +210,6 @@ def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000,
         float32 µm, NaN where no pair), "albedo_range", "error_range", "error_coverage"}``;
         ``None`` without a super scan, or one of fewer than :data:`MIN_VERTICES` vertices.
     """
-    from ..io.ply import read_ply
 
     if inputs.merge is None or not (inputs.merge / "super.ply").is_file():
         return None

@@ -7,18 +7,30 @@ sphere, coin, calibration board), :mod:`.fingerprint` (synthetic prints), :mod:`
 directories), :mod:`.board_poses` (board poses in front of a rig, board capture series).
 """
 
-from .board_poses import board_poses, simulate_board_captures
-from .capture import (
+from nail2nail.simulation.board_poses import board_poses, simulate_board_captures
+from nail2nail.simulation.capture import (
     SimulatedCapture,
     load_pattern_dir,
     simulate,
     simulate_capture,
     write_capture,
 )
-from .conditions import RANGES, Conditions, draw_conditions
-from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
-from .rig import Photometry, Rig, default_rig, ideal_calibration, load_rig, save_rig
-from .scenes import SCENES, BoardScene, Scene, make_scene
+from nail2nail.simulation.conditions import RANGES, Conditions, draw_conditions
+from nail2nail.simulation.render import (
+    CameraGeometry,
+    camera_geometry,
+    projector_radiance,
+    render_frames,
+)
+from nail2nail.simulation.rig import (
+    Photometry,
+    Rig,
+    default_rig,
+    ideal_calibration,
+    load_rig,
+    save_rig,
+)
+from nail2nail.simulation.scenes import SCENES, BoardScene, Scene, make_scene
 
 __all__ = [
     "RANGES",

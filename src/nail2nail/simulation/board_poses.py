@@ -4,12 +4,23 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
-from ..boards import Board
-from .rig import Rig, default_rig
-from .scenes import BoardScene, _default_board
+from nail2nail._progress import progress_bar
+from nail2nail.calibration.boards import Board
+from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.io._atomic import atomic_directory, check_output_directory
+from nail2nail.io._json import write_json
+from nail2nail.simulation.capture import _configure_rig, simulate, write_capture
+from nail2nail.simulation.rig import Rig, default_rig
+from nail2nail.simulation.scenes import (
+    BoardScene,
+    _default_board,
+    _rotation_from_vector,
+    make_scene,
+)
 
 __all__ = ["board_pose_checks", "board_poses", "rig_working_point", "simulate_board_captures"]
 
@@ -63,9 +74,9 @@ def board_pose_checks(scene: BoardScene, rig: Rig, *, max_obliquity_deg: float =
     world = scene.world_from_board(np.column_stack([edge, np.zeros(len(edge))]))
     centre = scene.world_from_board(board.center[None])[0]
     normal = -scene.R_world_board[:, 2]
-    out = {"obliquity_deg": {}, "inside": {}}
-    viewers = [(name, cam.center, cam) for name, cam in zip(rig.camera_names, rig.cameras,
-                                                            strict=True)]
+    out: dict[str, Any] = {"obliquity_deg": {}, "inside": {}}
+    viewers: list[tuple[str, np.ndarray, Pinhole | None]] = [
+        (name, cam.center, cam) for name, cam in zip(rig.camera_names, rig.cameras, strict=True)]
     viewers.append(("projector", rig.projector.center, None))
     ok = True
     for name, position, cam in viewers:
@@ -158,7 +169,7 @@ def board_poses(
         fraction = 0.5 if n == 1 else (k * 0.618034) % 1.0
         tilt = lo + (hi - lo) * fraction
         direction = np.radians(45.0 + k * _GOLDEN_ANGLE_DEG)
-        found = None
+        found: tuple[float, float, float, float, float, float] | None = None
         for attempt in range(200):
             current = max(tilt - 2.0 * (attempt // 20), 0.0)
             axis = np.array([np.cos(direction), np.sin(direction), 0.0])
@@ -168,10 +179,13 @@ def board_poses(
             # a tilt about an in-plane axis after a spin about Z is close to their sum for
             # the small angles used; the pose is checked as built
             rvec = _compose(current * axis, np.array([0.0, 0.0, spin]))
-            pose = (*[float(v) for v in rvec], *[float(v) for v in centre + shift])
+            rx, ry, rz = (float(v) for v in rvec)
+            tx, ty, tz = (float(v) for v in centre + shift)
+            pose = (rx, ry, rz, tx, ty, tz)
             scene = BoardScene(board=board, pose=pose)
             if board_pose_checks(scene, rig, max_obliquity_deg=max_obliquity_deg)["ok"]:
-                found = tuple(round(v, 6) for v in pose)
+                found = (round(rx, 6), round(ry, 6), round(rz, 6), round(tx, 6), round(ty, 6),
+                         round(tz, 6))
                 break
         if found is None:
             raise ValueError(f"board: no pose {k} found in which every camera and the projector "
@@ -183,7 +197,6 @@ def board_poses(
 
 def _compose(first_deg, then_deg) -> np.ndarray:
     """Rotation vector (degrees) of ``R(first) · R(then)`` (``then`` applied first)."""
-    from .scenes import _rotation_from_vector
 
     r = _rotation_from_vector(first_deg) @ _rotation_from_vector(then_deg)
     angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))
@@ -241,11 +254,6 @@ def simulate_board_captures(
     dict
         The content of ``board-poses.json``.
     """
-    from .._progress import progress_bar
-    from ..io._atomic import atomic_directory, check_output_directory
-    from ..io._json import write_json
-    from .capture import _configure_rig, simulate, write_capture
-    from .scenes import make_scene
 
     check_output_directory(out_dir, marker="board-poses.json")
     rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
@@ -256,7 +264,7 @@ def simulate_board_captures(
     with atomic_directory(out_dir, marker="board-poses.json") as tmp:
         for k, pose in enumerate(progress_bar(poses, desc="simulate", unit="pose",
                                               enabled=progress)):
-            scene = make_scene("board", rig=rig, board=board, pose=tuple(pose))
+            scene = cast(BoardScene, make_scene("board", rig=rig, board=board, pose=tuple(pose)))
             sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set,
                            seed=seed + k)
             name = f"pose{k:02d}"

@@ -15,14 +15,31 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from .._progress import progress_bar
-from ..io._atomic import atomic_directory, check_output_directory, write_npz
-from ..io._json import write_json
-from ..io.capture import write_frame, write_manifest
-from ..io.prints import write_print_image
-from .render import CameraGeometry, camera_geometry, projector_radiance, render_frames
-from .rig import Rig, check_camera_sizes, default_rig, ideal_calibration, scale_camera
-from .scenes import Finger, Scene, make_scene
+from nail2nail._progress import progress_bar
+from nail2nail.calibration.distortion import (
+    THESIS_CENTER,
+    THESIS_RHO,
+    ProjectorDistortion,
+)
+from nail2nail.io._atomic import atomic_directory, check_output_directory, write_npz
+from nail2nail.io._json import read_json, write_json
+from nail2nail.io.capture import write_frame, write_manifest
+from nail2nail.io.prints import write_print_image
+from nail2nail.scan.patterns import PatternSet, default_pattern_set, make_patterns
+from nail2nail.simulation.render import (
+    CameraGeometry,
+    camera_geometry,
+    projector_radiance,
+    render_frames,
+)
+from nail2nail.simulation.rig import (
+    Rig,
+    check_camera_sizes,
+    default_rig,
+    ideal_calibration,
+    scale_camera,
+)
+from nail2nail.simulation.scenes import Finger, Scene, make_scene
 
 __all__ = [
     "SimulatedCapture",
@@ -53,7 +70,7 @@ class SimulatedCapture:
     geometry: dict
     rig: Rig
     scene: Scene
-    pattern_set: object = None
+    pattern_set: PatternSet | None = None
     extra: dict = field(default_factory=dict)
 
 
@@ -91,8 +108,6 @@ def read_pattern_dir(directory: str | os.PathLike):
         Not a directory, no PNG, images of different sizes, a ``patterns.json`` that is not
         valid or lists missing files.
     """
-    from ..io._json import read_json
-    from ..patterns import PatternSet
 
     directory = Path(directory)
     if not directory.is_dir():
@@ -126,7 +141,6 @@ def read_pattern_dir(directory: str | os.PathLike):
 
 
 def _default_patterns():
-    from ..patterns import default_pattern_set, make_patterns
 
     pattern_set = default_pattern_set()
     return make_patterns(pattern_set), pattern_set
@@ -153,7 +167,7 @@ def simulate(
         :func:`~nail2nail.simulation.rig.default_rig` by default.
     patterns : (n_frames, Hp, Wp) uint8, optional
         Panel images; by default those of `pattern_set`, and by default the pattern set is
-        ``nail2nail.patterns.default_pattern_set()``.
+        ``nail2nail.scan.patterns.default_pattern_set()``.
     pattern_set : PatternSet, optional
         Recorded with the capture; rendered when `patterns` is not given.
     seed : int
@@ -180,7 +194,6 @@ def simulate(
         if pattern_set is None:
             patterns, pattern_set = _default_patterns()
         else:
-            from ..patterns import make_patterns
 
             patterns = make_patterns(pattern_set)
     patterns = np.asarray(patterns)
@@ -198,7 +211,7 @@ def simulate(
     missing = [] if known is None else [rig.camera_names[i] for i in indices
                                          if rig.camera_names[i] not in known]
     if missing:
-        raise ValueError(f"geometry: no camera {missing[0]!r} (has {sorted(known)})")
+        raise ValueError(f"geometry: no camera {missing[0]!r} (has {sorted(known or {})})")
     for i in progress_bar(indices, desc="simulate", unit="camera", enabled=progress):
         name = rig.camera_names[i]
         geom = camera_geometry(rig, scene, i) if known is None else known[name]
@@ -341,9 +354,8 @@ def _configure_rig(rig, *, scale, projector_distortion) -> Rig:
             if projector_distortion == "none":
                 rig.projector_distortion = None
             elif projector_distortion == "thesis":
-                from ..distortion import THESIS_CENTER, THESIS_RHO
 
-                rig.projector_distortion = {"center": list(THESIS_CENTER), "rho": THESIS_RHO}
+                rig.projector_distortion = ProjectorDistortion(THESIS_CENTER, THESIS_RHO)
             else:
                 raise ValueError("projector_distortion: expected 'thesis' or 'none', got "
                                  f"{projector_distortion!r}")
@@ -365,6 +377,7 @@ def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
         finger = sim.scene
         image, _ = finger.rolled_print()
         fp = finger.fingerprint
+        assert fp is not None  # a Finger always has its print
         minutiae = finger.rolled_print_minutiae()
         # legacy convention; a synthetic print cut to the rolled extent (nail edge to nail
         # edge, tip to rolled_length_mm), a print from an image written back unchanged

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from .fingerprint import PATTERNS
-from .rig import Photometry, Rig, default_rig
+from nail2nail.simulation.fingerprint import PATTERNS
+from nail2nail.simulation.rig import Photometry, Rig, default_rig
 
 __all__ = ["RANGES", "Conditions", "draw_conditions"]
 
@@ -143,7 +144,7 @@ def draw_conditions(seed: int, ranges: dict | None = None) -> Conditions:
 
     sharp = rng.uniform() < u("projector_sharp_probability")
     fill = u("projector_fill_factor")
-    photometry = {
+    photometry: dict[str, Any] = {
         "projector_fill_factor": round(fill, 4) if sharp else None,
         "projector_blur_px": round(u("projector_blur_px"), 4),
         "projector_gamma": round(u("projector_gamma"), 4),

@@ -134,7 +134,7 @@ class Fingerprint:
     ridge_period: float | None = None
     image: np.ndarray | None = field(default=None, repr=False)
     outside: str = "clamp"
-    _fine: np.ndarray = field(default=None, repr=False)
+    _fine: np.ndarray | None = field(default=None, repr=False)
     _pad: int = field(default=0, repr=False)
 
     def __post_init__(self):
@@ -254,6 +254,7 @@ class Fingerprint:
         """
         col, row = self.pixel_from_uv(u, v)
         fine = self._fine
+        assert fine is not None  # set in __post_init__
         h, w = fine.shape
         x = np.clip(2.0 * (col + self._pad), 0.0, w - 1.000001)
         y = np.clip(2.0 * (row + self._pad), 0.0, h - 1.000001)

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.ndimage as ndi
 
-from ..camera_models import Pinhole
-from .rig import Photometry, Rig
-from .scenes import Scene
+from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.simulation.rig import Photometry, Rig
+from nail2nail.simulation.scenes import Scene
 
 __all__ = ["CameraGeometry", "camera_geometry", "projector_radiance", "render_frames"]
 
@@ -92,7 +92,7 @@ class CameraGeometry:
     name: str = "cam0"
     specular: np.ndarray | None = None
     mm_per_px: float = float("nan")
-    _sampler: tuple = field(default=None, repr=False)
+    _sampler: tuple | None = field(default=None, repr=False)
     _aperture: tuple | None = field(default=None, repr=False)
 
     @property
@@ -102,7 +102,7 @@ class CameraGeometry:
 
     def truth_arrays(self) -> dict[str, np.ndarray]:
         """The arrays of ``truth/<camera>.npz`` (see ``docs/capture-format.md``)."""
-        out = {
+        out: dict[str, np.ndarray] = {
             "xyz": self.xyz.astype(np.float64), "normal": self.normal.astype(np.float32),
             "xp": self.xp, "yp": self.yp, "xp_ideal": self.xp_ideal, "yp_ideal": self.yp_ideal,
             "mask": self.mask, "surface": self.surface, "albedo": self.albedo,
@@ -245,6 +245,7 @@ def aperture_weights(geometry: CameraGeometry, photometry: Photometry) -> tuple:
         offset ``−K`` for each lit pixel (into the panel padded by ``K + 1`` dark pixels) and
         the weights ``(n_lit, 2K + 1)`` float32 per axis.
     """
+    assert photometry.projector_fill_factor is not None  # documented: set
     width = float(np.sqrt(photometry.projector_fill_factor))
     lit = geometry.mask
     var = []
@@ -391,6 +392,7 @@ def render_frames(
     patterns = np.asarray(patterns)
     if patterns.ndim != 3:
         raise ValueError(f"patterns: expected (n_frames, Hp, Wp), got shape {patterns.shape}")
+    assert geometry._sampler is not None  # set by camera_geometry
     lit, i00, stride, w = geometry._sampler
     ph, pw = patterns.shape[1:]
     aperture = geometry._aperture if photometry.projector_fill_factor is not None else None
@@ -420,6 +422,7 @@ def render_frames(
     for k, pattern in enumerate(patterns):
         rad = radiance[k] if radiance is not None else projector_radiance(pattern, photometry)
         if aperture is not None:
+            assert ones is not None  # computed with aperture
             sample = _aperture_sample(aperture, rad, ones)
         else:
             flat = rad.ravel()

@@ -14,7 +14,7 @@ Every number lives in a :class:`Rig` (JSON round trip through :meth:`Rig.to_dict
   cameras (the baseline runs along the finger axis, so fringes encoding ``yp`` triangulate for all
   three cameras), panel rows running down world ``Y``; radial distortion of the thesis
   (eq. 3.34: ``r ↦ r + ρ³ r³``, centre ``(640, 1000)``, ``ρ = −0.004``) between panel and ideal
-  coordinates (:mod:`nail2nail.distortion`).
+  coordinates (:mod:`nail2nail.calibration.distortion`).
 """
 
 from __future__ import annotations
@@ -22,13 +22,19 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import asdict, dataclass, field, fields
+from typing import cast
 
 import numpy as np
 
-from .._validation import as_name, check_format, check_unique
-from ..camera_models import Pinhole, handedness, look_at
-from ..distortion import THESIS_CENTER, THESIS_RHO, ideal_from_panel, panel_from_ideal
-from ..io._json import read_json, write_json
+from nail2nail._validation import as_name, check_format, check_unique
+from nail2nail.calibration.camera_models import Pinhole, handedness, look_at
+from nail2nail.calibration.distortion import (
+    THESIS_CENTER,
+    THESIS_RHO,
+    ProjectorDistortion,
+    as_projector_distortion,
+)
+from nail2nail.io._json import read_json, write_json
 
 __all__ = [
     "MIN_CAMERA_PX",
@@ -162,9 +168,10 @@ class Rig:
         Camera models (``T_cam_world`` poses, OpenCV intrinsics; optional OpenCV distortion).
     projector : Pinhole
         Ideal (pinhole) projector model; its ``K`` maps to *ideal* projector coordinates.
-    projector_distortion : dict or None
-        ``{"center": [x, y], "rho": r}``: thesis radial distortion (eq. 3.34) from panel to ideal
-        coordinates; ``None`` for a distortion-free projector.
+    projector_distortion : ProjectorDistortion or None
+        The thesis's radial distortion (eq. 3.34) from panel to ideal coordinates (its JSON
+        dict ``{"center": [x, y], "rho": r}`` is accepted); ``None`` for a distortion-free
+        projector.
     photometry : Photometry
     camera_names : list of str
         ``cam0``, ``cam1`` … by default.
@@ -174,7 +181,7 @@ class Rig:
 
     cameras: list[Pinhole]
     projector: Pinhole
-    projector_distortion: dict | None = None
+    projector_distortion: ProjectorDistortion | None = None
     photometry: Photometry = field(default_factory=Photometry)
     camera_names: list[str] = field(default_factory=list)
     scale: float = 1.0
@@ -193,13 +200,7 @@ class Rig:
             raise ValueError(
                 f"camera_names: expected {len(self.cameras)} names, got {len(self.camera_names)}"
             )
-        dist = self.projector_distortion
-        if dist is not None:
-            if not isinstance(dist, dict) or not {"center", "rho"} <= set(dist):
-                raise ValueError("projector_distortion: expected {'center': [x, y], 'rho': r}")
-            self.projector_distortion = {
-                "center": [float(v) for v in dist["center"]], "rho": float(dist["rho"])
-            }
+        self.projector_distortion = as_projector_distortion(self.projector_distortion)
 
     # -- projector mapping ----------------------------------------------------------------------
     @property
@@ -220,15 +221,13 @@ class Rig:
         """Panel coordinates of ideal projector coordinates (identity without distortion)."""
         if self.projector_distortion is None:
             return np.asarray(xy_ideal, dtype=float)
-        d = self.projector_distortion
-        return panel_from_ideal(xy_ideal, d["center"], d["rho"])
+        return self.projector_distortion.panel_from_ideal(xy_ideal)
 
     def ideal_from_panel(self, xy_panel) -> np.ndarray:
         """Ideal projector coordinates of panel coordinates (eq. 3.34)."""
         if self.projector_distortion is None:
             return np.asarray(xy_panel, dtype=float)
-        d = self.projector_distortion
-        return ideal_from_panel(xy_panel, d["center"], d["rho"])
+        return self.projector_distortion.ideal_from_panel(xy_panel)
 
     def projector_rays(self, xy_panel) -> tuple[np.ndarray, np.ndarray]:
         """World rays ``(origin (3,), directions (..., 3))`` lit by panel coordinates."""
@@ -246,9 +245,21 @@ class Rig:
                                                            strict=True)
             ],
             "projector": self.projector.to_dict(),
-            "projector_distortion": self.projector_distortion,
+            "projector_distortion": (None if self.projector_distortion is None
+                                     else self.projector_distortion.to_dict()),
             "photometry": asdict(self.photometry),
         }
+
+    @classmethod
+    def from_capture(cls, capture) -> Rig:
+        """The nominal rig a virtual capture's manifest stores
+        (:class:`~nail2nail.io.capture.Capture`).
+
+        ``KeyError`` naming the capture when its manifest holds no rig (a real capture).
+        """
+        if "rig" not in capture.manifest:
+            raise KeyError(f"{capture.path}: the manifest holds no rig")
+        return cls.from_dict(capture.manifest["rig"], where=f"{capture.path / 'capture.json'}: rig")
 
     @classmethod
     def from_dict(cls, data: dict, *, where: str = "rig") -> Rig:
@@ -290,7 +301,7 @@ def scale_camera(camera: Pinhole, scale: float) -> Pinhole:
 
     Examples
     --------
-    >>> from nail2nail.camera_models import Pinhole
+    >>> from nail2nail.calibration.camera_models import Pinhole
     >>> cam = Pinhole(K=[[100, 0, 511.5], [0, 100, 639.5], [0, 0, 1]], R=np.eye(3), t=[0, 0, 1])
     >>> half = scale_camera(cam, 0.5)
     >>> half.size, float(half.K[0, 2])
@@ -380,7 +391,9 @@ def default_rig(
     for az in np.radians(azimuths_deg):
         eye = target + camera_distance_mm * np.array([np.sin(az), 0.0, np.cos(az)])
         R, t = look_at(eye, target, [0.0, 1.0, 0.0])
-        cam = Pinhole(K=K, R=R, t=t, dist=camera_distortion or np.zeros(5), size=(width, height))
+        # Pinhole converts the tuple to an array
+        camera_dist = cast(np.ndarray, camera_distortion or np.zeros(5))
+        cam = Pinhole(K=K, R=R, t=t, dist=camera_dist, size=(width, height))
         cameras.append(scale_camera(cam, scale) if scale != 1 else cam)
     check_camera_sizes(cameras, [f"cam{i}" for i in range(len(cameras))], f"scale {scale:g}")
     elev = np.radians(projector_elevation_deg)
@@ -391,10 +404,8 @@ def default_rig(
     Kp = np.array([[fp, 0, THESIS_CENTER[0]], [0, fp, THESIS_CENTER[1]], [0, 0, 1]])
     R, t = _aim(eye, target, [0.0, 1.0, 0.0], Kp, ((pw - 1) / 2, (ph - 1) / 2))
     projector = Pinhole(K=Kp, R=R, t=t, size=(pw, ph))
-    dist = (
-        {"center": list(THESIS_CENTER), "rho": THESIS_RHO}
-        if projector_distortion == "thesis" else None
-    )
+    dist = (ProjectorDistortion(THESIS_CENTER, THESIS_RHO) if projector_distortion == "thesis"
+            else None)
     photometry = photometry or Photometry(reference_distance_mm=float(throw))
     return Rig(cameras=cameras, projector=projector, projector_distortion=dist,
                photometry=photometry, scale=float(scale))
@@ -403,7 +414,7 @@ def default_rig(
 def ideal_calibration(rig: Rig) -> dict:
     """The rig's true calibration as a calibration-file dict (pinhole models).
 
-    The format is that of :mod:`nail2nail.io.calibration` (``docs/capture-format.md``): one entry
+    The format is that of :mod:`nail2nail.calibration.files` (``docs/capture-format.md``): one entry
     per camera with its pinhole model and the (shared) ideal projector model, plus the
     projector's radial distortion. ``RigCalibration.from_dict`` reads it.
 
@@ -421,7 +432,7 @@ def ideal_calibration(rig: Rig) -> dict:
             for name, cam in zip(rig.camera_names, rig.cameras, strict=True)
         ],
         "projector_distortion": (
-            None if rig.projector_distortion is None else dict(rig.projector_distortion)
+            None if rig.projector_distortion is None else rig.projector_distortion.to_dict()
         ),
         "source": "nail2nail virtual scanner (ground truth)",
     }

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..boards import Board, default_board
-from ..markers import TargetGeometry
-from .fingerprint import Fingerprint, generate_fingerprint, legacy_geometry
+from nail2nail.calibration.boards import Board, default_board
+from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.simulation.fingerprint import Fingerprint, generate_fingerprint, legacy_geometry
 
 __all__ = [
     "SCENES",
@@ -149,7 +149,8 @@ class Sphere(Scene):
 
 @dataclass
 class CylinderTarget(Scene):
-    """The thesis's cylindrical calibration target with bright marks (:mod:`nail2nail.markers`).
+    """The thesis's cylindrical calibration target with bright marks
+    (:mod:`nail2nail.calibration.markers`).
 
     The marks are discs (the key a ring) drawn by arc length on the cylinder; the albedo ramps
     linearly over ``edge`` mm across mark edges.
@@ -230,7 +231,8 @@ BOARD_REST_ROTATION = np.diag([1.0, -1.0, -1.0])
 
 @dataclass
 class BoardScene(Scene):
-    """A printed planar calibration board (:class:`nail2nail.boards.Board`), a flat sheet.
+    """A printed planar calibration board (:class:`nail2nail.calibration.boards.Board`), a flat
+    sheet.
 
     Pose: ``pose = (rx, ry, rz, tx, ty, tz)``, a rotation vector in degrees (axis times angle,
     world frame) and the world position of the sheet's centre in mm. At rest (rotation 0) the
@@ -266,7 +268,7 @@ class BoardScene(Scene):
 
     def __post_init__(self):
         if not isinstance(self.board, Board):
-            raise TypeError(f"board: expected a nail2nail.boards.Board, got "
+            raise TypeError(f"board: expected a nail2nail.calibration.boards.Board, got "
                             f"{type(self.board).__name__}")
         pose = np.asarray(self.pose, dtype=float)
         if pose.shape != (6,) or not np.all(np.isfinite(pose)):
@@ -747,6 +749,7 @@ class Finger(Scene):
         """``(u0, v0)`` of pixel ``[0, 0]`` of :meth:`rolled_print`, mm."""
         r0, _, c0, _ = self._box
         fp = self.fingerprint
+        assert fp is not None  # set in __post_init__
         return fp.u0 - c0 * fp.pitch, fp.v0 - r0 * fp.pitch
 
     def legacy_print_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
@@ -767,12 +770,14 @@ class Finger(Scene):
         [1.0, 2.0]
         """
         u0, v0 = self._print_origin
+        assert self.fingerprint is not None  # set in __post_init__
         pitch = self.fingerprint.pitch
         return (u0 - np.asarray(u, dtype=float)) / pitch, (v0 - np.asarray(v, dtype=float)) / pitch
 
     def uv_from_legacy_pixel(self, col, row) -> tuple[np.ndarray, np.ndarray]:
         """Rolled-print coordinates ``(u, v)`` mm of :meth:`rolled_print` pixels (inverse)."""
         u0, v0 = self._print_origin
+        assert self.fingerprint is not None  # set in __post_init__
         pitch = self.fingerprint.pitch
         return u0 - pitch * np.asarray(col, dtype=float), v0 - pitch * np.asarray(row, dtype=float)
 
@@ -788,6 +793,7 @@ class Finger(Scene):
         r0, r1, c0, c1 = self._box
         u0, v0 = self._print_origin
         extent = None
+        assert self.fingerprint is not None  # set in __post_init__
         if self._synthetic:
             extent = {"u_max_mm": round(self._s_ridge, 6), "v_tip_mm": round(self.v_tip, 6),
                       "v_min_mm": round(self.v_tip - self.rolled_length_mm, 6)}
@@ -809,11 +815,13 @@ class Finger(Scene):
         is that image unchanged, ``mask`` the pixels that map onto the finger surface.
         """
         fp = self.fingerprint
+        assert fp is not None  # set in __post_init__
         r0, r1, c0, c1 = self._box
         u, v = self.uv_from_legacy_pixel(np.arange(c1 - c0)[None, :],
                                          np.arange(r1 - r0)[:, None])
         mask = self.rolled_extent(u, v)
         if not self._synthetic:
+            assert fp.image is not None  # not synthetic: a print from an image
             return fp.image.copy(), mask
         v_min = self.v_tip - self.rolled_length_mm
         ink = self.ridge_envelope(u, v) * _smoothstep((v - v_min) / self.ridge_edge_mm)
@@ -829,6 +837,7 @@ class Finger(Scene):
         (radians in ``[0, π)``) from the print's orientation field; ``(0, 6)`` for an image.
         """
         fp = self.fingerprint
+        assert fp is not None  # set in __post_init__
         if not self._synthetic or len(fp.minutiae) == 0 or fp.orientation is None:
             return np.zeros((0, 6))
         m = fp.minutiae
@@ -855,6 +864,7 @@ class Finger(Scene):
         ~mm near it."""
         xyz = np.asarray(xyz, dtype=float)
         u, v, s = self._skin(xyz)
+        assert self.fingerprint is not None  # set in __post_init__
         r = self.fingerprint.sample(u, v) * self._envelope_of_arc(s)
         return self._base_distance(xyz) - self._hmax * r
 

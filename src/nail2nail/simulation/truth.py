@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io._json import read_json
-from ..io._npz import read_npz
+from nail2nail.io._json import read_json
+from nail2nail.io._npz import read_npz
 
 __all__ = ["truth_print_sampler", "truth_skin_coordinates"]
 

@@ -16,9 +16,9 @@ albedo), :mod:`~nail2nail.unroll.flatten` (flattening maps and their distortion)
 (comparison with the true skin coordinates).
 """
 
-from .flatten import METHODS, fit_flattening, map_distortion
-from .mixing import clarity_map, mix_layers
-from .rolled import (
+from nail2nail.unroll.flatten import METHODS, fit_flattening, map_distortion
+from nail2nail.unroll.mixing import clarity_map, mix_layers
+from nail2nail.unroll.rolled import (
     DEFAULT_LENGTH_MM,
     DEFAULT_METHOD,
     FLOOR_FRACTION,

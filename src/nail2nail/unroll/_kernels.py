@@ -29,7 +29,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba_cache import cache_enabled
+from nail2nail._numba_cache import cache_enabled
 
 __all__ = [
     "axis_distance",

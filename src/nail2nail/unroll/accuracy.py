@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .quality import block_quality
-from .ridges import scan_valid
-from .rolled import RolledPrint
+from nail2nail.unroll.quality import block_quality
+from nail2nail.unroll.ridges import scan_valid
+from nail2nail.unroll.rolled import RolledPrint
 
 __all__ = ["geometric_accuracy", "similarity_fit"]
 
@@ -120,9 +120,9 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
     pix = ri * w + ci
     n_pix = np.bincount(pix, minlength=h * w)
     have = n_pix > 0
-    dmap = np.full(h * w, np.nan)
-    dmap[have] = np.bincount(pix, resid, minlength=h * w)[have] / n_pix[have]
-    dmap = dmap.reshape(h, w)
+    flat = np.full(h * w, np.nan)
+    flat[have] = np.bincount(pix, resid, minlength=h * w)[have] / n_pix[have]
+    dmap = flat.reshape(h, w)
     displacement = dmap[np.isfinite(dmap)]
     # the local Jacobian of print (s, t) -> truth (u, v): a least-squares affine fit of the
     # samples in each block of baseline_mm × baseline_mm

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from ..io._atomic import save_figure
+from nail2nail.io._atomic import save_figure
 
 __all__ = ["plot_distortion_maps", "plot_print_and_truth", "save_print_figures"]
 

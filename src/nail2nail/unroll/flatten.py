@@ -40,9 +40,9 @@ import scipy.optimize
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from .._interpolate import bilinear
-from .._quantile import weighted_quantiles
-from ._kernels import axis_distance
+from nail2nail._interpolate import bilinear
+from nail2nail._quantile import weighted_quantiles
+from nail2nail.unroll._kernels import axis_distance
 
 __all__ = [
     "METHODS",
@@ -507,7 +507,8 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     gw, gh = int(cr[:, 0].max()) + 2, int(cr[:, 1].max()) + 2
     cell = cr[:, 1] * gw + cr[:, 0]
     count = np.bincount(cell, minlength=gh * gw)
-    mean = np.stack([np.bincount(cell, pts[:, k], minlength=gh * gw) for k in range(3)], -1)
+    mean: np.ndarray = np.stack(
+        [np.bincount(cell, pts[:, k], minlength=gh * gw) for k in range(3)], -1)
     ok = count >= min_samples
     mean[ok] /= count[ok, None]
     index = np.full(gh * gw, -1, dtype=np.int64)

@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from .quality import block_quality
-from .ridges import masked_gaussian
+from nail2nail.unroll.quality import block_quality
+from nail2nail.unroll.ridges import masked_gaussian
 
 __all__ = ["clarity_map", "gate_mask", "mix_layers"]
 

@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from ._kernels import camera_points, rolled_map, splat, tail_percentile
-from .flatten import RolledMap
-from .ridges import masked_gaussian
+from nail2nail.unroll._kernels import camera_points, rolled_map, splat, tail_percentile
+from nail2nail.unroll.flatten import RolledMap
+from nail2nail.unroll.ridges import masked_gaussian
 
 __all__ = ["MM_PER_INCH", "PrintGrid", "binarize", "blend_cameras", "print_grid", "to_gray"]
 

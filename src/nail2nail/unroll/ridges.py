@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from .._quantile import weighted_quantiles
-from ..reconstruction import Scan
-from ._kernels import (
+from nail2nail._quantile import weighted_quantiles
+from nail2nail.scan.results import Scan
+from nail2nail.unroll._kernels import (
     block_mean,
     deviation,
     layer_outputs,
@@ -297,7 +297,7 @@ def camera_layer(
     curvature: bool = False,
     highpass_mm: float = 0.0,
     separate: bool = False,
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
 
     The ridge signal is the relief ``h = (X − X̄)·n`` from the smooth surface ``X̄`` (σ

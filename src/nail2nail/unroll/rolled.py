@@ -10,16 +10,25 @@ quality figures (:mod:`~nail2nail.unroll.quality`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from .._timing import StepClock
-from ..io.rolled import ROLLED_FORMAT, ROLLED_LENGTH_MM
-from ..reconstruction import Scan
-from .flatten import METHODS, fit_flattening, map_distortion
-from .mixing import clarity_map, gate_mask, mix_layers
-from .quality import block_quality
-from .render import (
+from nail2nail._timing import StepClock
+from nail2nail.io.rolled import ROLLED_FORMAT, ROLLED_LENGTH_MM
+from nail2nail.scan.results import Scan
+from nail2nail.unroll.flatten import (
+    METHODS,
+    CylinderMap,
+    IsometricMap,
+    RolledMap,
+    SphereMap,
+    fit_flattening,
+    map_distortion,
+)
+from nail2nail.unroll.mixing import clarity_map, gate_mask, mix_layers
+from nail2nail.unroll.quality import block_quality
+from nail2nail.unroll.render import (
     PrintGrid,
     binarize,
     blend_cameras,
@@ -27,7 +36,7 @@ from .render import (
     print_grid,
     to_gray,
 )
-from .ridges import camera_layer, masked_gaussian, scan_valid
+from nail2nail.unroll.ridges import camera_layer, masked_gaussian, scan_valid
 
 __all__ = ["DEFAULT_LENGTH_MM", "DEFAULT_METHOD", "FLOOR_FRACTION", "MIN_CLARITY", "RolledPrint",
            "image_up_direction", "unroll_scans"]
@@ -98,7 +107,7 @@ class RolledPrint:
     share: np.ndarray
     grid: PrintGrid
     method: str
-    flattening: object
+    flattening: CylinderMap | SphereMap | IsometricMap | RolledMap
     cameras: list[str]
     distortion: dict
     quality: dict
@@ -263,7 +272,7 @@ def unroll_scans(
     ----------
     scans : sequence of Scan
         Every camera's scan of one finger with all its valid pixels (the output of
-        :func:`nail2nail.scanning.scan_capture`), in one world frame; overlaps are blended.
+        :func:`nail2nail.scan.capture.scan_capture`), in one world frame; overlaps are blended.
     method : {"cylinder", "sphere", "rolled", "isometric"}
         Flattening (:mod:`nail2nail.unroll.flatten`); ``rolled`` by default, the method with
         the smallest geometric error against the true skin coordinates (``docs/unroll.md``).
@@ -323,7 +332,7 @@ def unroll_scans(
     lap = StepClock()
     timings = lap.seconds
 
-    points, valids = [], []
+    picked, valids = [], []
     for s in scans:
         v = scan_valid(s)
         if not v.any():
@@ -331,8 +340,8 @@ def unroll_scans(
         valids.append(v)
         # every fourth valid point (row-major), converted once they are picked
         xyz = np.asarray(s.xyz).reshape(-1, 3)
-        points.append(xyz[np.flatnonzero(v)[::4]].astype(np.float64))
-    points = np.concatenate(points)
+        picked.append(xyz[np.flatnonzero(v)[::4]].astype(np.float64))
+    points = np.concatenate(picked)
     if tip_direction is None:
         tip_direction = image_up_direction(scans)
     if pad_direction is None:
@@ -379,7 +388,7 @@ def unroll_scans(
     if mix:
         value, mixing = mix_layers(value, albedo, mask, pitch)
     lap("mix")
-    gray_options = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
+    gray_options: dict[str, Any] = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
     if mix:
         gray_options["floor_fraction"] = GRAY_FLOOR_FRACTION
     image = to_gray(value, mask, **gray_options)

@@ -1,0 +1,428 @@
+"""Tests of nail2nail.merge: projector-space correspondence and merge error (thesis ch. 4)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _synthetic import synthetic_scans
+
+from nail2nail._interpolate import bilinear
+from nail2nail.merge import (
+    DROP_REASONS,
+    correspond,
+    merge_statistics,
+    nearest_bruteforce,
+    nearest_kdtree,
+    refine_subpixel,
+    sample_pixels,
+    valid_mask,
+)
+from nail2nail.scan.results import Scan
+
+SIZE = (96, 120)  # (width, height): reduced resolution, 0.27 mm per pixel at the finger
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return synthetic_scans(size=SIZE)
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return synthetic_scans(size=SIZE, noise_px=0.05, seed=3)
+
+
+def _flat_scan(name="flat", shape=(20, 24), *, dx=0.0, dz=0.0):
+    rr, cc = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    xyz = np.stack([cc * 0.1, rr * 0.1, 0 * rr + dz], -1).astype(np.float32)
+    one = np.ones(shape, np.float32)
+    return Scan(name, xyz, (1.3 * cc + 0.2 * rr + dx).astype(np.float32),
+                (0.1 * cc + 1.1 * rr).astype(np.float32), one, one, one, one > 0)
+
+
+# -- ground truth ----------------------------------------------------------------------------
+def test_zero_noise_merge_error_is_interpolation_only(clean):
+    m = correspond(clean[0], clean[1])
+    stats = m.statistics()
+    assert m.n_pairs > 2000
+    assert stats["distance_mm"]["median"] < 0.002  # sub-micron-ish at 0.27 mm pixels
+    assert stats["distance_mm"]["frac_below_0_05"] == 1.0
+    assert np.all(m.residual_px < 1e-3)
+
+
+def test_known_shift_gives_known_merge_error(clean):
+    shifted = replace(clean[1], xyz=clean[1].xyz + np.float32([0.05, 0, 0]))
+    m = correspond(clean[0], shifted)
+    d = m.distance_mm
+    assert np.median(d) == pytest.approx(0.05, abs=0.002)
+    assert m.statistics()["squared_mm2"]["median"] == pytest.approx(0.0025, abs=2e-4)
+
+
+def test_noise_sets_the_merge_error(noisy):
+    # 0.05 px decoding noise in both scans, ≈ 0.031 mm per projector px at the finger:
+    # a 2-D Gaussian offset of σ ≈ 0.05·√2·0.031 mm has median ≈ 1.18 σ ≈ 2.6 µm.
+    m = correspond(noisy[0], noisy[1])
+    median = m.statistics()["distance_mm"]["median"]
+    assert 0.001 < median < 0.006
+
+
+def test_counts_add_up_and_overlap_is_decided(clean):
+    m = correspond(clean[0], clean[2])
+    assert m.n_sampled == m.n_pairs + sum(m.dropped.values())
+    assert set(m.dropped) == set(DROP_REASONS)
+    assert m.dropped["parent_border"] > 0 and m.dropped["child_border"] > 0
+    # every kept pair is a true correspondence (exact geometry)
+    assert m.distance_mm.max() < 0.02
+
+
+def test_region_the_child_never_saw_is_dropped(clean):
+    child = clean[1]
+    mask = child.mask.copy()
+    mask[:, : SIZE[0] // 2] = False  # the child lost its left half
+    cut = replace(child, mask=mask)
+    full = correspond(clean[0], child)
+    half = correspond(clean[0], cut)
+    assert half.n_pairs < full.n_pairs
+    assert half.distance_mm.max() < 0.02  # no false pairs from nearest neighbours at the cut
+    assert half.dropped["child_border"] > full.dropped["child_border"]
+
+
+def test_projector_discontinuity_is_not_interpolated_across():
+    parent = _flat_scan()
+    # a depth step: the child's columns 12.. see the parent's columns 17.. (1 mm higher), and
+    # never 12..16
+    xyz = parent.xyz.copy()
+    xyz[:, 17:, 2] += 1.0
+    parent = replace(parent, xyz=xyz)
+    arrays = {k: getattr(parent, k).copy() for k in ("xyz", "xp", "yp", "mask")}
+    for a in arrays.values():
+        a[:, 12:19] = a[:, 17:24]
+    arrays["mask"][:, 19:] = False
+    child = replace(parent, name="stepped", **arrays)
+    m = correspond(parent, child)
+    assert m.n_pairs > 0
+    assert m.distance_mm.max() < 1e-5  # no point invented inside the step
+    lenient = correspond(parent, child, max_jump_px=100.0, outlier_mm=None)
+    assert lenient.distance_mm.max() > 0.05  # what interpolating across the step would do
+    # the outlier test catches those invented points even so
+    caught = correspond(parent, child, max_jump_px=100.0)
+    assert caught.distance_mm.max() < 1e-5
+    assert caught.dropped["outlier"] > 0
+    assert caught.rejected.distance_mm.min() > 0.05
+
+
+def test_residual_above_decoding_noise_is_dropped(clean):
+    m = correspond(clean[0], clean[1], refine=False)  # nearest pixel only: residual ~ px size
+    assert m.dropped["residual"] > 0.9 * (m.n_sampled - m.dropped["parent_border"]
+                                          - m.dropped["child_border"])
+    assert np.all(m.residual_px <= 0.5)
+
+
+def test_refine_false_is_the_appendix_nearest_pixel(clean):
+    m = correspond(clean[0], clean[1], refine=False, max_residual_px=50.0)
+    np.testing.assert_array_equal(m.child_rc, m.child_nearest.astype(float))
+    assert np.median(m.distance_mm) > 0.02  # whole-pixel matching is coarse
+
+
+def test_stride_subsamples(clean):
+    full = correspond(clean[0], clean[1])
+    five = correspond(clean[0], clean[1], stride=5)
+    assert np.all(five.parent_rc % 5 == 0)
+    assert 0.02 * full.n_pairs < five.n_pairs < 0.06 * full.n_pairs
+    assert five.stride == 5
+
+
+# -- fast paths against references ------------------------------------------------------------
+def test_kdtree_matches_bruteforce(noisy):
+    rows, cols = sample_pixels(valid_mask(noisy[0]), stride=3)
+    b = nearest_bruteforce(noisy[0], noisy[1], rows, cols)
+    k = nearest_kdtree(noisy[0], noisy[1], rows, cols, workers=1)
+    np.testing.assert_array_equal(b[0], k[0])
+    np.testing.assert_array_equal(b[1], k[1])
+    np.testing.assert_allclose(b[2], k[2], rtol=1e-9, atol=1e-12)
+
+
+def test_correspond_methods_agree(noisy):
+    a = correspond(noisy[0], noisy[1], stride=4)
+    b = correspond(noisy[0], noisy[1], stride=4, method="bruteforce")
+    np.testing.assert_array_equal(a.parent_rc, b.parent_rc)
+    np.testing.assert_allclose(a.xyz_child, b.xyz_child)
+    assert a.dropped == b.dropped
+
+
+def test_compiled_refinement_matches_numpy_reference(noisy):
+    m = correspond(noisy[0], noisy[1], stride=2)
+    child = noisy[1]
+    rows, cols = m.parent_rc.T
+    nr, nc = m.child_nearest.T
+    tx = noisy[0].xp[rows, cols].astype(float)
+    ty = noisy[0].yp[rows, cols].astype(float)
+    r, c, res = refine_subpixel(child.xp, child.yp, tx, ty, nr, nc)
+    np.testing.assert_allclose(m.child_rc[:, 0], r, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(m.child_rc[:, 1], c, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(m.residual_px, res, rtol=1e-6, atol=1e-9)
+    xyz = bilinear(child.xyz.astype(float), r, c)[0]
+    np.testing.assert_allclose(m.xyz_child, xyz, rtol=0, atol=1e-9)
+
+
+def test_refinement_nan_neighbourhood_is_reported():
+    xp = np.tile(np.arange(5.0), (5, 1))
+    yp = xp.T.copy()
+    xp[2, 3] = np.nan
+    r, c, res = refine_subpixel(xp, yp, [2.2], [2.1], [2], [2])
+    assert np.isnan(r[0]) and np.isnan(c[0]) and np.isnan(res[0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    a=st.floats(0.5, 2.0), b=st.floats(-0.4, 0.4), c=st.floats(-0.4, 0.4), d=st.floats(0.5, 2.0),
+    dr=st.floats(-0.5, 0.5), dc=st.floats(-0.5, 0.5),
+)
+def test_refinement_is_exact_for_affine_maps(a, b, c, d, dr, dc):
+    rr, cc = np.mgrid[0:7, 0:7].astype(float)
+    xp, yp = a * cc + b * rr + 3.0, c * cc + d * rr - 1.0
+    tr, tc = 3 + dr, 3 + dc
+    r, cl, res = refine_subpixel(xp, yp, [a * tc + b * tr + 3.0], [c * tc + d * tr - 1.0],
+                                 [3], [3])
+    assert r[0] == pytest.approx(tr, abs=1e-9)
+    assert cl[0] == pytest.approx(tc, abs=1e-9)
+    assert res[0] < 1e-9
+
+
+# -- outputs -------------------------------------------------------------------------------
+def test_mapping_matrix_and_distance_image(clean):
+    m = correspond(clean[0], clean[1], stride=3)
+    mapping = m.mapping
+    assert mapping.shape == (*clean[0].shape, 2) and mapping.dtype == np.int32
+    paired = (mapping >= 0).all(-1)
+    assert paired.sum() == m.n_pairs
+    assert np.all(mapping[~paired] == -1)
+    np.testing.assert_array_equal(mapping[tuple(m.parent_rc.T)], m.child_nearest)
+    img = m.distance_image()
+    assert img.dtype == np.float32
+    np.testing.assert_array_equal(np.isfinite(img), paired)
+
+
+def test_merge_statistics_values():
+    s = merge_statistics([0.0, 0.01, 0.02, 0.03, 0.2])
+    d = s["distance_mm"]
+    assert d["median"] == pytest.approx(0.02)
+    assert d["mean"] == pytest.approx(0.052)
+    assert d["max"] == pytest.approx(0.2)
+    assert d["frac_below_0_05"] == pytest.approx(0.8)
+    assert d["p95"] == pytest.approx(0.166)  # linear interpolation at rank 3.8
+    assert s["squared_mm2"]["max"] == pytest.approx(0.04)
+    empty = merge_statistics([])
+    assert np.isnan(empty["distance_mm"]["median"]) and empty["distance_mm"]["frac_below_0_05"] == 0
+
+
+def test_sample_pixels_skips_invalid():
+    mask = np.ones((6, 6), bool)
+    mask[0, 0] = False
+    rows, cols = sample_pixels(mask, stride=3)
+    assert list(zip(rows.tolist(), cols.tolist(), strict=True)) == [(0, 3), (3, 0), (3, 3)]
+
+
+# -- bad input -------------------------------------------------------------------------------
+def test_bad_inputs_name_the_argument(clean):
+    a, b = clean[0], clean[1]
+    with pytest.raises(TypeError, match=r"parent: expected a nail2nail\.scan\.results\.Scan"):
+        correspond(np.zeros((3, 3)), b)
+    with pytest.raises(ValueError, match="stride: expected an integer ≥ 1"):
+        correspond(a, b, stride=0)
+    with pytest.raises(TypeError, match="stride: expected an integer"):
+        correspond(a, b, stride=2.5)
+    with pytest.raises(ValueError, match="border_px"):
+        correspond(a, b, border_px=0)
+    with pytest.raises(ValueError, match="max_residual_px"):
+        correspond(a, b, max_residual_px=-1)
+    with pytest.raises(ValueError, match="method"):
+        correspond(a, b, method="octree")
+    with pytest.raises(ValueError, match=r"child.xp: expected shape"):
+        correspond(a, replace(b, xp=b.xp[:-1]))
+    with pytest.raises(ValueError, match="no valid pixels"):
+        correspond(a, replace(b, mask=np.zeros_like(b.mask)))
+    with pytest.raises(ValueError, match="distance_mm"):
+        merge_statistics([0.1, np.nan])
+
+
+# -- command line ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def scan_dir(tmp_path_factory):
+    from nail2nail.io.scans import save_scans
+
+    out = tmp_path_factory.mktemp("scan")
+    save_scans(out, synthetic_scans(size=(64, 80), noise_px=0.05), mat5=False, ply=False)
+    return out
+
+
+def test_cli_merge_json(scan_dir, tmp_path, capsys):
+    import json
+
+    from nail2nail.cli._main import main
+
+    out = tmp_path / "merged"
+    assert main(["merge", str(scan_dir), "--out", str(out), "--stride", "2", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert set(summary["merge"]) == {"0-1", "1-2"}
+    for key, m in summary["merge"].items():
+        assert m["pairs"] > 100 and m["stride"] == 2
+        assert {"median", "p95", "max", "frac_below_0_05"} <= set(m["distance_mm"])
+        assert m["distance_mm"]["median"] < 0.02
+        assert m["sampled"] == m["pairs"] + sum(m["dropped"].values())
+        for path in m["files"].values():
+            assert Path(path).exists(), key
+    mapping = np.load(summary["merge"]["0-1"]["files"]["mapping"])["mapping"]
+    assert mapping.shape == (80, 64, 2)
+    sup = summary["super_scan"]
+    assert sup["vertices"] > 0 and Path(sup["files"]["ply"]).exists()
+    assert Path(sup["files"]["mat5"] + "X.by").exists()
+    assert all(Path(p).exists() for p in summary["outputs"])
+    assert json.loads((out / "merge.json").read_text())["merge"]["0-1"]["pairs"] == \
+        summary["merge"]["0-1"]["pairs"]
+
+
+def test_cli_merge_text_and_pairs(scan_dir, tmp_path, capsys):
+    from nail2nail.cli._main import main
+
+    args = ["merge", str(scan_dir), "--out", str(tmp_path / "m"), "--pairs", "2-0",
+            "--no-figures", "--no-super"]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "2-0" in text and "median" in text
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == [
+        "merge.json", "merge_2-0_mapping.npz"]
+
+
+def test_cli_merge_figures_on_and_off(scan_dir, tmp_path):
+    from nail2nail.cli._main import main
+
+    base = ["merge", str(scan_dir), "--pairs", "0-1", "--stride", "2", "--no-super"]
+    assert main([*base, "--out", str(tmp_path / "on"), "--figures"]) == 0
+    assert sorted(p.name for p in (tmp_path / "on").glob("*.png")) == [
+        f"merge_0-1_{k}.png" for k in ("heatmap", "histogram", "marked", "points3d")]
+    assert main([*base, "--out", str(tmp_path / "off"), "--no-figures"]) == 0
+    assert not list((tmp_path / "off").glob("*.png"))
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (["--pairs", "0-7"], "must name two different cameras"),
+    (["--pairs", "0:1"], "expected PARENT-CHILD"),
+    (["--stride", "0"], "stride: expected an integer ≥ 1"),
+])
+def test_cli_merge_errors(scan_dir, tmp_path, capsys, extra, message):
+    from nail2nail.cli._main import main
+
+    assert main(["merge", str(scan_dir), "--out", str(tmp_path / "x"), *extra]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_merge_not_a_scan_dir(tmp_path, capsys):
+    from nail2nail.cli._main import main
+
+    assert main(["merge", str(tmp_path), "--out", str(tmp_path / "x")]) == 2
+    assert "not a scan directory" in capsys.readouterr().err
+
+
+def test_write_merge_rejects_bad_pairs(tmp_path):
+    from _synthetic import synthetic_scans
+
+    from nail2nail.merge.report import write_merge
+
+    scans = synthetic_scans(size=(32, 40))
+    for pairs in ([(0, 5)], [(1, 1)]):
+        with pytest.raises(ValueError, match="pairs"):
+            write_merge(scans, tmp_path / "out", pairs=pairs, figures=False, super_scan=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_write_merge_without_data_files(noisy, tmp_path):
+    """data=False: merge.json (and figures) only, with the same figures as a full merge."""
+    from nail2nail.merge.report import write_merge
+
+    full = write_merge(noisy, tmp_path / "full", stride=3, figures=False)
+    lean = write_merge(noisy, tmp_path / "lean", stride=3, figures=False, data=False)
+    assert sorted(p.name for p in (tmp_path / "lean").iterdir()) == ["merge.json"]
+    assert lean["outputs"] == [str(tmp_path / "lean" / "merge.json")]
+    for key, stats in full["merge"].items():
+        assert lean["merge"][key]["files"] == {}
+        assert lean["merge"][key]["distance_mm"] == stats["distance_mm"]
+    assert lean["super_scan"]["vertices"] == full["super_scan"]["vertices"]
+    assert lean["super_scan"]["files"] == {}
+
+
+# -- issue 9: rejection of unreliable pairs --------------------------------------------------
+def _corrupt_edge(scan, *, band_px=3, offset_mm=0.2):
+    """`scan` with the points within `band_px` of its mask edge pushed off the surface."""
+    import scipy.ndimage
+
+    inner = scipy.ndimage.binary_erosion(scan.mask, iterations=band_px)
+    band = scan.mask & ~inner
+    xyz = scan.xyz.copy()
+    xyz[band, 2] += np.float32(offset_mm)
+    return replace(scan, xyz=xyz), band
+
+
+def test_issue9_corrupted_mask_edge_pairs_are_rejected(noisy):
+    child, _ = _corrupt_edge(noisy[1])
+    plain = correspond(noisy[0], child, max_view_angle_deg=None, min_relative_modulation=None,
+                       outlier_mm=None)
+    assert plain.rejected is None and plain.dropped["outlier"] == 0
+    assert plain.distance_mm.max() > 0.1  # the corrupted points are paired without the tests
+    m = correspond(noisy[0], child)
+    # every pair more than the outlier floor (25 µm) off its neighbours is rejected
+    assert m.distance_mm.max() < 0.035
+    assert m.n_pairs > 0.8 * plain.n_pairs
+    assert m.rejected.n_pairs == sum(m.dropped[k] for k in ("view_angle", "modulation",
+                                                            "outlier"))
+    assert set(m.rejected.reason) <= {"view_angle", "modulation", "outlier"}
+    assert m.dropped["outlier"] > 0
+    # nothing is hidden: the statistics before rejection hold every pair found
+    stats = m.statistics()
+    assert stats["before_rejection"]["pairs"] == plain.n_pairs
+    assert stats["before_rejection"]["distance_mm"]["max"] == pytest.approx(
+        plain.distance_mm.max())
+    assert stats["rejected"] == {k: m.dropped[k] for k in ("view_angle", "modulation",
+                                                           "outlier")}
+    assert m.n_sampled == m.n_pairs + sum(m.dropped.values())
+
+
+def test_issue9_rejection_tests_by_reason(clean):
+    # grazing views: the cylinder's silhouette seen by the side cameras
+    wide = correspond(clean[0], clean[1], max_view_angle_deg=None, min_relative_modulation=None,
+                      outlier_mm=None)
+    m = correspond(clean[0], clean[1], max_view_angle_deg=60.0, min_relative_modulation=None,
+                   outlier_mm=None)
+    assert m.dropped["view_angle"] > 0 and m.dropped["modulation"] == 0
+    assert m.n_pairs + m.dropped["view_angle"] == wide.n_pairs
+    # a stripe of weak fringes (a tenth of the modulation) in the child
+    stripe = (np.arange(SIZE[0]) >= 40) & (np.arange(SIZE[0]) < 50)
+    weak = replace(clean[1], modulation=clean[1].modulation * np.where(
+        stripe, 0.1, 1.0).astype(np.float32))
+    m = correspond(clean[0], weak, max_view_angle_deg=None, outlier_mm=None)
+    assert m.dropped["modulation"] > 0
+    assert m.n_pairs + m.dropped["modulation"] == wide.n_pairs
+    col = m.child_rc[:, 1]
+    assert not np.any((col >= 40) & (col <= 49))  # none in the stripe (bilinear at its rim)
+    with pytest.raises(ValueError, match="max_view_angle_deg"):
+        correspond(clean[0], clean[1], max_view_angle_deg=120)
+    with pytest.raises(ValueError, match="outlier_mm"):
+        correspond(clean[0], clean[1], outlier_mm=-1)
+
+
+def test_issue9_local_outliers_follow_a_smooth_offset():
+    from nail2nail.merge import local_outliers
+
+    rows, cols = np.divmod(np.arange(64 * 64), 64)
+    d = 0.005 + 0.05 * cols / 64  # a calibration-like ramp, 5 to 55 µm
+    d[[100, 2000, 4000]] += 0.1
+    out = local_outliers(rows, cols, d, block_px=16)
+    assert np.flatnonzero(out).tolist() == [100, 2000, 4000]
