@@ -230,7 +230,6 @@ def _run(captures: list[Path], calibration: Path, out: Path, client, options: di
     """Submit a task per capture, gather the rows in the order of `captures`."""
     from distributed import as_completed
 
-
     failures = {} if retry_failed else _previous_failures(out)
     futures = {}
     for c in captures:

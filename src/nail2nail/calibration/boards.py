@@ -1014,7 +1014,6 @@ class Sheet:
         """Write the page as ``.svg`` or ``.pdf`` (by the suffix), atomically, at 1:1 scale."""
         from pathlib import Path
 
-
         path = Path(path)
         suffix = path.suffix.lower()
         if suffix not in (".svg", ".pdf"):

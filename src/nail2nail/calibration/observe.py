@@ -212,7 +212,6 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
     """
     import cv2
 
-
     if not capture_dirs:
         raise ValueError("capture_dirs: need at least one pose capture")
     object_xy = board.object_points()[:, :2]

@@ -104,7 +104,6 @@ def _pack(model) -> np.ndarray:
 def _unpack(p: np.ndarray, size) -> object:
     from scipy.spatial.transform import Rotation
 
-
     K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
     return Pinhole(K=K, R=Rotation.from_rotvec(p[4:7]).as_matrix(), t=p[7:10], size=size)
 
@@ -234,7 +233,6 @@ def calibrate_rig_joint(
     JointCalibration
     """
     from scipy.optimize import least_squares
-
 
     if not observations:
         raise ValueError("observations: need at least one camera")

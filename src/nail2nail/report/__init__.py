@@ -61,7 +61,6 @@ def build_report(out_dir: str | os.PathLike, *, max_points: int = 60_000,
     """
     import matplotlib
 
-
     inputs = find_inputs(out_dir)
     say = Stages(enabled=progress, prefix="report: ")
     sections = []

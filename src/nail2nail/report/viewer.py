@@ -149,7 +149,6 @@ def _vertex_cameras(points: np.ndarray, inputs: ReportInputs) -> tuple[np.ndarra
     """Index of the camera whose scan point is nearest to each vertex; the camera names."""
     from scipy.spatial import cKDTree
 
-
     if inputs.scans is None:
         return np.full(len(points), -1), []
     scans = load_scans(inputs.scans)
