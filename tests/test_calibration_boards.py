@@ -168,7 +168,6 @@ def test_to_uint8():
 
 @pytest.mark.parametrize(("options", "match"), [
     ({"kind": "square", "rows": 5, "cols": 6, "spacing": 1.0}, "kind"),
-    ({"kind": "checkerboard", "rows": 6, "cols": 6, "spacing": 1.0}, "180 degrees"),
     ({"kind": "checkerboard", "rows": 2, "cols": 5, "spacing": 1.0}, "at least 3"),
     ({"kind": "circles", "rows": 4, "cols": 5, "spacing": 0.0}, "spacing"),
     ({"kind": "circles", "rows": 4, "cols": 5, "spacing": 1.0, "marker": 1.5}, "marker"),

@@ -143,7 +143,7 @@ def test_print_pdf_page_size(tmp_path):
 
 @pytest.mark.parametrize(("argv", "match"), [
     (["cylinder", "--rows", "5"], "--rows: only with print-target board"),
-    (["board", "--rows", "6", "--cols", "6"], "180 degrees"),
+    (["board", "--rows", "2", "--cols", "6"], "at least 3"),
     (["board", "--spacing", "-1"], "spacing"),
 ])
 def test_print_target_bad_input(tmp_path, capsys, argv, match):

@@ -168,7 +168,7 @@ def test_simulate_board_single_pose(tmp_path):
 
 @pytest.mark.parametrize(("argv", "match"), [
     (["--scene", "finger", "--board", "charuco"], "--board: only with --scene board"),
-    (["--scene", "board", "--rows", "6", "--cols", "6"], "180 degrees"),
+    (["--scene", "board", "--rows", "2", "--cols", "6"], "at least 3"),
     (["--scene", "board", "--poses", "0"], "--poses"),
     (["--scene", "board", "--poses", "2", "--pose", "0", "0", "0", "0", "0", "0"], "--pose"),
     (["--scene", "board", "--spacing", "9"], "smaller board"),

@@ -6,7 +6,7 @@ options ``--board KIND --rows R --cols C --spacing MM [--marker MM]``:
 ========================== ========================= =================== ====================
 kind                       ``rows`` × ``cols`` count ``spacing``         ``marker``
 ========================== ========================= =================== ====================
-``checkerboard``           squares (``R + C`` odd)   square side, mm     (unused)
+``checkerboard``           squares                   square side, mm     (unused)
 ``charuco``                squares                   square side, mm     marker side, mm
 ``circles``                circles                   centre distance, mm circle diameter, mm
 ``asymmetric-circles``     rows; circles in a row    row distance, mm    circle diameter, mm
@@ -35,10 +35,14 @@ pattern grown by `margin` (white). The printed reflectance (:meth:`Board.albedo`
 indices of :meth:`Board.object_points`, unambiguously: among the labellings that OpenCV's grid
 admits (its start corner and direction), it keeps those with the printed face seen from the front
 (not mirrored) and then, for a checkerboard, the one with the black squares where the board
-has them (hence ``R + C`` odd: an even sum makes the board symmetric under a half turn). A
-symmetric circle grid (and an asymmetric one with an even number of rows) is symmetric under a
-half turn: its labelling puts the board's ``+x`` axis towards the image's right (a board upright
-within ±90° of the image's rows, as in the rig).
+has them. A board that looks the same turned by half a turn (:attr:`Board.half_turn_symmetric`:
+a checkerboard whose ``R + C`` is even, a symmetric circle grid, an asymmetric one with an even
+number of rows) has two labellings that fit the image equally: :func:`detect_board` puts the
+board's ``+x`` axis towards the image's right (a board upright within ±90° of the image's
+rows), and :func:`nail2nail.calibration.observe.board_views` then makes the labels of every
+camera of a pose agree through the projector coordinates decoded on the board, which all
+cameras share (:func:`half_turn_ids`). Only where no camera of a pose has projector points and
+several cameras see it is there no cue, and the views are refused.
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ __all__ = [
     "board_sheet",
     "default_board",
     "detect_board",
+    "half_turn_ids",
     "target_wrap_sheet",
     "to_uint8",
 ]
@@ -126,11 +131,6 @@ class Board:
         if not (isinstance(self.spacing, (int, float)) and math.isfinite(self.spacing)
                 and self.spacing > 0):
             raise ValueError(f"spacing: expected a positive length in mm, got {self.spacing!r}")
-        if self.kind == "checkerboard" and (self.rows + self.cols) % 2 == 0:
-            raise ValueError(
-                f"rows, cols: a checkerboard of {self.rows} x {self.cols} squares looks the same "
-                "turned by 180 degrees, so its corners cannot be labelled; use an odd rows + cols "
-                f"(e.g. {self.rows} x {self.cols + 1})")
         marker = self.marker_mm
         limit = {"checkerboard": math.inf, "charuco": self.spacing,
                  "circles": self.spacing, "asymmetric-circles": math.sqrt(2) * self.spacing}
@@ -196,6 +196,18 @@ class Board:
         else:
             x, y = (2 * j + i % 2) * s, i * s
         return np.column_stack([x, y, np.zeros(w * h)]).astype(np.float64)
+
+    @property
+    def half_turn_symmetric(self) -> bool:
+        """Whether the board looks the same turned by half a turn in its plane (its features'
+        labels then come from a cue outside the image: module docstring)."""
+        if self.kind == "checkerboard":
+            return (self.rows + self.cols) % 2 == 0
+        if self.kind == "circles":
+            return True
+        if self.kind == "asymmetric-circles":
+            return self.rows % 2 == 0
+        return False  # ChArUco: its markers
 
     def pattern_extent(self) -> tuple[float, float, float, float]:
         """``(x_min, x_max, y_min, y_max)`` of the printed pattern (no margin), mm."""
@@ -694,10 +706,11 @@ def _label_grid(img8, board, xy):
     tied = [(r, lab, hom) for r, lab, hom in candidates if r <= best + 0.05 * pitch + 0.5]
     if len(tied) == 1:
         return tied[0][1]
-    if board.kind == "checkerboard":
+    if board.kind == "checkerboard" and not board.half_turn_symmetric:
         scores = [_checker_contrast(img8, board, hom) for _, _, hom in tied]
         return tied[int(np.argmax(scores))][1]
-    # half-turn symmetric circle grid: the board's +x towards the image's right
+    # half-turn symmetric: the board's +x towards the image's right (board_views then makes
+    # the cameras of a pose agree through the projector's coordinates)
     scores = []
     for _, _, hom in tied:
         a, b = _apply(hom, np.array([[0.0, 0.0], [1.0, 0.0]]) * board.spacing)
@@ -1169,3 +1182,23 @@ def target_wrap_sheet(geometry=None, *, page_margin: float = 10.0) -> Sheet:
         items.append(("text", page_margin, ty + 4.0 * k, 2.4, line, "start"))
     _scale_bar(items, page_margin, ty + 4.0 * len(lines) + 1.0)
     return Sheet(page_w, page_h, items, title=lines[0])
+
+
+def half_turn_ids(board: Board, ids) -> np.ndarray:
+    """The labels of features `ids` on `board` turned by half a turn in its plane.
+
+    For a :attr:`Board.half_turn_symmetric` board the turn maps the feature grid onto itself,
+    feature ``k`` onto ``N − 1 − k`` (``N`` = :attr:`Board.n_points`; row ``i``, column ``j``
+    onto ``R' − 1 − i``, ``C' − 1 − j`` of the ``R' × C'`` feature grid). ``ValueError`` for a
+    board without that symmetry.
+
+    Examples
+    --------
+    >>> board = Board("checkerboard", rows=4, cols=6, spacing=10.0)
+    >>> board.half_turn_symmetric, half_turn_ids(board, [0, 1, 14]).tolist()
+    (True, [14, 13, 0])
+    """
+    if not board.half_turn_symmetric:
+        raise ValueError(f"board: a {board.kind} board of {board.rows} x {board.cols} has no "
+                         "half-turn symmetry")
+    return board.n_points - 1 - np.asarray(ids, dtype=np.int64)

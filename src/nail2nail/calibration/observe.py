@@ -27,7 +27,7 @@ import numpy as np
 from nail2nail._interpolate import bilinear
 from nail2nail._progress import progress_bar
 from nail2nail.calibration.board import BoardView
-from nail2nail.calibration.boards import detect_board
+from nail2nail.calibration.boards import detect_board, half_turn_ids
 from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.calibration.markers import find_target_marks
 from nail2nail.calibration.markers import mark_diameter_px as nominal_diameter
@@ -37,7 +37,7 @@ from nail2nail.scan.capture import decode_cameras
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.patterns import frame_table
 
-__all__ = ["BoardCaptures", "board_views", "projector_points"]
+__all__ = ["BoardCaptures", "agree_on_half_turn", "board_views", "projector_points"]
 
 
 def projector_points(xy_camera, xp, yp, mask=None, *, window_px: float = 12.0,
@@ -238,6 +238,7 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
                              f"{projector_size}")
         white = _white_frame(ps)
         poses.append(path)
+        pose_views = []
         for name in capture.camera_names:
             frames = capture.load_frames(name, raw=True)
             size = (frames.shape[2], frames.shape[1])
@@ -266,10 +267,76 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
             if edge_px:
                 mask = mask & ~_near_dark(decoded.albedo, edge_px)
             xy_p = projector_points(xy, decoded.xp, decoded.yp, mask, window_px=half)
-            views.append(BoardView(name, k, ids, xy, xy_p))
+            pose_views.append(BoardView(name, k, ids, xy, xy_p))
+        if board.half_turn_symmetric:
+            pose_views, unoriented = agree_on_half_turn(pose_views, board)
+            for v in unoriented:
+                reason = ("a board symmetric under a half turn, and no projector points to "
+                          "label it like the other cameras")
+                refused.append({"pose": path, "camera": v.camera, "reason": reason})
+                warnings.warn(f"{path}: camera {v.camera}: {reason}; view skipped",
+                              stacklevel=2)
+        views.extend(pose_views)
     assert projector_size is not None  # set by the first pose
     return BoardCaptures(views=views, camera_sizes=sizes, projector_size=projector_size,
                          poses=poses, refused=refused)
+
+
+def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], list]:
+    """The views of one pose of a half-turn symmetric board, labelled alike.
+
+    Each camera labels a symmetric board by its own image (:func:`detect_board`: the board's
+    ``+x`` to the image's right), so two cameras that see the board from opposite sides, or a
+    camera mounted upside down, can label it turned by half a turn against each other. The
+    projector's decoded coordinates are the same for every camera: the affine map from board to
+    projector coordinates fitted on each view's features is ``A`` with one labelling and ``-A``
+    with the other. The view with the most projector points keeps its labels; a view whose map
+    points the other way (``sum(A_view * A_ref) < 0``) is relabelled (:func:`half_turn_ids`).
+
+    Parameters
+    ----------
+    views : list of BoardView
+        One pose's views (every camera that found the board).
+    board : Board
+        A :attr:`~nail2nail.calibration.boards.Board.half_turn_symmetric` board.
+
+    Returns
+    -------
+    views : list of BoardView
+        Labelled alike (ids sorted); the first view as it was when no view has projector points.
+    unoriented : list of BoardView
+        The views that could not be compared (fewer than 3 projector points) while other views
+        of the pose exist; left out of `views`.
+    """
+    obj = board.object_points()[:, :2]
+    maps: list[np.ndarray | None] = []
+    for v in views:
+        if v.xy_projector is None:
+            maps.append(None)
+            continue
+        ok = np.all(np.isfinite(v.xy_projector), axis=1)
+        if ok.sum() < 3:
+            maps.append(None)
+            continue
+        design = np.column_stack([obj[v.ids[ok]], np.ones(int(ok.sum()))])
+        coef, *_ = np.linalg.lstsq(design, v.xy_projector[ok], rcond=None)
+        maps.append(coef[:2].T)  # projector = A board + b
+    usable = [i for i, m in enumerate(maps) if m is not None]
+    if not usable:
+        return views[:1], views[1:]
+    ref = maps[max(usable, key=lambda i: int(np.isfinite(views[i].xy_projector).all(1).sum()))]
+    out, unoriented = [], []
+    for v, m in zip(views, maps, strict=True):
+        if m is None:
+            unoriented.append(v)
+            continue
+        if float(np.sum(m * ref)) < 0:
+            ids = half_turn_ids(board, v.ids)
+            order = np.argsort(ids)
+            xy_p = None if v.xy_projector is None else v.xy_projector[order]
+            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p)
+        out.append(v)
+    return out, unoriented
 
 
 def _near_dark(albedo: np.ndarray, distance_px: int) -> np.ndarray:
