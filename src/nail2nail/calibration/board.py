@@ -65,6 +65,35 @@ MIN_VIEWS = 3
 MIN_FEATURES = 6
 #: The cameras' OpenCV distortion terms fitted (indices into ``(k1, k2, p1, p2, k3)``).
 CAMERA_DISTORTION = {"radial": (0, 1), "none": (), "full": (0, 1, 2, 3, 4)}
+#: OpenCV's distortion terms in its order; a distortion spec names a preset of
+#: :data:`CAMERA_DISTORTION` or a comma-separated subset of these (``"k1"``, ``"k1,k2,k3"``).
+DISTORTION_TERMS = ("k1", "k2", "p1", "p2", "k3")
+
+
+def distortion_terms(spec: str) -> tuple[int, ...]:
+    """The indices (OpenCV's order ``k1, k2, p1, p2, k3``) of the distortion terms fitted.
+
+    `spec` is a preset (``"radial"`` = k1, k2; ``"none"``; ``"full"`` = all five) or the terms
+    by name, comma-separated (``"k1"``, ``"k1,k2,p1,p2"``); the others are fixed at 0, as
+    OpenCV's ``CALIB_FIX_K1`` … ``CALIB_FIX_K3`` and ``CALIB_ZERO_TANGENT_DIST`` do, so ``p1``
+    and ``p2`` come together.
+
+    Examples
+    --------
+    >>> distortion_terms("radial"), distortion_terms("k1,k3"), distortion_terms("none")
+    ((0, 1), (0, 4), ())
+    """
+    if spec in CAMERA_DISTORTION:
+        return CAMERA_DISTORTION[spec]
+    names = [t.strip() for t in str(spec).split(",") if t.strip()]
+    unknown = [t for t in names if t not in DISTORTION_TERMS]
+    if unknown or not names or len(set(names)) != len(names):
+        raise ValueError(f"distortion: expected one of {tuple(CAMERA_DISTORTION)} or distinct "
+                         f"terms among {', '.join(DISTORTION_TERMS)}, got {spec!r}")
+    if ("p1" in names) != ("p2" in names):
+        raise ValueError(f"distortion: p1 and p2 are fitted together (OpenCV's "
+                         f"CALIB_ZERO_TANGENT_DIST fixes both), got {spec!r}")
+    return tuple(sorted(DISTORTION_TERMS.index(t) for t in names))
 #: The solver works on k = ρ³ of the thesis model, scaled to O(1).
 _K_SCALE = 1e8
 
@@ -143,6 +172,12 @@ class BoardCalibration:
     world : str
         The world frame: a camera's name, or ``"board"`` (the board in the first pose).
     projector_model : {"opencv", "thesis"}
+    parameter_std : dict of str to float
+        Standard deviation of each fitted parameter, ``"cam0.fx"``, ``"projector.k1"``,
+        ``"projector.rho"``, ``"cam1.tz"`` … (:meth:`_BundleAdjustment.parameter_std`: px, no
+        unit, degrees, mm), from the Jacobian at the solution.
+    n_poses : int
+        Board poses in the fit.
     """
 
     camera_names: list
@@ -159,6 +194,8 @@ class BoardCalibration:
     points_dropped: int = 0
     world: str = "cam0"
     projector_model: str = "opencv"
+    parameter_std: dict = field(default_factory=dict)
+    n_poses: int = 0
 
     def rig_calibration(self, *, extra: dict | None = None) -> RigCalibration:
         """The calibration as a :class:`~nail2nail.calibration.files.RigCalibration` (pinhole
@@ -169,6 +206,23 @@ class BoardCalibration:
                 "camera_rms_px": self.camera_rms_px, "projector_rms_px": self.projector_rms_px}
         return RigCalibration(cameras=cameras, projector_distortion=self.projector_distortion,
                               extra={**info, **(extra or {})})
+
+    def poses_needed(self, *, focal: float = 1e-3, principal_point_px: float = 1.0) -> int:
+        """Poses for every device's focal length within `focal` (fraction) and principal point
+        within `principal_point_px` (one standard deviation), at the uncertainty of this fit:
+        a parameter's deviation shrinks as ``1 / sqrt(poses)``, so ``n (σ / target)²``. At
+        least the poses used."""
+        need = float(self.n_poses)
+        models = dict(zip(self.camera_names, self.cameras, strict=True))
+        models["projector"] = self.projector
+        for name, model in models.items():
+            f = float(model.K[1, 1])
+            for key, target in (("f", focal * f), ("fx", focal * f), ("fy", focal * f),
+                                ("cx", principal_point_px), ("cy", principal_point_px)):
+                sigma = self.parameter_std.get(f"{name}.{key}")
+                if sigma is not None and np.isfinite(sigma):
+                    need = max(need, self.n_poses * (sigma / target) ** 2)
+        return int(np.ceil(need))
 
     def summary(self) -> dict:
         """JSON-ready figures: RMS per camera and projector, per pose, views used/refused."""
@@ -184,6 +238,9 @@ class BoardCalibration:
             "points_dropped": self.points_dropped,
             "projector_distortion": (None if self.projector_distortion is None
                                      else self.projector_distortion.to_dict()),
+            "parameter_std": self.parameter_std,
+            "n_poses": self.n_poses,
+            "poses_needed": self.poses_needed(),
         }
 
 
@@ -200,7 +257,8 @@ def _transform(rvec, tvec) -> np.ndarray:
 
 
 def calibrate_device(object_points, image_points, size, *, name: str = "device",
-                     distortion: str = "full") -> tuple[Pinhole, list, float]:
+                     distortion: str = "full", fix_aspect_ratio: bool = False,
+                     fix_principal_point: bool = False) -> tuple[Pinhole, list, float]:
     """Intrinsics and per-view board poses of one camera (or projector) by Zhang's method.
 
     Parameters
@@ -251,16 +309,18 @@ def calibrate_device(object_points, image_points, size, *, name: str = "device",
         if len(o) != len(p) or len(o) < MIN_FEATURES:
             raise ValueError(f"{name}: view {k} has {len(o)} object and {len(p)} image points; "
                              f"need at least {MIN_FEATURES} of each, as many")
-    if distortion not in CAMERA_DISTORTION:
-        raise ValueError(f"distortion: expected one of {tuple(CAMERA_DISTORTION)}, got "
-                         f"{distortion!r}")
-    free = CAMERA_DISTORTION[distortion]
+    free = distortion_terms(distortion)
     flags = ((0 if 0 in free else cv2.CALIB_FIX_K1) | (0 if 1 in free else cv2.CALIB_FIX_K2)
              | (0 if 4 in free else cv2.CALIB_FIX_K3)
-             | (0 if 2 in free else cv2.CALIB_ZERO_TANGENT_DIST))
+             | (0 if 2 in free else cv2.CALIB_ZERO_TANGENT_DIST)
+             | (cv2.CALIB_FIX_ASPECT_RATIO if fix_aspect_ratio else 0)
+             | (cv2.CALIB_FIX_PRINCIPAL_POINT if fix_principal_point else 0))
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    # without CALIB_USE_INTRINSIC_GUESS OpenCV reads only fx / fy (kept at 1 with
+    # CALIB_FIX_ASPECT_RATIO) and puts the principal point at ((W - 1) / 2, (H - 1) / 2)
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(  # type: ignore[call-overload]
-        obj, img, tuple(int(v) for v in size), None, None, flags=flags, criteria=criteria)
+        obj, img, tuple(int(v) for v in size), np.eye(3), None, flags=flags,
+        criteria=criteria)
     model = Pinhole(K=K, R=np.eye(3), t=np.zeros(3), dist=np.ravel(dist)[:5], size=size)
     return model, [_transform(r, t) for r, t in zip(rvecs, tvecs, strict=True)], float(rms)
 
@@ -353,6 +413,9 @@ def calibrate_board(
     world: str | None = None,
     camera_distortion: str = "radial",
     outlier_sigma: float = 5.0,
+    projector_lens: str = "full",
+    fix_aspect_ratio: bool = False,
+    fix_principal_point: bool = False,
 ) -> BoardCalibration:
     """Calibrate every camera and the projector from views of a flat board in several poses.
 
@@ -378,6 +441,13 @@ def calibrate_board(
         The cameras' OpenCV distortion terms fitted: ``k1, k2`` (default), none, or all five
         ``(k1, k2, p1, p2, k3)``. The scanner's cameras see a narrow field (about 12°), where
         higher terms are not determined by a board and trade off with the principal point.
+    projector_lens : str
+        The projector's OpenCV distortion terms fitted with ``projector_model="opencv"``: a
+        spec as `camera_distortion` (:func:`distortion_terms`; default all five, ``"k1"`` or
+        ``"k1,k2"`` for a radial model of one or two terms). Ignored by the thesis model (ρ).
+    fix_aspect_ratio, fix_principal_point : bool
+        As OpenCV's ``CALIB_FIX_ASPECT_RATIO`` (``fx = fy``) and ``CALIB_FIX_PRINCIPAL_POINT``
+        (at ``((W − 1) / 2, (H − 1) / 2)``), for every camera and the projector.
     outlier_sigma : float
         After a first fit, each group of points (a camera's, and the projector's measured
         through each camera) is weighted by the inverse of its noise (estimated robustly from
@@ -394,9 +464,14 @@ def calibrate_board(
         An unknown model or world, a camera with fewer than :data:`MIN_VIEWS` usable views, no
         projector points in enough poses, or a device that shares no pose with the others.
     """
-    if camera_distortion not in CAMERA_DISTORTION:
-        raise ValueError(f"camera_distortion: expected one of {tuple(CAMERA_DISTORTION)}, got "
-                         f"{camera_distortion!r}")
+    terms = {}
+    for option, spec in (("camera_distortion", camera_distortion),
+                         ("projector_lens", projector_lens)):
+        try:
+            terms[option] = distortion_terms(spec)
+        except ValueError as exc:
+            raise ValueError(f"{option}: {str(exc).removeprefix('distortion: ')}") from exc
+    camera_terms, projector_terms = terms["camera_distortion"], terms["projector_lens"]
     if projector_model not in PROJECTOR_MODELS:
         raise ValueError(f"projector_model: expected one of {PROJECTOR_MODELS}, got "
                          f"{projector_model!r}")
@@ -416,22 +491,25 @@ def calibrate_board(
     poses = sorted({v.pose for v in used})
 
     # 1. Zhang's method per camera, then for the projector on its points of every pose
+    fixed = {"fix_aspect_ratio": bool(fix_aspect_ratio),
+             "fix_principal_point": bool(fix_principal_point)}
     init, T_dev_board = _initial_devices(used, obj, camera_sizes, projector_size, poses,
-                                         camera_distortion=camera_distortion)
+                                         camera_distortion=camera_distortion, **fixed)
     # 2. the rig
     devices = [*names, "projector"]
     T_dev_world, T_world_board = _initial_poses(
         T_dev_board, devices, poses, ("board", poses[0]) if world == "board" else world)
     # 3. bundle adjustment, then again with each group of points weighted by its noise
-    free_dist = {n: list(CAMERA_DISTORTION[camera_distortion]) for n in names}
-    free_dist["projector"] = [] if thesis else list(range(5))
-    problem = _BundleAdjustment(devices, poses, world, free_dist, thesis)
+    free_dist = {n: list(camera_terms) for n in names}
+    free_dist["projector"] = [] if thesis else list(projector_terms)
+    sizes = {**camera_sizes, "projector": tuple(projector_size)}
+    problem = _BundleAdjustment(devices, poses, world, free_dist, thesis, sizes=sizes, **fixed)
     x0 = problem.start(init, T_dev_world, T_world_board)
     blocks = _observation_blocks(used, devices, names, obj, poses)
-    x = problem.solve(x0, blocks)
+    x = problem.solve(x0, blocks).x
     blocks, dropped = problem.reweighted(x, blocks, outlier_sigma)
-    x = problem.solve(x, blocks)
-    return _board_result(problem, x, blocks, names, camera_sizes, projector_size, used,
+    fit = problem.solve(x, blocks)
+    return _board_result(problem, fit, blocks, names, camera_sizes, projector_size, used,
                          refused, dropped, world, projector_model)
 
 
@@ -454,7 +532,8 @@ def _usable_views(views, obj: np.ndarray, camera_sizes: dict) -> tuple[list, lis
 
 
 def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_size, poses,
-                     *, camera_distortion: str) -> tuple[dict, dict]:
+                     *, camera_distortion: str, fix_aspect_ratio: bool,
+                     fix_principal_point: bool) -> tuple[dict, dict]:
     """Zhang's method (:func:`calibrate_device`) per camera, then for the projector on its
     board points of every pose (averaged over the cameras that measured them):
     ``(models by device, T_device_board by (device, pose))``."""
@@ -464,7 +543,9 @@ def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_
         mine = [v for v in used if v.camera == name]
         model, T, _ = calibrate_device([obj[v.ids] for v in mine], [v.xy_camera for v in mine],
                                        camera_sizes[name], name=f"camera {name}",
-                                       distortion=camera_distortion)
+                                       distortion=camera_distortion,
+                                       fix_aspect_ratio=fix_aspect_ratio,
+                                       fix_principal_point=fix_principal_point)
         init[name] = model
         T_dev_board.update({(name, v.pose): t for v, t in zip(mine, T, strict=True)})
     proj_obj, proj_img, proj_poses = [], [], []
@@ -487,7 +568,9 @@ def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_
         proj_obj.append(obj[uniq])
         proj_img.append(mean)
         proj_poses.append(pose)
-    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector")
+    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector",
+                                   fix_aspect_ratio=fix_aspect_ratio,
+                                   fix_principal_point=fix_principal_point)
     init["projector"] = model
     T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
     return init, T_dev_board
@@ -522,9 +605,13 @@ class _BundleAdjustment:
     the world device's (or the first board pose's) pose is fixed."""
 
     def __init__(self, devices: list, poses: list, world: str, free_dist: dict,
-                 thesis: bool) -> None:
+                 thesis: bool, *, sizes: dict, fix_aspect_ratio: bool = False,
+                 fix_principal_point: bool = False) -> None:
         self.devices, self.poses, self.world = devices, poses, world
         self.free_dist, self.thesis = free_dist, thesis
+        self.fix_aspect_ratio, self.fix_principal_point = fix_aspect_ratio, fix_principal_point
+        # OpenCV's principal point without a guess (CALIB_FIX_PRINCIPAL_POINT)
+        self.centre = {d: ((w - 1) / 2.0, (h - 1) / 2.0) for d, (w, h) in sizes.items()}
         self.pose_index = {p: i for i, p in enumerate(poses)}
         self.layout: dict = {}
 
@@ -539,7 +626,12 @@ class _BundleAdjustment:
 
         for dev in self.devices:
             m = init[dev]
-            add((dev, "intr"), [m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]])
+            if self.fix_aspect_ratio:
+                add((dev, "f"), [m.K[1, 1]])
+            else:
+                add((dev, "f"), [m.K[0, 0], m.K[1, 1]])
+            if not self.fix_principal_point:
+                add((dev, "c"), [m.K[0, 2], m.K[1, 2]])
             if dev == "projector" and self.thesis:
                 # OpenCV's k1 on normalised panel coordinates is -ρ³ f² of eq. 3.34 to first
                 # order
@@ -574,6 +666,14 @@ class _BundleAdjustment:
                 dev_pose[dev] = (np.eye(3), np.zeros(3))
         return R_wb, t_wb, dev_pose
 
+    def intrinsics(self, x, dev) -> np.ndarray:
+        """``(fx, fy, cx, cy)`` of a device in `x` (the fixed ones filled in)."""
+        f = x[self.layout[dev, "f"]]
+        fx, fy = (f[0], f[0]) if self.fix_aspect_ratio else (f[0], f[1])
+        cx, cy = (self.centre[dev] if self.fix_principal_point
+                  else tuple(x[self.layout[dev, "c"]]))
+        return np.array([fx, fy, cx, cy], dtype=float)
+
     def distortion(self, x, dev) -> np.ndarray:
         """The device's five OpenCV distortion terms, its free ones from `x`."""
         dist = np.zeros(5)
@@ -591,7 +691,7 @@ class _BundleAdjustment:
         R, t = dev_pose[dev]
         xyz_world = np.einsum("nij,nj->ni", R_wb[block["pose"]], block["xyz"]) + t_wb[block["pose"]]
         xyz_dev = xyz_world @ R.T + t
-        intr = x[self.layout[dev, "intr"]]
+        intr = self.intrinsics(x, dev)
         if dev == "projector" and self.thesis:
             ideal = ideal_from_panel(block["meas"], intr[2:4], self.projector_rho(x))
             return _project(intr, np.zeros(5), xyz_dev) - ideal
@@ -603,13 +703,46 @@ class _BundleAdjustment:
                                                                             dev_pose)).ravel()
                                for b in blocks])
 
-    def solve(self, x_start, blocks) -> np.ndarray:
+    def solve(self, x_start, blocks):
         """Levenberg–Marquardt (MINPACK) on the dense finite-difference Jacobian: the narrow
         field makes focal length and distance nearly interchangeable, a valley along which a
         trust-region solver on the sparse Jacobian crawls; a few hundred parameters at most."""
         return least_squares(self.residuals, x_start, x_scale="jac", method="lm", ftol=1e-12,
                              xtol=1e-12, gtol=1e-12, max_nfev=100 * (len(x_start) + 1),
-                             args=(blocks,)).x
+                             args=(blocks,))
+
+    def parameter_std(self, fit) -> dict[str, float]:
+        """Standard deviation of every fitted intrinsic and distortion parameter, and of the
+        devices' poses, from the Jacobian at the solution: ``s² (JᵀJ)⁻¹`` with ``s²`` the
+        weighted residuals' variance per degree of freedom (Gauss–Newton). Units: px for
+        ``fx, fy, cx, cy``, none for OpenCV's distortion terms, ρ for the thesis projector,
+        degrees for a pose's rotation vector ``rx, ry, rz`` and mm for ``tx, ty, tz``."""
+        jac, r = np.asarray(fit.jac), np.asarray(fit.fun)
+        dof = max(r.size - jac.shape[1], 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cov = np.linalg.pinv(jac.T @ jac) * (float(r @ r) / dof)
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        out: dict[str, float] = {}
+        for (who, what), where in self.layout.items():
+            values = std[where]
+            if who == "board":
+                continue
+            if what == "f":
+                names = ["f"] if self.fix_aspect_ratio else ["fx", "fy"]
+            elif what == "c":
+                names = ["cx", "cy"]
+            elif what == "dist":
+                names = [DISTORTION_TERMS[i] for i in self.free_dist[who]]
+            elif what == "k":  # k = ρ³ K_SCALE: dρ = dk / (3 ρ² K_SCALE)
+                rho = self.projector_rho(fit.x)
+                values = values / (3 * rho**2 * _K_SCALE) if rho else values * np.inf
+                names = ["rho"]
+            else:  # pose
+                values = np.concatenate([np.degrees(values[:3]), values[3:]])
+                names = ["rx", "ry", "rz", "tx", "ty", "tz"]
+            out.update({f"{who}.{n}": float(v) for n, v in zip(names, values, strict=True)})
+        return out
 
     def reweighted(self, x, blocks: list, outlier_sigma: float) -> tuple[list, int]:
         """Each group of points (a camera's; the projector's through each camera) weighted by
@@ -639,21 +772,23 @@ def _rms(r: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
 
 
-def _board_result(problem: _BundleAdjustment, x, blocks: list, names: list, camera_sizes: dict,
-                  projector_size, used: list, refused: list, dropped: int, world: str,
-                  projector_model: str) -> BoardCalibration:
-    """The :class:`BoardCalibration` of the fitted parameters `x`: models, poses, RMS."""
+def _board_result(problem: _BundleAdjustment, fit, blocks: list, names: list,
+                  camera_sizes: dict, projector_size, used: list, refused: list, dropped: int,
+                  world: str, projector_model: str) -> BoardCalibration:
+    """The :class:`BoardCalibration` of the fit (``least_squares``'s result): models, poses,
+    RMS, the parameters' standard deviations."""
+    x = fit.x
     R_wb, t_wb, dev_pose = problem.unpack(x)
     models = {}
     for dev in problem.devices:
-        intr = x[problem.layout[dev, "intr"]]
+        intr = problem.intrinsics(x, dev)
         K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
         size = projector_size if dev == "projector" else camera_sizes[dev]
         R, t = dev_pose[dev]
         models[dev] = Pinhole(K=K, R=R, t=t, dist=problem.distortion(x, dev), size=size)
     pdist = None
     if problem.thesis:
-        intr = x[problem.layout["projector", "intr"]]
+        intr = problem.intrinsics(x, "projector")
         pdist = ProjectorDistortion(center=(float(intr[2]), float(intr[3])),
                                     rho=problem.projector_rho(x))
     res = {b["device"]: problem.block_residuals(x, b, R_wb, t_wb, dev_pose) for b in blocks}
@@ -686,4 +821,6 @@ def _board_result(problem: _BundleAdjustment, x, blocks: list, names: list, came
         points_dropped=dropped,
         world=world,
         projector_model=projector_model,
+        parameter_std=problem.parameter_std(fit),
+        n_poses=len(problem.poses),
     )

@@ -324,7 +324,11 @@ def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], 
     usable = [i for i, m in enumerate(maps) if m is not None]
     if not usable:
         return views[:1], views[1:]
-    ref = maps[max(usable, key=lambda i: int(np.isfinite(views[i].xy_projector).all(1).sum()))]
+    def n_points(view: BoardView) -> int:
+        xy = view.xy_projector
+        return 0 if xy is None else int(np.isfinite(xy).all(axis=1).sum())
+
+    ref = maps[max(usable, key=lambda i: n_points(views[i]))]
     out, unoriented = [], []
     for v, m in zip(views, maps, strict=True):
         if m is None:

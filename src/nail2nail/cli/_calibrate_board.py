@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from nail2nail._progress import Stages
-from nail2nail.calibration.board import CAMERA_DISTORTION, PROJECTOR_MODELS, calibrate_board
+from nail2nail.calibration.board import PROJECTOR_MODELS, calibrate_board
 from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.observe import board_views
@@ -44,8 +44,20 @@ def add_parser(sub) -> None:
     p.add_argument("--projector-model", choices=PROJECTOR_MODELS, default="opencv",
                    help="projector lens: OpenCV distortion (k1, k2, p1, p2, k3) or the thesis's "
                    "radial model (eq. 3.34, written as projector_distortion); default opencv")
-    p.add_argument("--camera-distortion", choices=tuple(CAMERA_DISTORTION), default="radial",
-                   help="camera distortion terms: k1, k2 (radial, default), none, or all five")
+    p.add_argument("--camera-distortion", default="radial", metavar="SPEC",
+                   help="camera distortion terms fitted: radial (k1, k2; default), none, full "
+                   "(all five), or OpenCV's terms by name, e.g. k1 or k1,k2,k3 or k1,k2,p1,p2 "
+                   "(the others fixed at 0)")
+    p.add_argument("--projector-lens", default="full", metavar="SPEC",
+                   help="the projector's OpenCV distortion terms with --projector-model opencv, "
+                   "as --camera-distortion (default full; k1 or k1,k2 for a radial model of one "
+                   "or two terms)")
+    p.add_argument("--fix-aspect-ratio", action="store_true",
+                   help="fx = fy for every camera and the projector (OpenCV's "
+                   "CALIB_FIX_ASPECT_RATIO)")
+    p.add_argument("--fix-principal-point", action="store_true",
+                   help="principal points at the image centres ((W-1)/2, (H-1)/2; OpenCV's "
+                   "CALIB_FIX_PRINCIPAL_POINT)")
     p.add_argument("--world", default=None,
                    help="world frame: a camera's name (default: the first camera) or 'board' "
                    "(the board in the first pose)")
@@ -73,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate_board(
         captures.views, board.object_points(), captures.camera_sizes,
         projector_size=captures.projector_size, projector_model=args.projector_model,
-        world=args.world, camera_distortion=args.camera_distortion)
+        world=args.world, camera_distortion=args.camera_distortion,
+        projector_lens=args.projector_lens, fix_aspect_ratio=args.fix_aspect_ratio,
+        fix_principal_point=args.fix_principal_point)
     calib = result.rig_calibration(extra={
         "board": board.to_dict(), "poses": [str(p) for p in captures.poses]})
     if not args.allow_mirrored:
@@ -106,6 +120,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"pose {pose}: cameras {cams} px; projector {r['projector']:.4f} px")
     for cam, pose, why in refused:
         print(f"refused: {cam} in {pose} ({why})")
+    for device in [*result.camera_names, "projector"]:
+        stds = {k.split(".", 1)[1]: v for k, v in result.parameter_std.items()
+                if k.split(".", 1)[0] == device and k.split(".", 1)[1] in
+                ("f", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rho")}
+        print(f"{device}: standard deviations " + ", ".join(f"{k} {v:.3g}"
+                                                            for k, v in stds.items()))
+    needed = result.poses_needed()
+    if needed > result.n_poses:
+        print(f"{result.n_poses} poses leave a focal length above 0.1 % or a principal point "
+              f"above 1 px (one standard deviation): about {needed} poses would meet both")
     if result.points_dropped:
         print(f"{result.points_dropped} outlying point(s) dropped before the final fit")
     print(f"wrote {args.output} (world frame: {result.world})")
