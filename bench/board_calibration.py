@@ -16,6 +16,13 @@ at the given scale, then calibrates with :func:`nail2nail.calibration.observe.bo
   all cameras' scans together that fits them best (the calibration's shape error); the same for
   the simulator's true calibration (the decoding's share).
 
+The peer in the same run: OpenCV on the same detected points, as a structured-light system
+calibrates with it (SLStudio's way): ``cv2.calibrateCamera`` per camera and for the projector
+(on the projector points averaged over the cameras), then ``cv2.stereoCalibrate`` with the
+intrinsics fixed for each camera–projector pair and each camera against cam0 (the poses both
+saw), the same distortion terms (cameras k1, k2; projector all five); its reprojection RMS and
+the same errors against the truth, and the finger scanned with it.
+
 Usage: ``python bench/board_calibration.py [WORK_DIR] [--scale S] [--poses N] [--board KIND]``
 (captures reused when WORK_DIR has them; about 5 minutes at full scale with 8 poses on two
 cores, mostly rendering).
@@ -32,9 +39,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nail2nail.calibration.board import calibrate_board
+from nail2nail.calibration.board import MIN_FEATURES, calibrate_board, calibrate_device
 from nail2nail.calibration.boards import BOARD_KINDS, default_board
-from nail2nail.calibration.files import RigCalibration
+from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.calibration.files import CameraCalibration, RigCalibration
 from nail2nail.calibration.observe import board_views
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.scan.capture import scan_capture
@@ -89,6 +97,84 @@ def device_errors(result, rig) -> None:
         rot = np.degrees(np.linalg.norm(Rotation.from_matrix(est.R @ rel[:3, :3].T).as_rotvec()))
         dt = np.linalg.norm(est.t - rel[:3, 3])
         print(f"  {name:>9} {focal:8.4f} {pp[0]:6.2f},{pp[1]:6.2f} {rot:7.4f} {dt:7.4f}")
+
+
+class OpenCVRig:
+    """OpenCV's calibration of the rig, in the shape :func:`device_errors` reads."""
+
+    def __init__(self, cameras: dict, projector: Pinhole, rms: dict) -> None:
+        self.camera_names = list(cameras)
+        self.cameras = list(cameras.values())
+        self.projector = projector
+        self.rms = rms
+
+    def rig_calibration(self) -> RigCalibration:
+        return RigCalibration(cameras=[CameraCalibration(n, c, self.projector, size=c.size)
+                                       for n, c in zip(self.camera_names, self.cameras,
+                                                       strict=True)])
+
+
+def opencv_peer(captures, board) -> OpenCVRig:
+    """cv2.calibrateCamera per device, then cv2.stereoCalibrate (intrinsics fixed) for the
+    projector and every camera against cam0: poses in cam0's frame."""
+    import cv2
+
+    obj = board.object_points().astype(np.float32)
+    names = list(captures.camera_sizes)
+    by = {n: {v.pose: v for v in captures.views if v.camera == n} for n in names}
+    models = {}
+    for n in names:
+        vs = list(by[n].values())
+        models[n], _, _ = calibrate_device([obj[v.ids] for v in vs], [v.xy_camera for v in vs],
+                                           captures.camera_sizes[n], name=n, distortion="radial")
+    # the projector's points of a pose: averaged over the cameras that measured them
+    proj = {}
+    for pose in sorted({v.pose for v in captures.views}):
+        acc: dict = {}
+        for n in names:
+            v = by[n].get(pose)
+            if v is None or v.xy_projector is None:
+                continue
+            for i, xy in zip(v.ids, v.xy_projector, strict=True):
+                if np.all(np.isfinite(xy)):
+                    acc.setdefault(int(i), []).append(xy)
+        if len(acc) >= MIN_FEATURES:
+            ids = np.array(sorted(acc))
+            proj[pose] = (ids, np.array([np.mean(acc[i], axis=0) for i in ids]))
+    projector, _, _ = calibrate_device([obj[i] for i, _ in proj.values()],
+                                       [xy for _, xy in proj.values()], captures.projector_size,
+                                       name="projector", distortion="full")
+    flags = cv2.CALIB_FIX_INTRINSIC
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+
+    def stereo(a_pts: dict, b_pts: dict, a: Pinhole, b: Pinhole, size) -> tuple:
+        o, pa, pb = [], [], []
+        for pose in sorted(set(a_pts) & set(b_pts)):
+            ia, xa = a_pts[pose]
+            ib, xb = b_pts[pose]
+            common, ka, kb = np.intersect1d(ia, ib, return_indices=True)
+            if len(common) >= MIN_FEATURES:
+                o.append(obj[common].reshape(-1, 1, 3))
+                pa.append(xa[ka].astype(np.float32).reshape(-1, 1, 2))
+                pb.append(xb[kb].astype(np.float32).reshape(-1, 1, 2))
+        rms, *_, R, t, _, _ = cv2.stereoCalibrate(
+            o, pa, pb, a.K, a.dist, b.K, b.dist, tuple(int(v) for v in size), flags=flags,
+            criteria=crit)
+        return float(rms), R, np.ravel(t)
+
+    cam_pts = {n: {p: (v.ids, v.xy_camera) for p, v in by[n].items()} for n in names}
+    rms, cameras = {}, {}
+    for n in names:
+        if n == names[0]:
+            R, t = np.eye(3), np.zeros(3)
+        else:
+            rms[f"{names[0]}-{n}"], R, t = stereo(cam_pts[names[0]], cam_pts[n], models[names[0]],
+                                                  models[n], captures.camera_sizes[names[0]])
+        cameras[n] = Pinhole(K=models[n].K, R=R, t=t, dist=models[n].dist, size=models[n].size)
+    rms[f"{names[0]}-projector"], R, t = stereo(cam_pts[names[0]], proj, models[names[0]],
+                                                projector, captures.camera_sizes[names[0]])
+    proj_model = Pinhole(K=projector.K, R=R, t=t, dist=projector.dist, size=projector.size)
+    return OpenCVRig(cameras, proj_model, rms)
 
 
 def finger_errors(calib, rig, finger: Path, *, in_cam0: bool = True) -> None:
@@ -147,6 +233,13 @@ def main() -> None:
               f"points dropped; distortion {result.projector_distortion}")
         device_errors(result, rig)
         finger_errors(result.rig_calibration(), rig, work / "finger")
+    t0 = time.perf_counter()
+    peer = opencv_peer(captures, board)
+    print(f"OpenCV (calibrateCamera + stereoCalibrate, intrinsics fixed): in "
+          f"{time.perf_counter() - t0:.1f} s; stereo RMS "
+          + ", ".join(f"{k} {v:.4f}" for k, v in peer.rms.items()) + " px")
+    device_errors(peer, rig)
+    finger_errors(peer.rig_calibration(), rig, work / "finger")
     print("the simulator's true calibration (decoding noise only):")
     truth = RigCalibration.from_dict(ideal_calibration(rig))
     finger_errors(truth, rig, work / "finger", in_cam0=False)

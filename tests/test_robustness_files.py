@@ -144,6 +144,16 @@ def test_frame_size_differs_from_manifest(tmp_path, capsys):
     _one_error_line(capsys, "000.png", "16 x 12")
 
 
+def test_capture_without_pattern_set_names_its_manifest(tmp_path, capsys):
+    """A capture whose manifest has no pattern set: scan says which file and what is missing
+    (issue 24: it said "expected a PatternSet, got NoneType")."""
+    cap = _capture(tmp_path / "cap", size=(8, 6))
+    calib = _calibration(tmp_path / "calib.json")
+    assert main(["scan", str(cap), "--calib", str(calib), "--out", str(tmp_path / "o")]) == 2
+    _one_error_line(capsys, "capture.json", '"pattern_set" is null or missing')
+    assert not (tmp_path / "o").exists()
+
+
 def test_frames_of_different_sizes(tmp_path):
     cap = _capture(tmp_path / "cap")
     _edit(cap / "capture.json", lambda d: d["cameras"][0].pop("size"))

@@ -241,3 +241,13 @@ def test_fast_path_neighbourhood_matches_reference():
         decode(frames, ps, erode=-1)
     with pytest.raises(ValueError, match="max_gradient"):
         decode_fast(frames, ps, max_gradient=0)
+
+
+def test_frame_count_error_shows_the_expected_frame_table():
+    """Frames that do not match the pattern set: the error lists what each frame should show."""
+    ps = default_pattern_set()
+    frames = make_patterns(ps)[:12]
+    with pytest.raises(ValueError, match=r"has 24 frames, got 12 \(the frames it expects, in "
+                       r"order: 0: x: 1 period, step 1/3; 1: x: 1 period, step 2/3;.*"
+                       r"23: y: 64 periods, step 6/6\)"):
+        decode(frames, ps)

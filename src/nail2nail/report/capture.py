@@ -31,7 +31,7 @@ from nail2nail.report._plot import decimate, extent, fmt, new_figure
 from nail2nail.report.inputs import ReportInputs
 from nail2nail.scan.capture import MAX_GRADIENT, MIN_KEPT_FRACTION, kept_fraction
 from nail2nail.scan.inputs import DECODE_DEFAULTS
-from nail2nail.scan.patterns import frame_table
+from nail2nail.scan.patterns import frame_labels
 from nail2nail.scan.results import LOW_MODULATION as LOW_MODULATION_BIT
 from nail2nail.scan.results import REASON_NAMES, Reason
 from nail2nail.scan.results import SHADOW as SHADOW_BIT
@@ -148,17 +148,7 @@ def _frame_labels(capture) -> list[str]:
     if capture.pattern_set is None:
         files = (capture.manifest.get("patterns") or {}).get("files") or []
         return [str(f) for f in files] if len(files) == n_frames else [""] * n_frames
-    labels = []
-    for info in frame_table(capture.pattern_set):
-        if info.kind == "phase":
-            labels.append(f"{info.direction}: {info.periods:g} periods, step "
-                          f"{info.step + 1}/{info.steps}")
-        elif info.kind == "line":
-            labels.append(f"{info.direction}: line {info.step + 1}/{info.steps}")
-        elif info.direction is None:
-            labels.append(info.kind)
-        else:
-            labels.append(f"{info.direction}: {info.kind} bit {info.bit}")
+    labels = frame_labels(capture.pattern_set)
     return labels if len(labels) == n_frames else [""] * n_frames
 
 

@@ -467,6 +467,7 @@ def scan_capture(
                 "frames: use a calibration made with this capture's cameras")
         if name in masks:
             masks[name] = _user_mask(masks[name], name, size[::-1])
+    _check_pattern_set(capture)
     clock("read_frames")
     scans = []
     for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
@@ -550,8 +551,11 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     as they are."""
     clock.restart()
     cached = name in capture.frames
-    frames = _check_frames(capture.frames[name] if cached else capture.load_frames(name, raw=True),
-                           capture.pattern_set)
+    try:
+        frames = _check_frames(capture.frames[name] if cached
+                               else capture.load_frames(name, raw=True), capture.pattern_set)
+    except ValueError as exc:  # say whose frames
+        raise ValueError(f"{capture.path / 'capture.json'}: camera {name!r}: {exc}") from exc
     clock("read_frames")
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
     scan = _scan(frames, capture.pattern_set, calibration.camera(name),
@@ -559,6 +563,15 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
                  decode_options=options, bit_depth=None if cached else capture.bit_depth)
     clock("decode")
     return scan
+
+
+def _check_pattern_set(capture) -> None:
+    """A capture without a pattern set cannot be decoded: say so, naming its manifest."""
+    if capture.pattern_set is None:
+        raise ValueError(
+            f"{capture.path / 'capture.json'}: \"pattern_set\" is null or missing: the "
+            "manifest does not say which patterns were projected, so the frames cannot be "
+            "decoded; describe them there (docs/capture-format.md, \"pattern_set\")")
 
 
 def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **decode_options):
@@ -588,8 +601,7 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
         If the capture's manifest names no pattern set.
     """
 
-    if capture.pattern_set is None:
-        raise ValueError(f"{capture.path}: the manifest names no pattern set")
+    _check_pattern_set(capture)
     options = {"method": "numba", **decode_options}
     for name in progress_bar(capture.camera_names, desc=desc, unit="camera", enabled=progress):
         if name in capture.frames:  # cached as floats in [0, 1]

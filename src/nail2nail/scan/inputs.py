@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nail2nail.scan.patterns import PatternSet
+from nail2nail.scan.patterns import PatternSet, frame_labels
 
 __all__ = [
     "CUE_MODULATION",
@@ -61,8 +61,10 @@ def _check_frames(frames, pattern_set: PatternSet) -> np.ndarray:
     if frames.ndim != 3:
         raise ValueError(f"frames: expected shape (n_frames, H, W), got {frames.shape}")
     if frames.shape[0] != pattern_set.n_frames:
+        expected = "; ".join(f"{i}: {label}" for i, label in enumerate(frame_labels(pattern_set)))
         raise ValueError(
-            f"frames: the pattern set has {pattern_set.n_frames} frames, got {frames.shape[0]}"
+            f"frames: the pattern set has {pattern_set.n_frames} frames, got {frames.shape[0]} "
+            f"(the frames it expects, in order: {expected})"
         )
     return frames
 

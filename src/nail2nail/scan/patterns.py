@@ -49,6 +49,7 @@ __all__ = [
     "Frequency",
     "PatternSet",
     "default_pattern_set",
+    "frame_labels",
     "frame_table",
     "gray_line_pattern_set",
     "gray_phase_pattern_set",
@@ -196,8 +197,15 @@ class PatternSet:
     reference: str | None = None
 
     def __post_init__(self) -> None:
-        x = _as_frequencies(self.x, "x")
-        y = _as_frequencies(self.y, "y")
+        try:
+            x = _as_frequencies(self.x, "x")
+            y = _as_frequencies(self.y, "y")
+        except ValueError as exc:
+            if self.scheme == "gray" and "phase steps" in str(exc):
+                raise ValueError("steps: a 'gray' (line-shift) pattern set's steps are its line "
+                                 "spacing, at least 3 panel px (" + str(exc).split(", ")[-1]
+                                 + ")") from exc
+            raise
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "y", y)
         if not x and not y:
@@ -514,6 +522,29 @@ def gray_line_pattern_set(*, spacing: int = 8, complementary: bool = True,
                       y=(Frequency(height / spacing, spacing),) if "y" in directions else (),
                       directions=tuple(directions), panel_size=(width, height), gamma=gamma,
                       scheme="gray", complementary=complementary, reference=reference)
+
+
+def frame_labels(pattern_set: PatternSet) -> list[str]:
+    """What every frame shows, one short label a frame, in frame order (:func:`frame_table`).
+
+    Examples
+    --------
+    >>> frame_labels(default_pattern_set())[:2]
+    ['x: 1 period, step 1/3', 'x: 1 period, step 2/3']
+    """
+    labels = []
+    for info in frame_table(pattern_set):
+        if info.kind == "phase":
+            unit = "period" if info.periods == 1 else "periods"
+            labels.append(f"{info.direction}: {info.periods:g} {unit}, step "
+                          f"{info.step + 1}/{info.steps}")
+        elif info.kind == "line":
+            labels.append(f"{info.direction}: line {info.step + 1}/{info.steps}")
+        elif info.direction is None:
+            labels.append(info.kind)
+        else:
+            labels.append(f"{info.direction}: {info.kind} bit {info.bit}")
+    return labels
 
 
 def _check_pattern_set(pattern_set) -> None:
