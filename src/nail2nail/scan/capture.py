@@ -467,7 +467,6 @@ def scan_capture(
                 "frames: use a calibration made with this capture's cameras")
         if name in masks:
             masks[name] = _user_mask(masks[name], name, size[::-1])
-    _check_pattern_set(capture)
     clock("read_frames")
     scans = []
     for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
@@ -551,9 +550,10 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     as they are."""
     clock.restart()
     cached = name in capture.frames
+    frames = capture.frames[name] if cached else capture.load_frames(name, raw=True)
+    _check_pattern_set(capture)  # after the frames: a file's own error comes first
     try:
-        frames = _check_frames(capture.frames[name] if cached
-                               else capture.load_frames(name, raw=True), capture.pattern_set)
+        frames = _check_frames(frames, capture.pattern_set)
     except ValueError as exc:  # say whose frames
         raise ValueError(f"{capture.path / 'capture.json'}: camera {name!r}: {exc}") from exc
     clock("read_frames")
