@@ -36,6 +36,7 @@ from nail2nail.scan.capture import gradient_limit, scan_frames
 from nail2nail.scan.patterns import (
     PatternSet,
     default_pattern_set,
+    gray_code_pattern_set,
     gray_line_pattern_set,
     gray_phase_pattern_set,
 )
@@ -52,6 +53,7 @@ def schemes() -> dict[str, PatternSet]:
         "Gray + 4-step phase, complementary": gray_phase_pattern_set(),
         "Gray + 4-step phase, no complementary": gray_phase_pattern_set(complementary=False),
         "Gray + line shift (w = 8)": gray_line_pattern_set(),
+        "Gray code alone (w = 2, all-lit + all-dark)": gray_code_pattern_set(stripe=2),
         "3-step 16 + 1-period cue": PatternSet(x=cue, y=cue, gamma=2.2),
     }
 

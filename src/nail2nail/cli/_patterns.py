@@ -16,6 +16,7 @@ from nail2nail.scan.patterns import (
     PatternSet,
     default_pattern_set,
     frame_table,
+    gray_code_pattern_set,
     gray_line_pattern_set,
     gray_phase_pattern_set,
     grid_pattern,
@@ -34,10 +35,12 @@ def add_parser(sub) -> None:
         "pattern_000.png … with patterns.json (the spec and the frame table) beside them.",
     )
     p.add_argument("--spec", type=Path, help="pattern set JSON (PatternSet.to_dict format)")
-    p.add_argument("--scheme", choices=("pmp", "gray-phase", "gray"), default=None,
+    p.add_argument("--scheme", choices=("pmp", "gray-phase", "gray", "gray-code"), default=None,
                    help="without --spec: 'pmp' (default: multi-frequency phase shifting), "
-                   "'gray-phase' (Gray code + phase shifting) or 'gray' (Gray code + line "
-                   "shifting)")
+                   "'gray-phase' (Gray code + phase shifting), 'gray' (Gray code + line "
+                   "shifting) or 'gray-code' (the Gray code alone, stripes --stripe px wide)")
+    p.add_argument("--stripe", type=float, default=2.0,
+                   help="gray-code: stripe width, panel px (default 2)")
     p.add_argument("--periods", type=float, default=64,
                    help="gray-phase: periods of the sinusoid across the panel (default 64)")
     p.add_argument("--steps", type=int, default=4,
@@ -83,6 +86,7 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 def _scheme_set(args: argparse.Namespace) -> PatternSet:
     """The pattern set of ``--spec`` or ``--scheme`` and its options (checked first)."""
     scheme_options = (args.periods != 64 or args.steps != 4 or args.spacing != 8
+                      or args.stripe != 2.0
                       or args.no_complementary or args.reference is not None
                       or args.directions != "xy")
     if args.spec is not None:
@@ -103,6 +107,12 @@ def _scheme_set(args: argparse.Namespace) -> PatternSet:
         common["reference"] = args.reference
     if scheme == "gray-phase":
         return gray_phase_pattern_set(periods=args.periods, steps=args.steps, **common)
+    if scheme == "gray-code":
+        if args.no_complementary or args.reference == "mean":
+            raise ValueError("--scheme gray-code: no complementary bit to leave out, and its "
+                             "reference is 'pair' (default) or 'inverse'")
+        return gray_code_pattern_set(stripe=args.stripe, directions=tuple(args.directions),
+                                     **({"reference": args.reference} if args.reference else {}))
     return gray_line_pattern_set(spacing=args.spacing, **common)
 
 

@@ -165,7 +165,11 @@ def _fine_position(frames, table, pattern_set, direction, scale):
 def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: float | None,
                 min_albedo: float, saturation: float, erode: int, max_gradient: float | None,
                 keep_invalid: bool, full_scale: float | None, unwrap_tolerance: float = 0.0):
-    """Decode a Gray-code capture (scheme ``"gray-phase"`` or ``"gray"``), NumPy.
+    """Decode a Gray-code capture (scheme ``"gray-phase"``, ``"gray"`` or ``"gray-code"``), NumPy.
+
+    ``"gray-code"`` has no fine frames: the coordinate is the centre of the decoded stripe
+    (quantised to the stripe width ``w``: error uniform in ``±w/2``), and ``modulation`` is the
+    code's contrast. No sub-stripe refinement yet.
 
     Called by :func:`nail2nail.scan.decoding.decode` (which checks the options); the arguments are
     those of :func:`~nail2nail.scan.decoding.decode`. `unwrap_tolerance` is not used (a Gray code
@@ -195,7 +199,7 @@ def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: f
     True
     """
 
-    if pattern_set.scheme not in ("gray-phase", "gray"):
+    if pattern_set.scheme not in ("gray-phase", "gray", "gray-code"):
         raise ValueError(f"pattern_set: expected a Gray-code scheme, got {pattern_set.scheme!r}")
     cue = min_modulation if cue_modulation is None else cue_modulation
     scale = _full_scale(frames.dtype) if full_scale is None else full_scale
@@ -208,10 +212,15 @@ def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: f
     fine_amplitude = np.full((height, width), np.inf, dtype=np.float32)
     coords: dict[str, np.ndarray] = {}
     for direction in pattern_set.directions:
-        fine, amplitude, mean = _fine_position(frames, table, pattern_set, direction, scale)
-        centre, contrast, period = _code_position(frames, table, pattern_set, direction,
-                                                  pattern_set.reference, scale, mean)
-        s = fine + period * np.rint((centre - fine) / period)
+        if pattern_set.scheme == "gray-code":  # the stripe centre: quantised to the stripe
+            s, contrast, _ = _code_position(frames, table, pattern_set, direction,
+                                            pattern_set.reference, scale, None)
+            amplitude = contrast
+        else:
+            fine, amplitude, mean = _fine_position(frames, table, pattern_set, direction, scale)
+            centre, contrast, period = _code_position(frames, table, pattern_set, direction,
+                                                      pattern_set.reference, scale, mean)
+            s = fine + period * np.rint((centre - fine) / period)
         u = (s + pattern_set.phase_origin).astype(np.float32)
         size = pattern_set.axis_size(direction)
         with np.errstate(invalid="ignore"):

@@ -27,7 +27,10 @@ for pixel-centre coordinates ``u`` (``u = 0`` the centre of column 0; the defaul
 ``-1/2`` is the panel's physical edge). Frame order of a direction: the Gray-code bits (most
 significant first, each followed by its inverse with ``reference="inverse"``), the
 complementary bit, then the phase steps or the line frames; with ``reference="pair"`` an
-all-lit and an all-dark frame open the whole sequence.
+all-lit and an all-dark frame open the whole sequence. ``"gray-code"``: the Gray-code bit planes
+alone (as SLStudio's Gray codec, or structured-light systems that drop the finest bits):
+entries ``(size / w, 1)`` give stripes ``w`` px wide (any width, 1 px and up), one frame per bit,
+no fine frames; decoded to the stripe centres, so the coordinate is quantised to ``w``.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ __all__ = [
     "default_pattern_set",
     "frame_labels",
     "frame_table",
+    "gray_code_pattern_set",
     "gray_line_pattern_set",
     "gray_phase_pattern_set",
     "grid_pattern",
@@ -63,9 +67,9 @@ DIRECTIONS = ("x", "y")
 PANEL_SIZE = (1280, 1040)  # (W, H)
 _FORMAT = "nail2nail-patterns"
 #: Pattern schemes: multi-frequency PMP, Gray code + phase shifting, Gray code + line shifting.
-SCHEMES = ("pmp", "gray-phase", "gray")
+SCHEMES = ("pmp", "gray-phase", "gray", "gray-code")
 _REFERENCES = {"pmp": (None,), "gray-phase": ("mean", "pair", "inverse"),
-               "gray": ("pair", "inverse")}
+               "gray": ("pair", "inverse"), "gray-code": ("pair", "inverse")}
 
 
 @dataclass(frozen=True)
@@ -87,8 +91,8 @@ class Frequency:
     def __post_init__(self) -> None:
         if isinstance(self.steps, bool) or not isinstance(self.steps, (int, np.integer)):
             raise TypeError(f"steps: expected an integer, got {type(self.steps).__name__}")
-        if self.steps < 3:
-            raise ValueError(f"steps: expected at least 3 phase steps, got {self.steps}")
+        if self.steps < 1:  # the schemes' own minimum: PatternSet
+            raise ValueError(f"steps: expected at least 1, got {self.steps}")
         if not (isinstance(self.periods, (int, float, np.number)) and math.isfinite(self.periods)):
             raise TypeError(f"periods: expected a finite number, got {self.periods!r}")
         if self.periods <= 0:
@@ -197,15 +201,18 @@ class PatternSet:
     reference: str | None = None
 
     def __post_init__(self) -> None:
-        try:
-            x = _as_frequencies(self.x, "x")
-            y = _as_frequencies(self.y, "y")
-        except ValueError as exc:
-            if self.scheme == "gray" and "phase steps" in str(exc):
-                raise ValueError("steps: a 'gray' (line-shift) pattern set's steps are its line "
-                                 "spacing, at least 3 panel px (" + str(exc).split(", ")[-1]
-                                 + ")") from exc
-            raise
+        x = _as_frequencies(self.x, "x")
+        y = _as_frequencies(self.y, "y")
+        for f in (*x, *y):
+            if self.scheme == "gray" and f.steps < 3:
+                raise ValueError(f"steps: a 'gray' (line-shift) pattern set's steps are its line "
+                                 f"spacing, at least 3 panel px (got {f.steps})")
+            if self.scheme == "gray-code" and f.steps != 1:
+                raise ValueError(f"steps: a 'gray-code' pattern set takes (size / w, 1) entries "
+                                 f"(stripes of w px, one frame per code bit, no fine frames), "
+                                 f"got steps {f.steps}")
+            if self.scheme not in ("gray", "gray-code") and f.steps < 3:
+                raise ValueError(f"steps: expected at least 3 phase steps, got {f.steps}")
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "y", y)
         if not x and not y:
@@ -243,7 +250,9 @@ class PatternSet:
             raise ValueError(f"scheme: expected one of {SCHEMES}, got {self.scheme!r}")
         if not isinstance(self.complementary, (bool, np.bool_)):
             raise TypeError(f"complementary: expected a bool, got {self.complementary!r}")
-        object.__setattr__(self, "complementary", bool(self.complementary))
+        # no fine frames whose period errors a complementary bit would correct
+        object.__setattr__(self, "complementary",
+                           bool(self.complementary) and self.scheme != "gray-code")
         reference = self.reference
         if reference is None and self.scheme != "pmp":
             reference = _REFERENCES[self.scheme][0]
@@ -432,7 +441,7 @@ def frame_table(pattern_set: PatternSet) -> list[FrameInfo]:
         n_stripes = pattern_set.axis_size(direction) / stripe_width(pattern_set, direction)
         n_bits = n_code_bits(n_stripes)
         planes = [("gray", b) for b in range(n_bits)]
-        if pattern_set.complementary:
+        if pattern_set.complementary and pattern_set.scheme != "gray-code":
             planes.append(("complementary", n_bits))
         for kind, bit in planes:
             rows.append(FrameInfo(len(rows), direction, freq.periods, 0, 0, 0.0, kind=kind,
@@ -440,6 +449,8 @@ def frame_table(pattern_set: PatternSet) -> list[FrameInfo]:
             if inverse:
                 rows.append(FrameInfo(len(rows), direction, freq.periods, 0, 0, 0.0,
                                       kind=f"{kind}-inverse", bit=bit))
+        if pattern_set.scheme == "gray-code":
+            continue  # the code alone
         if pattern_set.scheme == "gray-phase":
             for k, delta in enumerate(pattern_set.shifts(freq.steps)):
                 rows.append(FrameInfo(len(rows), direction, freq.periods, k, freq.steps,
@@ -522,6 +533,40 @@ def gray_line_pattern_set(*, spacing: int = 8, complementary: bool = True,
                       y=(Frequency(height / spacing, spacing),) if "y" in directions else (),
                       directions=tuple(directions), panel_size=(width, height), gamma=gamma,
                       scheme="gray", complementary=complementary, reference=reference)
+
+
+def gray_code_pattern_set(*, stripe: float = 2.0, reference: str = "pair",
+                          panel_size=PANEL_SIZE, directions=("x", "y"),
+                          gamma: float | None = None) -> PatternSet:
+    """Gray code alone: stripes `stripe` px wide numbered by their Gray-code bit planes.
+
+    Parameters
+    ----------
+    stripe : float
+        Stripe width ``w``, panel px (1 and up; 2 is SLStudio's codec, whose 11-bit column
+        codes leave the least significant bit out). ``ceil(log2(size / w))`` bit planes per
+        direction.
+    reference : {"pair", "inverse"}
+        An all-lit and an all-dark frame first (default), or every bit followed by its inverse.
+    panel_size, directions
+        As :func:`gray_phase_pattern_set`.
+    gamma : float or None
+        Binary patterns need no gamma pre-compensation (default None).
+
+    Examples
+    --------
+    >>> ps = gray_code_pattern_set(panel_size=(1824, 1140), directions=("x",))
+    >>> ps.n_frames, frame_table(ps)[2].kind
+    (12, 'gray')
+    """
+    width, height = as_int_pair(panel_size, "panel_size", "(W, H)", error=TypeError)
+    stripe = float(stripe)
+    if not (math.isfinite(stripe) and stripe >= 1):
+        raise ValueError(f"stripe: expected a width of at least 1 px, got {stripe}")
+    return PatternSet(x=(Frequency(width / stripe, 1),) if "x" in directions else (),
+                      y=(Frequency(height / stripe, 1),) if "y" in directions else (),
+                      directions=tuple(directions), panel_size=(width, height), gamma=gamma,
+                      scheme="gray-code", complementary=False, reference=reference)
 
 
 def frame_labels(pattern_set: PatternSet) -> list[str]:
