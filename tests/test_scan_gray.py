@@ -295,7 +295,9 @@ def test_gray_code_frames_of_slstudio_codec():
 @pytest.mark.parametrize("reference", ["pair", "inverse"])
 def test_gray_code_on_the_virtual_finger(reference):
     """The virtual finger (scale 0.25, ideal calibration) through stripes 2 px wide: no pixel
-    off by a stripe; the error is the stripe's quantisation (RMS ≈ w / √12 = 0.58 px)."""
+    off by a stripe. With the all-lit/all-dark pair the coordinate is the stripe's centre (RMS
+    ≈ w / √12 = 0.58 px, measured 0.577, 33 µm); with inverse frames the edges interpolate
+    inside the stripe (measured 0.164 px, largest 0.33 px, 9.5 µm)."""
     from nail2nail.scan.capture import scan_frames
     from nail2nail.scan.patterns import gray_code_pattern_set
 
@@ -319,4 +321,8 @@ def test_gray_code_on_the_virtual_finger(reference):
           f"max {err.max():.2f} px, 3D RMS {np.sqrt(np.mean(dist_um ** 2)):.1f} µm")
     assert valid > 0.6 * lit
     assert err.max() < 2.0  # within one stripe: no Gray-code bit misread away from an edge
-    assert np.sqrt(np.mean(err**2)) < 0.8
+    rms = np.sqrt(np.mean(err**2))
+    if reference == "pair":
+        assert 0.5 < rms < 0.65  # the quantisation itself, w / sqrt(12) = 0.577
+    else:
+        assert rms < 0.25 and err.max() < 0.5

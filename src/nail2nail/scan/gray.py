@@ -75,7 +75,7 @@ import math
 
 import numpy as np
 
-from nail2nail.scan.codes import index_from_gray
+from nail2nail.scan.codes import gray_from_index, index_from_gray
 from nail2nail.scan.inputs import _full_scale
 from nail2nail.scan.patterns import frame_table, stripe_width
 from nail2nail.scan.phase_shift import wrapped_phase
@@ -126,6 +126,44 @@ def _code_position(frames, table, pattern_set, direction, reference, scale, phas
     else:
         centre = (index.astype(np.float64) + 0.5) * width
     return centre, contrast, width
+
+
+def _edge_position(frames, table, direction, centre, width) -> np.ndarray:
+    """Sub-stripe position of a Gray-code-only capture with inverse frames (float64 ``s``).
+
+    Each stripe boundary changes exactly one bit plane; at a pixel of stripe ``k`` the
+    normalised difference ``d = (I − Ī) / (I + Ī)`` of a bit and its inverse falls to 0 at that
+    bit's edge. The pixel lies at ``t = |d_left| / (|d_left| + |d_right|)`` of the way from the
+    stripe's left boundary to its right one (``d_left``, ``d_right``: the planes that change at
+    the two boundaries), interpolating between the stripe's edges as the blurred edges' own
+    profiles say; ``t = ½`` (the centre) where a boundary is missing (the first and last stripe)
+    or both differences vanish.
+    """
+    planes = _frames_of(table, direction, "gray")
+    inverse = _frames_of(table, direction, "gray-inverse")
+    n_bits = len(planes)
+    d = np.empty((n_bits, *frames.shape[1:]), np.float32)
+    for i, (k, kbar) in enumerate(zip(planes, inverse, strict=True)):
+        a, b = frames[k].astype(np.float32), frames[kbar].astype(np.float32)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d[i] = np.abs(a - b) / (a + b)
+    index = np.rint(centre / width - 0.5).astype(np.int64)
+    last = (1 << n_bits) - 1
+    t = np.full(centre.shape, 0.5)
+    inner = (index > 0) & (index < last)
+
+    def changed_plane(k1, k2):  # the plane (MSB first) of the one bit two neighbours differ in
+        diff = gray_from_index(k1) ^ gray_from_index(k2)
+        return n_bits - 1 - np.floor(np.log2(np.maximum(diff, 1))).astype(np.int64)
+
+    k = index[inner]
+    rows, cols = np.nonzero(inner)
+    d_left = d[changed_plane(k - 1, k), rows, cols].astype(np.float64)
+    d_right = d[changed_plane(k, k + 1), rows, cols].astype(np.float64)
+    total = d_left + d_right
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t[inner] = np.where(total > 0, d_left / total, 0.5)
+    return (index + t) * width
 
 
 def reference_level(frames, table, scale) -> np.ndarray:
@@ -212,9 +250,11 @@ def decode_gray(frames, pattern_set, *, min_modulation: float, cue_modulation: f
     fine_amplitude = np.full((height, width), np.inf, dtype=np.float32)
     coords: dict[str, np.ndarray] = {}
     for direction in pattern_set.directions:
-        if pattern_set.scheme == "gray-code":  # the stripe centre: quantised to the stripe
-            s, contrast, _ = _code_position(frames, table, pattern_set, direction,
-                                            pattern_set.reference, scale, None)
+        if pattern_set.scheme == "gray-code":  # the stripe centre, or its edges' interpolation
+            s, contrast, width = _code_position(frames, table, pattern_set, direction,
+                                                pattern_set.reference, scale, None)
+            if pattern_set.reference == "inverse":
+                s = _edge_position(frames, table, direction, s, width)
             amplitude = contrast
         else:
             fine, amplitude, mean = _fine_position(frames, table, pattern_set, direction, scale)
