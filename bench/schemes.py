@@ -54,6 +54,8 @@ def schemes() -> dict[str, PatternSet]:
         "Gray + 4-step phase, no complementary": gray_phase_pattern_set(complementary=False),
         "Gray + line shift (w = 8)": gray_line_pattern_set(),
         "Gray code alone (w = 2, all-lit + all-dark)": gray_code_pattern_set(stripe=2),
+        "Gray code alone (w = 2, inverse frames)": gray_code_pattern_set(stripe=2,
+                                                                          reference="inverse"),
         "3-step 16 + 1-period cue": PatternSet(x=cue, y=cue, gamma=2.2),
     }
 
