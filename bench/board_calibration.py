@@ -39,7 +39,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nail2nail.calibration.board import MIN_FEATURES, calibrate_board, calibrate_device
+from nail2nail.calibration.board import (
+    MIN_FEATURES,
+    calibrate_board,
+    calibrate_device,
+    projector_points_by_pose,
+)
 from nail2nail.calibration.boards import BOARD_KINDS, default_board
 from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.calibration.files import CameraCalibration, RigCalibration
@@ -128,19 +133,7 @@ def opencv_peer(captures, board) -> OpenCVRig:
         models[n], _, _ = calibrate_device([obj[v.ids] for v in vs], [v.xy_camera for v in vs],
                                            captures.camera_sizes[n], name=n, distortion="radial")
     # the projector's points of a pose: averaged over the cameras that measured them
-    proj = {}
-    for pose in sorted({v.pose for v in captures.views}):
-        acc: dict = {}
-        for n in names:
-            v = by[n].get(pose)
-            if v is None or v.xy_projector is None:
-                continue
-            for i, xy in zip(v.ids, v.xy_projector, strict=True):
-                if np.all(np.isfinite(xy)):
-                    acc.setdefault(int(i), []).append(xy)
-        if len(acc) >= MIN_FEATURES:
-            ids = np.array(sorted(acc))
-            proj[pose] = (ids, np.array([np.mean(acc[i], axis=0) for i in ids]))
+    proj = projector_points_by_pose(captures.views, sorted({v.pose for v in captures.views}))
     projector, _, _ = calibrate_device([obj[i] for i, _ in proj.values()],
                                        [xy for _, xy in proj.values()], captures.projector_size,
                                        name="projector", distortion="full")

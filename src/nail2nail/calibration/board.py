@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from nail2nail._uncertainty import gauss_newton_std
 from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.calibration.distortion import ProjectorDistortion, ideal_from_panel
 from nail2nail.calibration.files import CameraCalibration, RigCalibration
@@ -56,6 +57,7 @@ __all__ = [
     "BoardView",
     "calibrate_board",
     "calibrate_device",
+    "projector_points_by_pose",
 ]
 
 PROJECTOR_MODELS = ("opencv", "thesis")
@@ -548,10 +550,37 @@ def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_
                                        fix_principal_point=fix_principal_point)
         init[name] = model
         T_dev_board.update({(name, v.pose): t for v, t in zip(mine, T, strict=True)})
-    proj_obj, proj_img, proj_poses = [], [], []
+    by_pose = projector_points_by_pose(used, poses)
+    proj_obj = [obj[ids] for ids, _ in by_pose.values()]
+    proj_img = [xy for _, xy in by_pose.values()]
+    proj_poses = list(by_pose)
+    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector",
+                                   fix_aspect_ratio=fix_aspect_ratio,
+                                   fix_principal_point=fix_principal_point)
+    init["projector"] = model
+    T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
+    return init, T_dev_board
+
+
+def projector_points_by_pose(views: list, poses) -> dict:
+    """The projector's board points of each pose, averaged over the cameras that measured them.
+
+    Parameters
+    ----------
+    views : list of BoardView
+    poses : iterable of int
+        The poses to gather, in order.
+
+    Returns
+    -------
+    dict of int to (ids (K,) int64, xy (K, 2) float64)
+        Per pose with at least :data:`MIN_FEATURES` measured features: their board indices
+        (sorted) and mean panel coordinates, px; poses with fewer are left out.
+    """
+    out = {}
     for pose in poses:
         ids, xy = [], []
-        for v in used:
+        for v in views:
             if v.pose == pose and v.xy_projector is not None:
                 ok = np.all(np.isfinite(v.xy_projector), axis=1)
                 ids.append(v.ids[ok])
@@ -565,15 +594,8 @@ def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_
         mean = np.zeros((len(uniq), 2))
         np.add.at(mean, inv, all_xy)
         mean /= np.bincount(inv)[:, None]
-        proj_obj.append(obj[uniq])
-        proj_img.append(mean)
-        proj_poses.append(pose)
-    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector",
-                                   fix_aspect_ratio=fix_aspect_ratio,
-                                   fix_principal_point=fix_principal_point)
-    init["projector"] = model
-    T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
-    return init, T_dev_board
+        out[pose] = (uniq, mean)
+    return out
 
 
 def _observation_blocks(used: list, devices: list, names: list, obj: np.ndarray,
@@ -719,10 +741,7 @@ class _BundleAdjustment:
         degrees for a pose's rotation vector ``rx, ry, rz`` and mm for ``tx, ty, tz``."""
         jac, r = np.asarray(fit.jac), np.asarray(fit.fun)
         dof = max(r.size - jac.shape[1], 1)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            cov = np.linalg.pinv(jac.T @ jac) * (float(r @ r) / dof)
-        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std = gauss_newton_std(jac, float(r @ r) / dof)
         out: dict[str, float] = {}
         for (who, what), where in self.layout.items():
             values = std[where]

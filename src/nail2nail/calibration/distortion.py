@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage, optimize
 
+from nail2nail._uncertainty import gauss_newton_std
 from nail2nail._validation import as_float_array, as_points
 from nail2nail.io._json import read_json
 
@@ -626,12 +627,8 @@ def _parameter_std(result) -> np.ndarray:
     """Standard deviations of a least-squares fit's parameters: the Gauss-Newton covariance.
     ``result.jac`` carries the robust loss's weights; the noise scale is robust (MAD) so that
     outliers do not inflate it."""
-    jac = result.jac
     sigma2 = (1.4826 * float(np.median(np.abs(result.fun)))) ** 2
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        cov = np.linalg.pinv(jac.T @ jac) * sigma2
-    return np.sqrt(np.clip(np.diag(cov), 0, None))
+    return gauss_newton_std(result.jac, sigma2)
 
 
 def estimate_distortion(xy_panel, xy_plane, *, center0=None, rho0: float | None = None,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from nail2nail._progress import Stages
-from nail2nail.calibration.board import PROJECTOR_MODELS, calibrate_board
+from nail2nail.calibration.board import DISTORTION_TERMS, PROJECTOR_MODELS, calibrate_board
 from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.observe import board_views
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     for device in [*result.camera_names, "projector"]:
         stds = {k.split(".", 1)[1]: v for k, v in result.parameter_std.items()
                 if k.split(".", 1)[0] == device and k.split(".", 1)[1] in
-                ("f", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rho")}
+                ("f", "fx", "fy", "cx", "cy", *DISTORTION_TERMS, "rho")}
         print(f"{device}: standard deviations " + ", ".join(f"{k} {v:.3g}"
                                                             for k, v in stds.items()))
     needed = result.poses_needed()

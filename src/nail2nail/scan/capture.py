@@ -551,7 +551,7 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     clock.restart()
     cached = name in capture.frames
     frames = capture.frames[name] if cached else capture.load_frames(name, raw=True)
-    _check_pattern_set(capture)  # after the frames: a file's own error comes first
+    _require_pattern_set(capture)  # after the frames: a file's own error comes first
     try:
         frames = _check_frames(frames, capture.pattern_set)
     except ValueError as exc:  # say whose frames
@@ -565,7 +565,7 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     return scan
 
 
-def _check_pattern_set(capture) -> None:
+def _require_pattern_set(capture) -> None:
     """A capture without a pattern set cannot be decoded: say so, naming its manifest."""
     if capture.pattern_set is None:
         raise ValueError(
@@ -601,7 +601,7 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
         If the capture's manifest names no pattern set.
     """
 
-    _check_pattern_set(capture)
+    _require_pattern_set(capture)
     options = {"method": "numba", **decode_options}
     for name in progress_bar(capture.camera_names, desc=desc, unit="camera", enabled=progress):
         if name in capture.frames:  # cached as floats in [0, 1]
