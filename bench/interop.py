@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -348,7 +349,9 @@ def main(argv=None) -> int:
               "seed": args.real_seed0 + i, "print": str(PRINTS / "probe.png"),
               "scale": args.scale, "calibration": calib_path} for i in range(args.real)]
     results = []
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+    # spawn: the calibration above ran OpenMP threads, which a forked worker cannot use
+    with ProcessPoolExecutor(max_workers=max(1, args.workers),
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
         for r in pool.map(run_finger, jobs):
             log(f"{r['name']}: {r['print']}, before/default clarity "
                 f"{r['before']['clarity_median']}/{r['default']['clarity_median']}, body scale "

@@ -23,6 +23,7 @@ from nail2nail.unroll.flatten import (
     fit_cylinder,
     fit_flattening,
     map_distortion,
+    section_pad,
     surface_mesh,
 )
 
@@ -157,6 +158,56 @@ def test_fit_cylinder_follows_a_tapered_finger(taper, tilt_deg, azimuth, seed):
     t_c = (np.asarray(cyl.center) @ a)
     assert cyl.radius == pytest.approx(8.0 + taper * t_c, abs=5e-3)
     assert cyl.describe()["taper"] == pytest.approx(taper, abs=2e-3)
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    ratio=st.floats(0.75, 0.95),
+    taper=st.floats(0.0, 0.01),
+    roll_deg=st.floats(-10.0, 10.0),
+    tilt_deg=st.floats(0.0, 10.0),
+    azimuth=st.floats(0.0, 2 * np.pi),
+    seed=st.integers(0, 2**16),
+)
+def test_elliptic_cone_axis_and_pad_line(ratio, taper, roll_deg, tilt_deg, azimuth, seed):
+    """A tapered finger of elliptic section, rolled about its axis and seen from one side (the
+    virtual scanner's random fingers): the elliptic fit puts the axis on the section's centre
+    line and :func:`section_pad` finds the pad line (the section's smallest radius), where a
+    circular cone tilts by up to 2° and a pad taken from the viewing direction is off by the
+    roll."""
+    tilt = np.radians(tilt_deg)
+    axis = np.array([np.sin(tilt) * np.cos(azimuth), np.cos(tilt), np.sin(tilt) * np.sin(azimuth)])
+    a, p, e = _frame(axis)
+    roll = np.radians(roll_deg)
+    pad = np.cos(roll) * p + np.sin(roll) * e  # the finger's own pad, rolled
+    side = np.cross(a, pad)
+    rng = np.random.default_rng(seed)
+    view = rng.uniform(-np.radians(100), np.radians(100), 8000)  # seen from +p, ±100°
+    t = rng.uniform(-14.0, 14.0, 8000)
+    k = 1.0 - taper * t  # wider away from the tip
+    phi = view - roll  # the section's own angle from its pad
+    # on the ellipse (semi-axes 8.5 across, 8.5·ratio deep) along the viewing ray's angle
+    ax_, az_ = 8.5 * k, 8.5 * ratio * k
+    rho = 1.0 / np.sqrt((np.sin(phi) / ax_) ** 2 + (np.cos(phi) / az_) ** 2)
+    xyz = (np.outer(t, a) + (rho * np.cos(phi))[:, None] * pad
+           + (rho * np.sin(phi))[:, None] * side)
+    xyz += 0.002 * rng.standard_normal(xyz.shape)
+    circular = fit_cylinder(xyz)
+    cyl = fit_cylinder(xyz, elliptic=True)
+    angle = np.degrees(np.arccos(np.clip(cyl.axis @ a, -1, 1)))
+    assert angle < 0.35, angle
+    before = np.degrees(np.arccos(np.clip(circular.axis @ a, -1, 1)))
+    assert angle <= before + 0.05
+    turned, info = section_pad(xyz, cyl)
+    assert info["source"] == "section"
+    off = np.degrees(np.arccos(np.clip(turned.pad @ pad, -1, 1)))
+    assert off < 1.0, (off, info)
+    assert turned.describe()["pad_fit"] == info
+    # a round section gives no direction: the rough pad is kept
+    round_xyz, _, _ = cylinder_points(radius=8.0, axis=axis, noise_mm=0.002, seed=seed)
+    kept, info = section_pad(round_xyz, fit_cylinder(round_xyz, elliptic=True))
+    assert info["source"] == "rough" and info["ellipticity_mm"] < 0.01
+    assert np.degrees(np.arccos(np.clip(kept.pad @ p, -1, 1))) < 0.05
 
 
 def test_fit_cylinder_short_wide_patch_follows_tip_direction():

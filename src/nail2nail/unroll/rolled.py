@@ -284,9 +284,11 @@ def unroll_scans(
         the fingertip points to the top of the images, whatever the world frame (world ``+Y``
         on the virtual scanner and the thesis's rig).
     pad_direction : (3,) float, optional
-        Rough direction from the finger towards the viewer of the pad. Default: the mean
-        direction from the points to the cameras' centres (the scanner faces the pad), else
-        ``+Z``.
+        Direction from the finger's axis to the middle of the pad (``s = 0``), taken as given.
+        Default: the symmetry line of the finger's section
+        (:func:`~nail2nail.unroll.flatten.section_pad`: the smallest radius of its elliptic
+        part) nearest the mean direction from the points to the cameras' centres (else
+        ``+Z``); that rough direction itself when the section is round.
     ridge_options : dict, optional
         Keyword arguments of :func:`~nail2nail.unroll.ridges.camera_layer`.
     feather_px : float
@@ -344,6 +346,7 @@ def unroll_scans(
     points = np.concatenate(picked)
     if tip_direction is None:
         tip_direction = image_up_direction(scans)
+    pad_from_section = pad_direction is None
     if pad_direction is None:
         centers = [np.asarray(s.camera_center, float) for s in scans if s.camera_center is not None]
         if centers:
@@ -353,7 +356,8 @@ def unroll_scans(
         else:
             pad_direction = (0.0, 0.0, 1.0)
     flat, mesh = fit_flattening(points, method, tip_direction=tip_direction,
-                                pad_direction=pad_direction, grid_mm=grid_mm)
+                                pad_direction=pad_direction, grid_mm=grid_mm,
+                                pad_from_section=pad_from_section)
     lap("flatten")
     options = dict(ridge_options or {})
     if mix:
