@@ -50,7 +50,9 @@ def test_outputs_and_stage_times(processed):
         sum(summary["seconds"][s] for s in STAGES), abs=0.01)
     assert summary["peak_rss_mb"] is None or summary["peak_rss_mb"] > 50
     parts = summary["scan_seconds"]
-    assert set(parts) == {"read_frames", "decode"} and all(v > 0 for v in parts.values())
+    assert set(parts) == {"read_frames", "decode", "motion"}
+    assert all(v > 0 for v in parts.values())
+    assert summary["motion"]["moving"] is False  # the demo's finger holds still
     assert sum(parts.values()) <= summary["seconds"]["scan"] + 0.002
     merge = summary["merge_seconds"]
     assert set(merge) == {"correspond", "fuse", "write", "figures"}

@@ -31,7 +31,7 @@ from nail2nail.io.capture import read_capture
 from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
 from nail2nail.io.scans import save_scans
 from nail2nail.merge.report import parse_pairs, write_merge
-from nail2nail.scan.capture import MAX_GRADIENT, scan_capture
+from nail2nail.scan.capture import MAX_GRADIENT, motion_summary, scan_capture
 from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
 
 __all__ = ["peak_rss_mb", "process_capture"]
@@ -130,7 +130,7 @@ def process_capture(
     -------
     dict
         The content of ``OUT/process.json``: ``{"capture", "calibration", "out", "options",
-        "seconds": {stage: s, …, "total"}, "scan_seconds": {"read_frames", "decode"},
+        "seconds": {stage: s, …, "total"}, "scan_seconds": {"read_frames", "decode", "motion"},
         "merge_seconds": {"correspond", "fuse", "write", "figures"},
         "peak_rss_mb", "cameras": {name: valid pixels}, "merge": {pair: statistics},
         "super_scan", "print"}``. Stages: ``scan`` (reading the frames, decoding,
@@ -190,6 +190,7 @@ def process_capture(
                     **({"method": method, "ppi": ppi, "length_mm": length_mm,
                         **(ridge_options or {})} if unroll else {})},
         "cameras": {s.name: int(s.mask.sum()) for s in scans},
+        "motion": motion_summary(scans),
     }
     with atomic_directory(out, marker="process.json") as tmp:
         say("write the scans")

@@ -57,6 +57,10 @@ def add_scan_options(p) -> None:
                    "change faster than this many projector px per camera px of a 1024 x 1280 "
                    "camera, scaled by sqrt(1024*1280 / (W*H)) for W x H cameras, so that it "
                    "limits the viewing obliquity at any resolution (default 2; 'inf' keeps all)")
+    p.add_argument("--max-motion", type=float, default=None, metavar="MM",
+                   help="refuse the capture (exit 2, nothing written) when its frames show the "
+                   "finger moving by more than MM mm (the spread of the frame groups' "
+                   "registration, docs/motion.md); by default a warning above 0.02 mm")
     p.add_argument("--frame", default="world", metavar="world|CAMERA",
                    help="frame of the points written (scans, super scan): 'world' (the "
                    "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
@@ -140,10 +144,14 @@ def decode_options(args: argparse.Namespace) -> dict:
                          f"{args.unwrap_tolerance}")
     if args.erode < 0:
         raise ValueError(f"--erode: expected a number of pixels >= 0, got {args.erode}")
+    if args.max_motion is not None and not (math.isfinite(args.max_motion)
+                                            and args.max_motion > 0):
+        raise ValueError(f"--max-motion: expected a positive number of mm, got "
+                         f"{args.max_motion}")
     return {"min_modulation": args.min_modulation, "cue_modulation": args.cue_modulation,
             "min_albedo": args.min_albedo,
             "saturation": args.saturation, "unwrap_tolerance": 2 * math.pi * args.unwrap_tolerance,
-            "erode": args.erode}
+            "erode": args.erode, "max_motion_mm": args.max_motion}
 
 
 def masks(args: argparse.Namespace) -> dict[str, str]:

@@ -126,7 +126,7 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     if mask.ndim != 2 or mask.dtype != bool:
         raise ValueError(f"{path}: mask must be an (H, W) bool array, got {mask.dtype} "
                          f"{mask.shape}")
-    arrays = {key: _unpack(data, key, mask, path) for key in _ARRAYS[:-1]}
+    arrays: dict[str, Any] = {key: _unpack(data, key, mask, path) for key in _ARRAYS[:-1]}
     arrays["mask"] = mask
     center = data.get("camera_center")
     name = str(data["name"]) if "name" in data else path.stem
@@ -264,6 +264,8 @@ def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
             entry["ply"] = f"{scan.name}.ply"
         if scan.camera_center is not None:
             entry["camera_center"] = np.asarray(scan.camera_center).tolist()
+        if scan.motion is not None:
+            entry["motion"] = scan.motion
         return entry
 
     cameras = _map_in_threads(write, scans)
@@ -366,6 +368,9 @@ def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Sca
         files.append(confined_path(scan_dir, cam["npz"], f"{where}.npz"))
     check_unique([cam["name"] for cam in cams], str(manifest_path))
     scans = _map_in_threads(load_scan_npz, files)
+    for scan, cam in zip(scans, cams, strict=True):
+        # what the frames said of motion, as written (a dict; anything else is not ours)
+        scan.motion = cam.get("motion") if isinstance(cam.get("motion"), dict) else None
     if frame == "stored":
         return scans
     world_from_frame = invert_transform(T)

@@ -18,6 +18,8 @@ Modules, in the order the data flows through them:
   coordinates (thesis eq. 3.12–3.14), the per-calibration tables;
 - :mod:`~nail2nail.scan.kernels`: :func:`decode_fast`, decoding, checks and triangulation
   fused in one numba pass;
+- :mod:`~nail2nail.scan.motion`: did the finger move while the frames were shown? (the
+  frame groups' DC images registered against each other);
 - :mod:`~nail2nail.scan.capture`: :func:`scan_capture`, a capture and its calibration to a
   :class:`Scan` per camera.
 

@@ -30,6 +30,7 @@ from nail2nail.scan.inputs import (
     frame_intensities,
 )
 from nail2nail.scan.kernels import decode_fast
+from nail2nail.scan.motion import MOTION_WARN_MM, estimate_motion, mm_per_pixel
 from nail2nail.scan.results import (
     NO_POINT,
     Scan,
@@ -54,6 +55,7 @@ __all__ = [
     "decode_cameras",
     "gradient_limit",
     "kept_fraction",
+    "motion_summary",
     "scan_capture",
     "scan_frames",
 ]
@@ -384,6 +386,8 @@ def scan_capture(
     method: str = "numba",
     timings: dict | None = None,
     masks=None,
+    detect_motion: bool = True,
+    max_motion_mm: float | None = None,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -399,6 +403,11 @@ def scan_capture(
     against the capture's, and the handedness of every camera (a mirrored one is refused
     unless `allow_mirrored`). A camera keeping 0 valid pixels is an error; one keeping less
     than :data:`MIN_KEPT_FRACTION` of its lit pixels a warning (``UserWarning``) with the figure.
+
+    Motion: every camera's frames are checked for a finger that moved while they were shown
+    (:func:`nail2nail.scan.motion.estimate_motion`, recorded as ``Scan.motion``); above
+    :data:`~nail2nail.scan.motion.MOTION_WARN_MM` a warning (``UserWarning``) says by how much,
+    above `max_motion_mm` the capture is refused.
 
     Memory: one camera's frames at a time, as their integer values (read with ``raw=True``
     and not cached, unless the capture holds them already), decoded and triangulated by the
@@ -432,6 +441,11 @@ def scan_capture(
         read, non-zero = keep): pixels outside a camera's mask are dropped from its scan after
         decoding (the decoder's edge check does not erode from the mask's border). Cameras
         without a mask keep every pixel the decoder accepts.
+    detect_motion : bool
+        Measure the motion the frames show (``Scan.motion``).
+    max_motion_mm : float, optional
+        Refuse a capture whose measured motion (the largest of its cameras') is above this,
+        mm; None: warn only.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -445,8 +459,10 @@ def scan_capture(
     ValueError
         Naming the calibration, capture and camera: sizes that differ, a mirrored camera, a
         camera with no valid pixel; an unknown `use` or `method`; a mask of another size or
-        for an unknown camera.
+        for an unknown camera; motion above `max_motion_mm`.
     """
+    if max_motion_mm is not None and not (np.isfinite(max_motion_mm) and max_motion_mm > 0):
+        raise ValueError(f"max_motion_mm: expected a positive number of mm, got {max_motion_mm!r}")
 
     _check_method(method)
     _check_use(use)
@@ -471,7 +487,8 @@ def scan_capture(
     scans = []
     for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
-                                  method=method, decode_options=decode_options, clock=clock))
+                                  method=method, decode_options=decode_options, clock=clock,
+                                  detect_motion=detect_motion or max_motion_mm is not None))
         if name in masks:
             _apply_user_mask(scans[-1], masks[name])
         if use in ("xp", "yp"):
@@ -482,10 +499,40 @@ def scan_capture(
                 f"{capture.path}: camera {name!r} keeps {kept} of {lit} lit pixels "
                 f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
                 UserWarning, stacklevel=2)
+    _check_motion(scans, capture.path, max_motion_mm)
     if timings is not None:
         for key, seconds in clock.seconds.items():
             timings[key] = timings.get(key, 0.0) + seconds
     return scans
+
+
+def motion_summary(scans) -> dict | None:
+    """The capture's motion from its scans' (``Scan.motion``): ``{"motion_mm", "camera",
+    "moving", "threshold_mm"}`` for the camera that saw the most; None when not measured."""
+    seen = [(s.motion["motion_mm"], s.name) for s in scans
+            if s.motion is not None and s.motion.get("motion_mm") is not None]
+    if not seen:
+        return None
+    mm, name = max(seen)
+    return {"motion_mm": mm, "camera": name, "moving": bool(mm > MOTION_WARN_MM),
+            "threshold_mm": MOTION_WARN_MM}
+
+
+def _check_motion(scans, where, max_motion_mm: float | None) -> None:
+    summary = motion_summary(scans)
+    if summary is None:
+        return
+    mm, name = summary["motion_mm"], summary["camera"]
+    if max_motion_mm is not None and mm > max_motion_mm:
+        raise ValueError(
+            f"{where}: the finger moved during the capture: camera {name!r} saw its frames "
+            f"shift by {1000 * mm:.0f} µm (more than the {1000 * max_motion_mm:.0f} µm "
+            "allowed); capture again with the finger still, or with fewer frames")
+    if summary["moving"]:
+        warnings.warn(
+            f"{where}: the finger moved during the capture: camera {name!r} saw its frames "
+            f"shift by {1000 * mm:.0f} µm (above {1000 * MOTION_WARN_MM:.0f} µm); the scans "
+            "carry errors of about that size (docs/motion.md)", UserWarning, stacklevel=3)
 
 
 #: Smallest median angle between camera rays and the projector's planes of constant ``xp``
@@ -543,7 +590,7 @@ def _apply_user_mask(scan: Scan, mask: np.ndarray) -> None:
 
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
-                 decode_options, clock: StepClock) -> Scan:
+                 decode_options, clock: StepClock, detect_motion: bool = True) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
@@ -562,6 +609,11 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
                  projector_distortion=calibration.projector_distortion, use=use, method=method,
                  decode_options=options, bit_depth=None if cached else capture.bit_depth)
     clock("decode")
+    if detect_motion:
+        estimate = estimate_motion(frames, capture.pattern_set, scan.mask,
+                                   mm_per_px=mm_per_pixel(scan.xyz, scan.mask))
+        scan.motion = None if estimate is None else estimate.to_dict()
+        clock("motion")
     return scan
 
 

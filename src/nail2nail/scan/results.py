@@ -223,6 +223,9 @@ class Scan:
         triangulation kept it; a pixel with reason 0 outside `mask` was cut by a user mask);
         ``None`` for a scan read from a file that does not store it (a mat5 set, an older
         scan file).
+    motion : dict or None
+        What the frames say of the finger's motion during the capture
+        (:meth:`nail2nail.scan.motion.MotionEstimate.to_dict`); None when not measured.
     """
 
     name: str
@@ -235,6 +238,7 @@ class Scan:
     mask: np.ndarray
     camera_center: np.ndarray | None = field(default=None)
     reason: np.ndarray | None = field(default=None)
+    motion: dict | None = field(default=None)
 
     @property
     def shape(self) -> tuple[int, int]:

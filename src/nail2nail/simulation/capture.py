@@ -26,9 +26,12 @@ from nail2nail.io._json import read_json, write_json
 from nail2nail.io.capture import write_frame, write_manifest
 from nail2nail.io.prints import write_print_image
 from nail2nail.scan.patterns import PatternSet, default_pattern_set, make_patterns
+from nail2nail.simulation.motion import Motion, Moved
 from nail2nail.simulation.render import (
     CameraGeometry,
+    _LightPlan,
     camera_geometry,
+    expose,
     projector_radiance,
     render_frames,
 )
@@ -64,6 +67,9 @@ class SimulatedCapture:
     rig : Rig
     scene : Scene
     pattern_set : PatternSet or None
+    motion : Motion or None
+        The finger's trajectory (:mod:`nail2nail.simulation.motion`); `geometry` is then the
+        truth at its reference frame.
     """
 
     frames: dict
@@ -72,6 +78,7 @@ class SimulatedCapture:
     scene: Scene
     pattern_set: PatternSet | None = None
     extra: dict = field(default_factory=dict)
+    motion: Motion | None = None
 
 
 def load_pattern_dir(directory: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
@@ -156,6 +163,8 @@ def simulate(
     cameras: list[int] | None = None,
     progress: bool = False,
     geometry: dict | None = None,
+    motion: Motion | None = None,
+    motion_cache: dict | None = None,
 ) -> SimulatedCapture:
     """Render a scene with every camera of a rig, in memory.
 
@@ -182,6 +191,17 @@ def simulate(
         frames of the new `patterns` rendered (the same finger under other patterns, e.g. the
         pre-distorted ones of the look-up-table correction). Geometry does not depend on
         the patterns, nor on the noise `seed`.
+    motion : Motion, optional
+        Move the scene rigidly along this trajectory (:func:`~nail2nail.simulation.motion.
+        tremor`): frame ``k`` is the mean of the scene rendered at each sub-step of its
+        exposure (motion blur), every sub-step with its own ray intersection (so shading,
+        shadows and the print move with the finger); the geometry returned (the truth) is
+        the scene at the trajectory's reference pose. Needs at least as many trajectory
+        frames as patterns.
+    motion_cache : dict, optional
+        Reuse the moved geometries across calls with the same scene, rig and `motion` (for
+        instance the same tremor under several pattern sets): filled with
+        ``(camera, frame, step) → CameraGeometry``.
 
     Returns
     -------
@@ -212,14 +232,46 @@ def simulate(
                                          if rig.camera_names[i] not in known]
     if missing:
         raise ValueError(f"geometry: no camera {missing[0]!r} (has {sorted(known or {})})")
+    if motion is not None and motion.n_frames < len(patterns):
+        raise ValueError(f"motion: covers {motion.n_frames} frames, the patterns are "
+                         f"{len(patterns)}")
     for i in progress_bar(indices, desc="simulate", unit="camera", enabled=progress):
         name = rig.camera_names[i]
         geom = camera_geometry(rig, scene, i) if known is None else known[name]
         geometry[name] = geom
-        frames[name] = render_frames(geom, patterns, rig.photometry, seed=seed, camera_index=i,
-                                     scale=rig.scale, radiance=radiance)
+        if motion is None:
+            frames[name] = render_frames(geom, patterns, rig.photometry, seed=seed,
+                                         camera_index=i, scale=rig.scale, radiance=radiance)
+        else:
+            frames[name] = _moving_frames(rig, scene, i, patterns, radiance, motion, seed=seed,
+                                          cache={} if motion_cache is None else motion_cache)
     return SimulatedCapture(frames=frames, geometry=geometry, rig=rig, scene=scene,
-                            pattern_set=pattern_set)
+                            pattern_set=pattern_set, motion=motion)
+
+
+def _moving_frames(rig: Rig, scene: Scene, camera_index: int, patterns, radiance,
+                   motion: Motion, *, seed: int, cache: dict) -> np.ndarray:
+    """Frames of one camera with the scene moving along `motion` (see :func:`simulate`)."""
+    name = rig.camera_names[camera_index]
+    out = None
+    for k in range(len(patterns)):
+        signal = None
+        for j in range(motion.blur_steps):
+            key = (name, k, j)
+            if key not in cache:
+                cache[key] = camera_geometry(rig, Moved(scene, *motion.pose(k, j)),
+                                             camera_index)
+            plan = _LightPlan(cache[key], rig.photometry, patterns.shape[1:])
+            step = plan.signal(radiance[k])
+            signal = step if signal is None else signal + step
+        assert signal is not None
+        frame = expose(signal / np.float32(motion.blur_steps), rig.photometry, seed=seed,
+                       camera_index=camera_index, frame=k, scale=rig.scale)
+        if out is None:
+            out = np.empty((len(patterns), *frame.shape), frame.dtype)
+        out[k] = frame
+    assert out is not None
+    return out
 
 
 def simulate_capture(
@@ -237,6 +289,7 @@ def simulate_capture(
     progress: bool = False,
     print_image=None,
     print_ppi: float = 500.0,
+    motion: Motion | None = None,
 ) -> dict:
     """Render a scene and write a capture directory (``docs/capture-format.md``).
 
@@ -270,6 +323,8 @@ def simulate_capture(
         unchanged as ``truth/rolled_print.png``.
     print_ppi : float
         Resolution of `print_image`, pixels per inch.
+    motion : Motion, optional
+        A moving scene (:func:`simulate`); the trajectory goes to ``truth/motion.json``.
 
     Returns
     -------
@@ -284,7 +339,7 @@ def simulate_capture(
         scene = make_scene("finger", rig=rig, seed=seed, print_image=print_image,
                            print_ppi=print_ppi)
     sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set, seed=seed,
-                   progress=progress)
+                   progress=progress, motion=motion)
     return write_capture(out_dir, sim, seed=seed, pattern_names=pattern_names,
                          write_truth=write_truth, progress=progress)
 
@@ -373,6 +428,10 @@ def _write_truth(out: Path, sim: SimulatedCapture) -> dict:
         entries["cameras"][name] = f"truth/{name}.npz"
     write_json(truth / "calibration.json", ideal_calibration(sim.rig))
     entries["calibration"] = "truth/calibration.json"
+    if sim.motion is not None:
+        # the geometry above is the scene at the trajectory's reference pose
+        write_json(truth / "motion.json", sim.motion.to_dict())
+        entries["motion"] = "truth/motion.json"
     if isinstance(sim.scene, Finger):
         finger = sim.scene
         image, _ = finger.rolled_print()

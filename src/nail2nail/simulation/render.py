@@ -392,64 +392,104 @@ def render_frames(
     patterns = np.asarray(patterns)
     if patterns.ndim != 3:
         raise ValueError(f"patterns: expected (n_frames, Hp, Wp), got shape {patterns.shape}")
-    assert geometry._sampler is not None  # set by camera_geometry
-    lit, i00, stride, w = geometry._sampler
-    ph, pw = patterns.shape[1:]
-    aperture = geometry._aperture if photometry.projector_fill_factor is not None else None
-    if photometry.projector_fill_factor is not None and aperture is None:
-        aperture = geometry._aperture = aperture_weights(geometry, photometry)
-    ones = _aperture_ones(aperture, (ph, pw)) if aperture is not None else None
-    if stride != pw + 2:
-        raise ValueError(
-            f"patterns: panel size {pw}x{ph} does not match the rig's projector ({stride - 2} wide)"
-        )
+    light = _LightPlan(geometry, photometry, patterns.shape[1:])
     height, width = geometry.shape
-    albedo = geometry.albedo.ravel()
-    base = albedo * np.float32(photometry.ambient * photometry.projector_power)
-    power = np.float32(photometry.projector_power)
-    light = geometry.irradiance.ravel()[lit] * power
-    gain = albedo.ravel()[lit] * geometry.irradiance.ravel()[lit] * power
-    specular = None
-    if geometry.specular is not None and photometry.specular > 0:
-        specular = geometry.specular.ravel()[lit] * power
-    subsurface = photometry.subsurface_mm / geometry.mm_per_px \
-        if photometry.subsurface_mm > 0 and geometry.mm_per_px > 0 else 0.0
-    bits = photometry.bit_depth
-    top = 2**bits - 1
-    dtype = np.uint8 if bits == 8 else np.uint16
+    dtype = np.uint8 if photometry.bit_depth == 8 else np.uint16
     frames = np.empty((len(patterns), height, width), dtype=dtype)
-    blur = photometry.camera_blur_px * scale
     for k, pattern in enumerate(patterns):
         rad = radiance[k] if radiance is not None else projector_radiance(pattern, photometry)
-        if aperture is not None:
-            assert ones is not None  # computed with aperture
-            sample = _aperture_sample(aperture, rad, ones)
+        frames[k] = expose(light.signal(rad), photometry, seed=seed, camera_index=camera_index,
+                           frame=k, scale=scale)
+    return frames
+
+
+class _LightPlan:
+    """What rendering a frame of one camera's geometry needs, computed once per geometry."""
+
+    def __init__(self, geometry: CameraGeometry, photometry: Photometry, panel_shape) -> None:
+        assert geometry._sampler is not None  # set by camera_geometry
+        lit, i00, stride, w = geometry._sampler
+        ph, pw = panel_shape
+        aperture = geometry._aperture if photometry.projector_fill_factor is not None else None
+        if photometry.projector_fill_factor is not None and aperture is None:
+            aperture = geometry._aperture = aperture_weights(geometry, photometry)
+        self.ones = _aperture_ones(aperture, (ph, pw)) if aperture is not None else None
+        if stride != pw + 2:
+            raise ValueError(f"patterns: panel size {pw}x{ph} does not match the rig's projector "
+                             f"({stride - 2} wide)")
+        self.aperture, self.lit, self.i00, self.stride, self.w = aperture, lit, i00, stride, w
+        self.shape = geometry.shape
+        albedo = geometry.albedo.ravel()
+        self.albedo = albedo
+        self.base = albedo * np.float32(photometry.ambient * photometry.projector_power)
+        power = np.float32(photometry.projector_power)
+        self.light = geometry.irradiance.ravel()[lit] * power
+        self.gain = albedo.ravel()[lit] * geometry.irradiance.ravel()[lit] * power
+        self.specular = None
+        if geometry.specular is not None and photometry.specular > 0:
+            self.specular = geometry.specular.ravel()[lit] * power
+        self.subsurface = photometry.subsurface_mm / geometry.mm_per_px \
+            if photometry.subsurface_mm > 0 and geometry.mm_per_px > 0 else 0.0
+
+    def signal(self, rad: np.ndarray) -> np.ndarray:
+        """The irradiance image ``(H, W)`` float32 of one projector radiance, before the
+        camera's blur and noise."""
+        lit, i00, stride, w = self.lit, self.i00, self.stride, self.w
+        height, width = self.shape
+        if self.aperture is not None:
+            assert self.ones is not None  # computed with aperture
+            sample = _aperture_sample(self.aperture, rad, self.ones)
         else:
             flat = rad.ravel()
             sample = (w[0] * flat[i00] + w[1] * flat[i00 + 1] + w[2] * flat[i00 + stride]
                       + w[3] * flat[i00 + stride + 1])
-        if subsurface > 0:
+        if self.subsurface > 0:
             lit_light = np.zeros(height * width, np.float32)
-            lit_light[lit] = light * sample
-            lit_light = ndi.gaussian_filter(lit_light.reshape(height, width), subsurface,
+            lit_light[lit] = self.light * sample
+            lit_light = ndi.gaussian_filter(lit_light.reshape(height, width), self.subsurface,
                                             mode="constant").ravel()
-            signal = base + albedo * lit_light
+            signal = self.base + self.albedo * lit_light
         else:  # (the arithmetic of the default model, unchanged)
-            signal = base.copy()
-            signal[lit] += gain * sample
-        if specular is not None:
-            signal[lit] += specular * sample
-        image = signal.reshape(height, width)
-        if blur > 0:
-            image = ndi.gaussian_filter(image, blur, mode="nearest")
-        if photometry.noise and seed is not None:
-            rng = np.random.default_rng([seed, camera_index, k])
-            electrons = np.maximum(image, 0) * np.float32(photometry.full_well)
-            noise = rng.standard_normal(image.shape, dtype=np.float32)
-            noise *= np.sqrt(electrons + np.float32(photometry.read_noise**2))
-            image = (electrons + noise) / np.float32(photometry.full_well)
-        levels = np.rint(np.clip(image, 0, 1) * top)
-        if bits != 8:
-            levels = levels * 2 ** (16 - bits)
-        frames[k] = levels.astype(dtype)
-    return frames
+            signal = self.base.copy()
+            signal[lit] += self.gain * sample
+        if self.specular is not None:
+            signal[lit] += self.specular * sample
+        return signal.reshape(height, width)
+
+
+def expose(image: np.ndarray, photometry: Photometry, *, seed: int | None, camera_index: int,
+           frame: int, scale: float = 1.0) -> np.ndarray:
+    """One camera frame from its irradiance image: the camera's blur, noise and quantisation.
+
+    Parameters
+    ----------
+    image : (H, W) float32
+        Irradiance, full scale 1 (e.g. the mean over an exposure's sub-steps).
+    photometry : Photometry
+    seed : int or None
+        Noise seed; frame `frame` of camera `camera_index` draws from
+        ``default_rng([seed, camera_index, frame])``. None: no noise.
+    camera_index, frame : int
+    scale : float
+        Camera resolution scale (the blur is given in full-resolution px).
+
+    Returns
+    -------
+    (H, W) uint8 (8-bit) or uint16 (10/12/16-bit, left-aligned)
+    """
+    bits = photometry.bit_depth
+    top = 2**bits - 1
+    dtype = np.uint8 if bits == 8 else np.uint16
+    blur = photometry.camera_blur_px * scale
+    if blur > 0:
+        image = ndi.gaussian_filter(image, blur, mode="nearest")
+    if photometry.noise and seed is not None:
+        rng = np.random.default_rng([seed, camera_index, frame])
+        electrons = np.maximum(image, 0) * np.float32(photometry.full_well)
+        noise = rng.standard_normal(image.shape, dtype=np.float32)
+        noise *= np.sqrt(electrons + np.float32(photometry.read_noise**2))
+        image = (electrons + noise) / np.float32(photometry.full_well)
+    levels = np.rint(np.clip(image, 0, 1) * top)
+    if bits != 8:
+        levels = levels * 2 ** (16 - bits)
+    return levels.astype(dtype)

@@ -1,0 +1,203 @@
+"""Tests of nail2nail.simulation.motion (a moving finger) and nail2nail.scan.motion (detection).
+
+The trajectory's conventions (the reference frame is the identity, the RMS is the stated
+amplitude), a moved scene against the same scene built at the moved pose, a still trajectory
+that renders exactly the still frames, and the detector on frames with known shifts and on
+small virtual captures: a still one is not flagged, a trembling one is, and ``scan_capture``
+warns or refuses.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nail2nail.calibration.files import RigCalibration
+from nail2nail.io.capture import read_capture
+from nail2nail.scan.capture import motion_summary, scan_capture
+from nail2nail.scan.motion import MOTION_WARN_MM, dc_groups, estimate_motion
+from nail2nail.scan.patterns import Frequency, PatternSet, default_pattern_set, make_patterns
+from nail2nail.simulation.capture import simulate, simulate_capture
+from nail2nail.simulation.motion import Moved, _rotation, tremor
+from nail2nail.simulation.rig import default_rig, ideal_calibration
+from nail2nail.simulation.scenes import Sphere, make_scene
+
+#: a short pattern set for the detector: x and y, 1 and 8 periods (3 steps), 16 (4)
+SHORT = PatternSet(x=(Frequency(1, 3), Frequency(8, 3), Frequency(16, 4)),
+                   y=(Frequency(1, 3), Frequency(8, 3), Frequency(16, 4)), gamma=2.2)
+#: a shorter one for quick moving renders (every frame of a moving scene is intersected anew)
+TINY = PatternSet(x=(Frequency(1, 3), Frequency(8, 3)), y=(Frequency(1, 3), Frequency(8, 3)),
+                  gamma=2.2)
+
+
+# -- trajectories ----------------------------------------------------------------------------
+def test_tremor_reference_frame_is_the_identity_and_rms_is_the_amplitude():
+    m = tremor(24, amplitude_mm=0.1, blur_steps=1, seed=4)
+    assert m.reference_frame == 12
+    R, t = m.pose(12, 0)
+    np.testing.assert_allclose(R, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(t, 0.0, atol=1e-12)
+    # over a long window the RMS of the 3D translation (about its mean) is the amplitude
+    long = tremor(1200, amplitude_mm=0.1, blur_steps=1, seed=4, frame_rate_hz=600.0)
+    tr = long.translation_mm[:, 0]
+    rms = np.sqrt(np.mean(np.sum((tr - tr.mean(axis=0)) ** 2, axis=-1)))
+    assert rms == pytest.approx(0.1, rel=0.05)
+    d = m.to_dict()
+    assert d["model"] == "tremor" and len(d["frames"]) == 24
+    assert d["frames"][12]["translation_mm"] == [0.0, 0.0, 0.0]
+
+
+def test_tremor_still_and_blur_steps():
+    m = tremor(6, amplitude_mm=0.0, blur_steps=3)
+    assert m.blur_steps == 3 and m.times_s.shape == (6, 3)
+    np.testing.assert_allclose(m.translation_mm, 0.0)
+    np.testing.assert_allclose(m.rotvec_rad, 0.0)
+    # the sub-steps sit inside each exposure, in order
+    assert np.all(np.diff(m.times_s, axis=1) > 0)
+    assert np.all(m.times_s[:, -1] < np.arange(1, 7) / 120.0)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"amplitude_mm": -0.1}, "amplitude_mm"), ({"amplitude_mm": float("nan")}, "amplitude_mm"),
+    ({"frequency_hz": (12.0, 8.0)}, "frequency_hz"), ({"frame_rate_hz": 0.0}, "frame_rate_hz"),
+    ({"exposure_s": 0.1}, "exposure_s"), ({"blur_steps": 0}, "blur_steps"),
+    ({"reference_frame": 24}, "reference_frame"), ({"rotation_deg": 45.0}, "rotation_deg"),
+])
+def test_tremor_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        tremor(24, **kwargs)
+
+
+@settings(max_examples=30, deadline=None)
+@given(rotvec=st.tuples(*[st.floats(-0.05, 0.05)] * 3),
+       shift=st.tuples(*[st.floats(-0.5, 0.5)] * 3), seed=st.integers(0, 2**16))
+def test_moved_scene_is_the_scene_at_the_moved_pose(rotvec, shift, seed):
+    """A moved sphere is the sphere with its centre moved: the same hits and normals."""
+    sphere = Sphere(center=(1.0, 2.0, -3.0), radius=8.0)
+    R, t = _rotation(rotvec), np.asarray(shift)
+    moved = Moved(sphere, R, t)
+    at_pose = Sphere(center=tuple(R @ np.asarray(sphere.center) + t), radius=8.0)
+    rng = np.random.default_rng(seed)
+    origin = np.array([0.0, 0.0, 100.0])
+    d = np.column_stack([rng.uniform(-0.05, 0.05, (50, 2)), -np.ones(50)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    np.testing.assert_allclose(moved.intersect(origin, d), at_pose.intersect(origin, d),
+                               atol=1e-9)
+    hit = origin + moved.intersect(origin, d)[:, None] * d
+    ok = np.isfinite(hit).all(axis=1)
+    np.testing.assert_allclose(moved.surface(hit[ok]).normal, at_pose.surface(hit[ok]).normal,
+                               atol=1e-9)
+    assert np.array_equal(_rotation((0.0, 0.0, 0.0)), np.eye(3))
+
+
+# -- rendering -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def small_finger():
+    rig = default_rig(0.125)
+    return rig, make_scene("finger", rig=rig, seed=3)
+
+
+def test_still_trajectory_renders_the_still_frames(small_finger):
+    rig, scene = small_finger
+    patterns = make_patterns(TINY)[:4]
+    still = simulate(scene, rig=rig, patterns=patterns, pattern_set=TINY, seed=1, cameras=[1])
+    moving = simulate(scene, rig=rig, patterns=patterns, pattern_set=TINY, seed=1, cameras=[1],
+                      motion=tremor(len(patterns), amplitude_mm=0.0, blur_steps=1))
+    assert np.array_equal(still.frames["cam1"], moving.frames["cam1"])
+    assert moving.motion is not None
+
+
+def test_motion_must_cover_the_frames(small_finger):
+    rig, scene = small_finger
+    with pytest.raises(ValueError, match="motion: covers 5 frames, the patterns are 12"):
+        simulate(scene, rig=rig, pattern_set=TINY, cameras=[1], motion=tremor(5))
+
+
+# -- detection -------------------------------------------------------------------------------
+def _textured_frames(shifts, pattern_set, *, gamma=1.0, seed=0):
+    """Phase frames of a ridge-like texture moved by ``shifts[g]`` (dx, dy) px in group g, with
+    the fringes fixed to the projector (they do not move with the texture)."""
+    rng = np.random.default_rng(seed)
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    noise = ndi.gaussian_filter(rng.standard_normal((h + 40, w + 40)), 2.0)
+    texture = 0.5 + 0.15 * noise / noise.std()
+    frames = []
+    for (label, idx), (dx, dy) in zip(dc_groups(pattern_set), shifts, strict=True):
+        albedo = ndi.shift(texture, (dy, dx), order=3, mode="nearest")[20:20 + h, 20:20 + w]
+        periods = float(label.split("/")[1])
+        axis = xx if label.startswith("x") else yy
+        for k in range(len(idx)):
+            phase = 2 * np.pi * periods * axis / w + 2 * np.pi * k / len(idx)
+            light = (0.5 + 0.5 * np.cos(phase)) ** gamma
+            frames.append(np.clip(albedo * (0.1 + 0.8 * light) * 255, 0, 255))
+    return np.asarray(frames), np.ones((h, w), bool)
+
+
+def test_estimate_motion_recovers_known_shifts():
+    groups = dc_groups(SHORT)
+    assert [g[0] for g in groups] == ["x/1", "x/8", "x/16", "y/1", "y/8", "y/16"]
+    shifts = [(0.0, 0.0), (0.3, -0.2), (0.8, 0.1), (-0.4, 0.5), (0.2, 0.2), (1.1, -0.6)]
+    frames, mask = _textured_frames(shifts, SHORT)
+    est = estimate_motion(frames, SHORT, mask, mm_per_px=0.05, tiles=2)
+    np.testing.assert_allclose(est.shift_px, shifts, atol=0.05)
+    expected = max(np.hypot(a[0] - b[0], a[1] - b[1]) for a in shifts for b in shifts)
+    assert est.spread_px == pytest.approx(expected, abs=0.07)
+    d = est.to_dict()
+    assert d["motion_mm"] == pytest.approx(est.max_spread_px * 0.05, rel=1e-3)
+    assert d["moving"] is True
+
+
+def test_estimate_motion_still_frames_under_a_gamma_mismatch():
+    """A still scene under a projector whose gamma the patterns did not expect: the fringes'
+    harmonics stay in the 3-step groups' means, fixed to the projector; no motion is read."""
+    frames, mask = _textured_frames([(0.0, 0.0)] * 6, SHORT, gamma=1.4)
+    est = estimate_motion(frames, SHORT, mask, mm_per_px=0.05, tiles=2)
+    assert est.max_spread_px < 0.1
+    assert est.to_dict()["moving"] is False
+
+
+def test_estimate_motion_needs_two_groups_and_pixels():
+    one = PatternSet(x=(Frequency(1, 4),), gamma=2.2)
+    frames = np.zeros((4, 100, 100), np.uint8)
+    assert estimate_motion(frames, one, np.ones((100, 100), bool)) is None
+    assert estimate_motion(np.zeros((24, 100, 100)), default_pattern_set(),
+                           np.zeros((100, 100), bool)) is None
+
+
+@pytest.fixture(scope="module")
+def trembling_capture(tmp_path_factory, small_finger):
+    """A still and a trembling finger (0.1 mm RMS at 10 Hz) at 1/8 resolution, 12 frames."""
+    rig, scene = small_finger
+    root = tmp_path_factory.mktemp("motion")
+    patterns = make_patterns(TINY)
+    out = {}
+    for name, amplitude in (("still", 0.0), ("moving", 0.1)):
+        motion = tremor(len(patterns), amplitude_mm=amplitude, blur_steps=1, seed=5)
+        simulate_capture(root / name, scene, rig=rig, patterns=patterns, pattern_set=TINY,
+                         seed=2, motion=None if amplitude == 0 else motion)
+        out[name] = root / name
+    return out, RigCalibration.from_dict(ideal_calibration(rig))
+
+
+def test_trembling_capture_is_flagged_and_a_still_one_is_not(trembling_capture):
+    dirs, calib = trembling_capture
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no motion warning on the still finger
+        still = scan_capture(read_capture(dirs["still"], load=False), calib)
+    summary = motion_summary(still)
+    assert summary is not None and summary["motion_mm"] < MOTION_WARN_MM / 2
+    with pytest.warns(UserWarning, match="the finger moved during the capture"):
+        moving = scan_capture(read_capture(dirs["moving"], load=False), calib)
+    summary = motion_summary(moving)
+    assert summary["moving"] and summary["motion_mm"] > 2 * MOTION_WARN_MM
+    assert (dirs["moving"] / "truth" / "motion.json").is_file()
+    with pytest.raises(ValueError, match=r"moved during the capture.*µm allowed"):
+        scan_capture(read_capture(dirs["moving"], load=False), calib, max_motion_mm=0.03)
+    with pytest.raises(ValueError, match="max_motion_mm"):
+        scan_capture(read_capture(dirs["still"], load=False), calib, max_motion_mm=-1.0)
