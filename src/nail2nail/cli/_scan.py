@@ -61,6 +61,9 @@ def add_scan_options(p) -> None:
                    help="refuse the capture (exit 2, nothing written) when its frames show the "
                    "finger moving by more than MM mm (the spread of the frame groups' "
                    "registration, docs/motion.md); by default a warning above 0.02 mm")
+    p.add_argument("--compensate-motion", action="store_true",
+                   help="correct the phase offsets a moving finger puts between the steps of "
+                   "each phase-shift group of 4 or more steps before decoding (docs/motion.md)")
     p.add_argument("--frame", default="world", metavar="world|CAMERA",
                    help="frame of the points written (scans, super scan): 'world' (the "
                    "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
@@ -151,7 +154,8 @@ def decode_options(args: argparse.Namespace) -> dict:
     return {"min_modulation": args.min_modulation, "cue_modulation": args.cue_modulation,
             "min_albedo": args.min_albedo,
             "saturation": args.saturation, "unwrap_tolerance": 2 * math.pi * args.unwrap_tolerance,
-            "erode": args.erode, "max_motion_mm": args.max_motion}
+            "erode": args.erode, "max_motion_mm": args.max_motion,
+            "compensate_motion": args.compensate_motion}
 
 
 def masks(args: argparse.Namespace) -> dict[str, str]:

@@ -26,11 +26,17 @@ from nail2nail.calibration.files import CameraCalibration, RigCalibration, check
 from nail2nail.io.masks import check_mask_names, read_mask
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.inputs import (
+    SATURATION,
     _check_frames,
     frame_intensities,
 )
 from nail2nail.scan.kernels import decode_fast
-from nail2nail.scan.motion import MOTION_WARN_MM, estimate_motion, mm_per_pixel
+from nail2nail.scan.motion import (
+    MOTION_WARN_MM,
+    compensate_phase_steps,
+    estimate_motion,
+    mm_per_pixel,
+)
 from nail2nail.scan.results import (
     NO_POINT,
     Scan,
@@ -388,6 +394,7 @@ def scan_capture(
     masks=None,
     detect_motion: bool = True,
     max_motion_mm: float | None = None,
+    compensate_motion: bool = False,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -446,6 +453,11 @@ def scan_capture(
     max_motion_mm : float, optional
         Refuse a capture whose measured motion (the largest of its cameras') is above this,
         mm; None: warn only.
+    compensate_motion : bool
+        Correct the phase offsets that motion puts between the steps of each phase-shift
+        group of 4 or more steps before decoding
+        (:func:`nail2nail.scan.motion.compensate_phase_steps`; recorded in
+        ``Scan.motion["compensation"]``). The motion check reads the frames as captured.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -488,7 +500,8 @@ def scan_capture(
     for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
                                   method=method, decode_options=decode_options, clock=clock,
-                                  detect_motion=detect_motion or max_motion_mm is not None))
+                                  detect_motion=detect_motion or max_motion_mm is not None,
+                                  compensate_motion=compensate_motion))
         if name in masks:
             _apply_user_mask(scans[-1], masks[name])
         if use in ("xp", "yp"):
@@ -590,7 +603,8 @@ def _apply_user_mask(scan: Scan, mask: np.ndarray) -> None:
 
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
-                 decode_options, clock: StepClock, detect_motion: bool = True) -> Scan:
+                 decode_options, clock: StepClock, detect_motion: bool = True,
+                 compensate_motion: bool = False) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
@@ -605,15 +619,25 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
         raise ValueError(f"{capture.path / 'capture.json'}: camera {name!r}: {exc}") from exc
     clock("read_frames")
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
+    measured = frames
+    compensation = None
+    if compensate_motion:
+        saturation = options.get("saturation", SATURATION)
+        top = (2 ** capture.bit_depth - 1) if not cached and capture.bit_depth else 1.0
+        frames, compensation = compensate_phase_steps(frames, capture.pattern_set, None,
+                                                      saturation=saturation * top)
+        clock("compensate")
     scan = _scan(frames, capture.pattern_set, calibration.camera(name),
                  projector_distortion=calibration.projector_distortion, use=use, method=method,
                  decode_options=options, bit_depth=None if cached else capture.bit_depth)
     clock("decode")
     if detect_motion:
-        estimate = estimate_motion(frames, capture.pattern_set, scan.mask,
+        estimate = estimate_motion(measured, capture.pattern_set, scan.mask,
                                    mm_per_px=mm_per_pixel(scan.xyz, scan.mask))
         scan.motion = None if estimate is None else estimate.to_dict()
         clock("motion")
+    if compensation is not None:
+        scan.motion = {**(scan.motion or {}), "compensation": compensation}
     return scan
 
 

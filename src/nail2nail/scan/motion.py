@@ -33,7 +33,14 @@ import scipy.ndimage as ndi
 
 from nail2nail.scan.patterns import PatternSet, frame_table
 
-__all__ = ["MOTION_WARN_MM", "MotionEstimate", "dc_groups", "estimate_motion", "mm_per_pixel"]
+__all__ = [
+    "MOTION_WARN_MM",
+    "MotionEstimate",
+    "compensate_phase_steps",
+    "dc_groups",
+    "estimate_motion",
+    "mm_per_pixel",
+]
 
 #: Motion (spread of the groups' shifts) above which a capture is flagged as moving, mm: about
 #: the 3D error it causes (a lateral shift of 20 µm moves the finest fringe's phase by 0.15 rad,
@@ -254,3 +261,174 @@ def estimate_motion(frames, pattern_set: PatternSet, mask, *, mm_per_px: float |
                           frames=[(min(g[1]), max(g[1])) for g in groups], shift_px=shift * f,
                           region_shift_px=region * f, spread_px=_spread(shift) * f,
                           region_spread_px=region_spread * f, mm_per_px=mm_per_px)
+
+
+#: Side of the regions whose frames' phase offsets :func:`compensate_phase_steps` estimates, px.
+COMPENSATION_TILE_PX = 48
+#: Fewest radians of fringe phase spread (circular standard deviation) a region needs for its
+#: offsets to be estimated; flatter regions (a coarse frequency) keep the nominal shifts.
+MIN_PHASE_SPREAD = 1.0
+
+
+def _tile_shifts(values: np.ndarray, weight: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+    """Per-tile phase shifts of an ``N``-step group (``N ≥ 4``) from the frames' subspace.
+
+    In a region, ``I_k(p) = a_p + C_p cos δ_k − S_p sin δ_k``: the ``N × P`` matrix of the
+    frames has rank 3 and its column space holds ``1``, ``cos δ`` and ``sin δ``. The three
+    leading eigenvectors of its (weighted) ``N × N`` Gram matrix span it; with ``1`` taken out,
+    two remain, ``R`` (``N × 2``), and ``(cos δ_k, sin δ_k) = r_k Q`` for some ``Q``: the unit
+    length of each row gives ``r_k G r_kᵀ = 1`` with ``G = Q Qᵀ``, linear in ``G``'s three
+    entries (least squares over the ``N`` frames), and ``Q = chol(G)``. That fixes the shifts
+    up to a common rotation and a reflection: the sense is taken from `nominal` and the
+    shifts' mean offset from it removed (the phase at the group's mean time). A closed form of
+    the principal-component approach to phase shifting with unknown steps (Vargas, Quiroga and
+    Belenguer, Opt. Lett. 36(8), 1326, 2011), here per region. ``values (T, N, P)``,
+    ``weight (T, P)``; returns ``(T, N)`` radians (NaN where a region does not solve).
+    """
+    n_tiles, n, _ = values.shape
+    mean = np.sum(weight[:, None, :] * values, axis=-1, keepdims=True) / np.maximum(
+        weight.sum(axis=-1), 1)[:, None, None]
+    centred = (values - mean) * np.sqrt(weight)[:, None, :]
+    gram = centred @ np.swapaxes(centred, 1, 2)  # (T, N, N); the frames' mean taken out
+    # the per-frame mean over the region is not 1·a: take the constant vector out explicitly
+    ones = np.full(n, 1 / np.sqrt(n))
+    proj = np.eye(n) - np.outer(ones, ones)
+    gram = proj @ gram @ proj
+    _, vectors = np.linalg.eigh(gram)
+    r = vectors[:, :, -2:]  # (T, N, 2): the quadrature pair's span
+    x, y = r[..., 0], r[..., 1]
+    design = np.stack([x * x, 2 * x * y, y * y], axis=-1)  # (T, N, 3)
+    g = np.einsum("tij,tj->ti", np.linalg.pinv(design), np.ones((n_tiles, n)))
+    out = np.full((n_tiles, n), np.nan)
+    G = np.stack([np.stack([g[:, 0], g[:, 1]], -1), np.stack([g[:, 1], g[:, 2]], -1)], -2)
+    good = (g[:, 0] > 0) & (g[:, 0] * g[:, 2] - g[:, 1] ** 2 > 0)
+    if not good.any():
+        return out
+    Q = np.linalg.cholesky(G[good])
+    e = r[good] @ Q  # (T', N, 2): cos δ, sin δ up to a rotation and a reflection
+    delta = np.arctan2(e[..., 1], e[..., 0])
+    # the sense of the nominal sequence
+    turn = np.angle(np.exp(1j * np.diff(delta, axis=-1)))
+    nominal_turn = np.angle(np.exp(1j * np.diff(nominal)))
+    flip = np.sum(turn * nominal_turn, axis=-1) < 0
+    delta[flip] = -delta[flip]
+    offset = np.angle(np.exp(1j * (delta - nominal)))
+    offset -= np.angle(np.mean(np.exp(1j * offset), axis=-1, keepdims=True))
+    out[good] = nominal + offset
+    return out
+
+
+def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
+                           tile_px: int = COMPENSATION_TILE_PX,
+                           saturation: float | None = None) -> tuple[np.ndarray, dict]:
+    """Frames of a moving finger corrected for the phase offsets motion puts between steps.
+
+    Within one phase-shift group a moving surface adds an unknown offset ``ε_k`` to each step's
+    nominal shift ``δ_k``, nearly uniform over a small region (rigid motion is smooth): the
+    decoded phase ripples at the fringe frequency. Per region of `tile_px` × `tile_px` pixels
+    and per group with 4 or more steps whose fringe phase spreads over the region (at least
+    :data:`MIN_PHASE_SPREAD` rad), the actual shifts are estimated from the frames' subspace
+    (:func:`_tile_shifts`), interpolated between regions' centres, and each pixel's
+    ``a, b, φ`` solved with them; the group's frames are then replaced by
+    ``a + b cos(φ + δ_k)`` with the nominal shifts, so that any decoder reads the phase at
+    the group's mean time. Three-step groups (a pixel's three unknowns fit any three shifts),
+    coarse groups (too little phase in a region) and saturated pixels keep their frames.
+
+    Not corrected: the motion between groups (the frequencies and the two directions are
+    shown at different times) and the skin's texture moving under the fringes.
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W) array
+        One camera's frames (integer values or floats); not modified.
+    pattern_set : PatternSet
+        A PMP pattern set (other schemes are returned as they are).
+    mask : (H, W) bool or None
+        The pixels to learn the offsets from (e.g. a first decoding's valid pixels); None:
+        those whose fringe amplitude in the group is at least 2 % of the frames' largest
+        value.
+    tile_px : int
+    saturation : float, optional
+        Frame value at or above which a pixel keeps its frames.
+
+    Returns
+    -------
+    frames : (n_frames, H, W) array of the input's dtype
+    info : dict
+        Per group: its label, the regions estimated, and the RMS and largest offset (rad).
+    """
+    frames = np.asarray(frames)
+    out = frames.copy()
+    info: dict = {"groups": []}
+    if pattern_set.scheme != "pmp":
+        return out, info
+    _, height, width = frames.shape
+    full = float(frames.max()) if frames.size else 1.0
+    ty, tx = max(1, height // tile_px), max(1, width // tile_px)
+    h, w = ty * tile_px, tx * tile_px
+    table = frame_table(pattern_set)
+    integer = np.issubdtype(frames.dtype, np.integer)
+    top = np.iinfo(frames.dtype).max if integer else None
+    for label, idx in dc_groups(pattern_set):
+        n = len(idx)
+        if n < 4 or table[idx[0]].kind != "phase":
+            continue
+        nominal = np.array([table[i].shift for i in idx])
+        stack = frames[idx, :h, :w].astype(np.float64)
+        tiles = stack.reshape(n, ty, tile_px, tx, tile_px).transpose(1, 3, 0, 2, 4)
+        tiles = tiles.reshape(ty * tx, n, tile_px * tile_px)
+        # the phase and amplitude of each pixel under the nominal shifts
+        design = np.stack([np.ones(n), np.cos(nominal), -np.sin(nominal)], axis=-1)
+        coef = np.linalg.pinv(design) @ tiles
+        if mask is None:
+            weight = np.hypot(coef[:, 1], coef[:, 2]) >= 0.02 * full
+        else:
+            weight = np.asarray(mask, bool)[:h, :w].reshape(ty, tile_px, tx, tile_px)
+            weight = weight.transpose(0, 2, 1, 3).reshape(ty * tx, tile_px * tile_px)
+        weight = weight.astype(np.float64)
+        phase = np.exp(1j * np.arctan2(coef[:, 2], coef[:, 1]))
+        count = weight.sum(axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            resultant = np.abs(np.sum(weight * phase, axis=-1)) / count
+        spread = np.sqrt(-2 * np.log(np.clip(resultant, 1e-12, 1)))
+        usable = (count >= 0.5 * tile_px * tile_px) & (spread >= MIN_PHASE_SPREAD)
+        if not usable.any():
+            continue
+        delta = np.broadcast_to(nominal, (ty * tx, n)).copy()
+        delta[usable] = _tile_shifts(tiles[usable], weight[usable], nominal)
+        solved = usable & np.isfinite(delta).all(axis=-1)
+        if not solved.any():
+            continue
+        offset = np.nan_to_num(delta - nominal).reshape(ty, tx, n)
+        # unmeasured regions: their nearest measured one's offsets
+        have = solved.reshape(ty, tx)
+        _, (ri, ci) = ndi.distance_transform_edt(~have, return_indices=True)
+        offset = offset[ri, ci]
+        # per pixel, bilinear between the regions' centres (ordinates in region units)
+        rows = np.clip((np.arange(height) + 0.5) / tile_px - 0.5, 0, ty - 1)
+        cols = np.clip((np.arange(width) + 0.5) / tile_px - 0.5, 0, tx - 1)
+        rr, cc = np.meshgrid(rows, cols, indexing="ij")
+        pixel_delta = np.stack([nominal[k] + ndi.map_coordinates(offset[..., k], [rr, cc],
+                                                                 order=1, mode="nearest")
+                                for k in range(n)])  # (n, H, W)
+        values = frames[idx].astype(np.float64)
+        # per pixel least squares with its own shifts: normal equations of [1, cos δ, −sin δ]
+        basis = np.stack([np.ones_like(pixel_delta), np.cos(pixel_delta),
+                          -np.sin(pixel_delta)])  # (3, n, H, W)
+        normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
+        rhs = np.einsum("ikhw,khw->hwi", basis, values)
+        a, c, s = np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
+        synthetic = a + c * np.cos(nominal)[:, None, None] - s * np.sin(nominal)[:, None, None]
+        keep = np.zeros((height, width), bool)
+        if saturation is not None:
+            keep |= (values >= saturation).any(axis=0)
+        if integer:
+            synthetic = np.clip(np.rint(synthetic), 0, top)
+        out[idx] = np.where(keep, frames[idx], synthetic).astype(frames.dtype)
+        off = offset[have]
+        info["groups"].append({
+            "label": label, "regions": int(solved.sum()), "of": int(ty * tx),
+            "offset_rms_rad": round(float(np.sqrt(np.mean(off**2))), 4) if off.size else None,
+            "offset_max_rad": round(float(np.abs(off).max()), 4) if off.size else None,
+        })
+    return out, info
