@@ -41,6 +41,30 @@ def test_capture_section(processed_finger):
         assert int(row[3].replace(",", "")) == int(scan.mask.sum())
 
 
+def test_capture_section_motion(processed_finger, tmp_path):
+    """The still finger's motion rows, then a scan.json edited to say a camera saw motion (and
+    one with junk in it): the section warns and names the camera, and does not fail."""
+    section = capture.section(find_inputs(processed_finger))
+    assert "<h3>Motion</h3>" in section.body
+    scans = load_scans(find_inputs(processed_finger).scans)
+    for scan in scans:
+        row = next(r for r in _rows(section.body, scan.name) if len(r) == 6)
+        assert row[-1] == "still" and float(row[1]) < 20
+    out = tmp_path / "out"
+    shutil.copytree(processed_finger, out)
+    manifest = json.loads((out / "scans" / "scan.json").read_text())
+    cams = manifest["cameras"]
+    cams[0]["motion"] = {**cams[0]["motion"], "motion_mm": 0.085, "moving": True}
+    cams[1]["motion"] = {"motion_mm": "much", "groups": [{"label": 3, "shift_px": "x"}],
+                         "compensation": [1]}
+    (out / "scans" / "scan.json").write_text(json.dumps(manifest))
+    section = capture.section(find_inputs(out))
+    assert section.status == "warn"
+    assert f"Camera {cams[0]['name']} saw the finger move by 85 µm" in section.body
+    row = next(r for r in _rows(section.body, cams[1]["name"]) if len(r) == 6)
+    assert row[1] == "—" and row[-1] == "still"
+
+
 def test_capture_section_without_capture(processed_finger, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(processed_finger, out)

@@ -98,6 +98,11 @@ def section(inputs: ReportInputs) -> Section:
     body.append("<h3>Coverage</h3>")
     coverage, warnings = _coverage(scans, inputs, options["min_modulation"])
     body.append(coverage)
+    motion, moving = _motion(scans)
+    if motion:
+        body.append("<h3>Motion</h3>")
+        body.append(motion)
+        warnings += moving
     if capture is not None and capture_note:  # readable manifest, unreadable frames
         warnings.insert(0, capture_note)
     if warnings:
@@ -339,6 +344,53 @@ def _coverage(scans, inputs: ReportInputs, min_modulation: float) -> tuple[str, 
                f"Lit: fringe amplitude ≥ min_modulation {min_modulation:g}. No merge.json: no "
                "super-scan shares.")
     return table_html(rows, header, caption=caption) + _coverage_figure(stats), warnings
+
+
+def _number(value) -> float | None:
+    """A finite number from a JSON value, else None (scan.json may be edited by hand)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if np.isfinite(value) else None
+
+
+def _motion(scans) -> tuple[str, list[str]]:
+    """The motion the frames show per camera (``scan.json`` → ``motion``), and warnings."""
+    rows, warnings = [], []
+    for scan in scans:
+        m = scan.motion if isinstance(scan.motion, dict) else None
+        if not m or "motion_mm" not in m:
+            continue
+        mm = _number(m.get("motion_mm"))
+        shifts = []
+        groups = m.get("groups")
+        for g in groups if isinstance(groups, list) else []:
+            xy = g.get("shift_px") if isinstance(g, dict) else None
+            if isinstance(xy, list) and len(xy) == 2:
+                shifts.append(f"{g.get('label')}: ({fmt(_number(xy[0]), '.2f')}, "
+                              f"{fmt(_number(xy[1]), '.2f')})")
+        comp = m.get("compensation")
+        comp_groups = comp.get("groups") if isinstance(comp, dict) else None
+        comp_groups = comp_groups if isinstance(comp_groups, list) else []
+        comp_text = ", ".join(f"{g.get('label')} {fmt(_number(g.get('offset_rms_rad')), '.3f')}"
+                              " rad" for g in comp_groups if isinstance(g, dict)) or "—"
+        threshold = _number(m.get("threshold_mm"))
+        moving = mm is not None and threshold is not None and mm > threshold
+        rows.append([scan.name, fmt(None if mm is None else 1000 * mm, ".1f"),
+                     fmt(_number(m.get("max_spread_px")), ".2f"), ", ".join(shifts) or "—",
+                     comp_text, "moving" if moving else "still"])
+        if moving:
+            assert mm is not None and threshold is not None
+            warnings.append(f"Camera {scan.name} saw the finger move by {1000 * mm:.0f} µm "
+                            f"during the capture (above {1000 * threshold:.0f} µm): its scan "
+                            "carries errors of about that size.")
+    if not rows:
+        return "", []
+    header = ["camera", "motion µm", "largest spread px", "groups' shifts (dx, dy) px",
+              "compensated (offsets' RMS)", "verdict"]
+    caption = ("Each phase-shift group's mean frame (the scene without fringes) registered "
+               "against the first group's; the motion is the largest distance between two "
+               "groups' shifts, over the image or any of 3 × 3 regions (docs/motion.md).")
+    return table_html(rows, header, caption=caption), warnings
 
 
 def _coverage_figure(stats) -> str:

@@ -200,8 +200,8 @@ def simulate(
         frames as patterns.
     motion_cache : dict, optional
         Reuse the moved geometries across calls with the same scene, rig and `motion` (for
-        instance the same tremor under several pattern sets): filled with
-        ``(camera, frame, step) → CameraGeometry``.
+        instance the same tremor under several pattern sets of one panel size): filled with
+        what rendering needs of each ``(camera, frame, step)``.
 
     Returns
     -------
@@ -258,11 +258,10 @@ def _moving_frames(rig: Rig, scene: Scene, camera_index: int, patterns, radiance
         signal = None
         for j in range(motion.blur_steps):
             key = (name, k, j)
-            if key not in cache:
-                cache[key] = camera_geometry(rig, Moved(scene, *motion.pose(k, j)),
-                                             camera_index)
-            plan = _LightPlan(cache[key], rig.photometry, patterns.shape[1:])
-            step = plan.signal(radiance[k])
+            if key not in cache:  # what rendering needs, not the geometry's truth arrays
+                geometry = camera_geometry(rig, Moved(scene, *motion.pose(k, j)), camera_index)
+                cache[key] = _LightPlan(geometry, rig.photometry, patterns.shape[1:])
+            step = cache[key].signal(radiance[k])
             signal = step if signal is None else signal + step
         assert signal is not None
         frame = expose(signal / np.float32(motion.blur_steps), rig.photometry, seed=seed,
