@@ -57,7 +57,8 @@ def log(message: str) -> None:
 
 
 def strategies() -> dict:
-    """``name: (pattern set, scan options, index of the strategy whose capture it reuses)``."""
+    """``name: (pattern set, process_capture options, index of the strategy whose capture it
+    reuses)``."""
     from nail2nail.scan.patterns import Frequency, PatternSet, default_pattern_set
 
     three = (Frequency(1, 3), Frequency(8, 3), Frequency(64, 3))
@@ -67,7 +68,15 @@ def strategies() -> dict:
         "pmp-18 (1/8/64 periods, 3 steps each, x and y)":
             (PatternSet(x=three, y=three, gamma=2.2), {}, 1),
         "pmp-24 + compensation (the 6-step groups' per-frame offsets, --compensate-motion)":
-            (default_pattern_set(), {"compensate_motion": True}, 0),
+            (default_pattern_set(), {"decode_options": {"compensate_motion": True}}, 0),
+        "pmp-24, yp only (triangulated from one direction's phase: one time, --use yp)":
+            (default_pattern_set(), {"use": "yp"}, 0),
+        "pmp-24 + compensation, yp only (--compensate-motion --use yp)":
+            (default_pattern_set(), {"use": "yp", "decode_options": {"compensate_motion": True}},
+             0),
+        "pmp-24 + compensation, unwrap tolerance 0.4 periods (--unwrap-tolerance 0.4)":
+            (default_pattern_set(), {"decode_options": {"compensate_motion": True,
+                                                        "unwrap_tolerance": 0.8 * np.pi}}, 0),
     }
 
 
@@ -166,7 +175,7 @@ def run_amplitude(job: dict) -> list[dict]:
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the motion warning: measured below
-                process_capture(str(capture_dir), calib, job_dir, decode_options=options)
+                process_capture(str(capture_dir), calib, job_dir, **options)
         summary = json.loads((job_dir / "process.json").read_text())
         merge = [v["distance_mm"] for key, v in summary["merge"].items()]
         rows.append({
@@ -235,25 +244,30 @@ def plot(path: Path, rows: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
-    for name in dict.fromkeys(r["strategy"] for r in rows):
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6))
+    names = list(dict.fromkeys(r["strategy"] for r in rows))
+    colours = plt.get_cmap("tab10")
+    for i, name in enumerate(names):
         mine = sorted((r for r in rows if r["strategy"] == name), key=lambda r: r["amplitude_um"])
         a = [r["amplitude_um"] for r in mine]
-        label = name.split(" (")[0]
+        style = {"color": colours(i), "marker": "o", "label": name.split(" (")[0]}
         axes[0].plot(a, [max(c["rms_um"] for k, c in r["scan"].items() if k != "aligned")
-                         for r in mine], "o-", label=f"{label}, against the truth")
-        axes[0].plot(a, [r["scan"]["aligned"]["rms_um"] for r in mine], "s--",
-                     label=f"{label}, after a rigid alignment")
-        axes[1].plot(a, [max(r["merge_median_um"]) for r in mine], "o-", label=label)
-        axes[2].plot(a, [r.get("score_fraction") or 0 for r in mine], "o-", label=label)
-    axes[0].set_ylabel("3D RMS, worst camera / all aligned (µm)")
+                         for r in mine], "-", **style)
+        style.pop("label")
+        axes[0].plot(a, [r["scan"]["aligned"]["rms_um"] for r in mine], "--", **style)
+        axes[1].plot(a, [max(r["merge_median_um"]) for r in mine], "-", **style)
+        axes[2].plot(a, [r.get("score_fraction") or 0 for r in mine], "-", **style)
+    axes[0].set_ylabel("3D RMS (µm): worst camera vs truth (solid),\nall scans after a rigid "
+                       "alignment (dashed)")
+    axes[0].set_yscale("log")
     axes[1].set_ylabel("merge median, worst pair (µm)")
-    axes[2].set_ylabel("print score / still finger's")
+    axes[2].set_ylabel("print score / the still finger's")
     for ax in axes:
-        ax.set_xlabel("tremor RMS (µm, 10 Hz band, 120 fps)")
+        ax.set_xlabel("tremor RMS (µm; 8–12 Hz, 120 fps)")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=8,
+               frameon=False)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
 
@@ -294,7 +308,12 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     p.add_argument("--out", type=Path, default=Path("bench-output/motion"))
     p.add_argument("--plot", type=Path, help="write the figure here (PNG)")
+    p.add_argument("--replot", action="store_true",
+                   help="only redraw --plot from OUT/results.json")
     args = p.parse_args(argv)
+    if args.replot:
+        plot(args.plot, json.loads((args.out / "results.json").read_text())["rows"])
+        return 0
     amplitudes = [int(a) for a in args.amplitudes.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

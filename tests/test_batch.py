@@ -153,6 +153,7 @@ def test_batch_equals_process_despite_a_lost_worker(inputs, first_run):
         assert row["status"] == "done" and row["error"] is None
         assert row["seconds"]["total"] > 0 and row["super_vertices"] > 0
         assert row["merge_median_um"] and row["clarity_median"] is not None
+        assert 0 <= row["motion_um"] < 20  # still virtual fingers
         seed = SEEDS[i % 2]
         _assert_same_job(out / name, reference[seed], (captures / name).resolve(),
                          (root / f"seed{seed}").resolve())
@@ -166,7 +167,7 @@ def test_batch_equals_process_despite_a_lost_worker(inputs, first_run):
     assert [r["capture"] for r in table] == [r["capture"] for r in rows]
     header = (out / "batch.csv").read_text().splitlines()[0].split(",")
     for column in ("capture", "status", "error", "seconds_scan", "merge_median_um_0-1",
-                   "valid_pixels_cam0", "super_vertices", "clarity_median", "worker",
+                   "valid_pixels_cam0", "super_vertices", "clarity_median", "motion_um", "worker",
                    "attempts", "ran", "bad_input", "hash"):
         assert column in header
 

@@ -35,7 +35,7 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
     dict
         ``{"capture", "status", "error", "bad_input", "seconds": {stage: s},
         "merge_median_um": {pair: µm}, "valid_pixels": {camera: n}, "super_vertices",
-        "clarity_median", "peak_rss_mb",
+        "clarity_median", "motion_um", "peak_rss_mb",
         "ran", "worker", "attempts", "task_seconds", "hash", "out"}`` (``ran``: the job ran in
         this batch, not skipped nor an earlier failure repeated; ``task_seconds``: the task's
         wall time on its worker, hashing included; ``hash``: the inputs hash, ``None`` if it
@@ -45,7 +45,8 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
     row = {"capture": Path(record["capture"]).name, "status": record["status"],
            "error": record["error"], "bad_input": bool(record.get("bad_input", False)),
            "seconds": {}, "merge_median_um": {}, "valid_pixels": {},
-           "super_vertices": None, "clarity_median": None, "peak_rss_mb": None,
+           "super_vertices": None, "clarity_median": None, "motion_um": None,
+           "peak_rss_mb": None,
            "ran": bool(record.get("ran", False)), "worker": record.get("worker"),
            "attempts": int(attempts), "task_seconds": record.get("wall_seconds"),
            "hash": record.get("hash"), "out": record["out"]}
@@ -60,6 +61,9 @@ def result_row(record: dict, *, attempts: int = 1) -> dict:
     row["valid_pixels"] = dict(summary.get("cameras", {}))
     row["super_vertices"] = summary.get("super_scan", {}).get("vertices")
     row["peak_rss_mb"] = summary.get("peak_rss_mb")
+    motion = summary.get("motion")
+    if isinstance(motion, dict) and isinstance(motion.get("motion_mm"), (int, float)):
+        row["motion_um"] = round(1e3 * motion["motion_mm"], 1)  # docs/motion.md
     if (job / "print" / "print.json").is_file():
         quality = read_json(job / "print" / "print.json").get("quality", {})
         row["clarity_median"] = quality.get("clarity_median")

@@ -313,7 +313,9 @@ def _tile_shifts(values: np.ndarray, weight: np.ndarray, nominal: np.ndarray) ->
     flip = np.sum(turn * nominal_turn, axis=-1) < 0
     delta[flip] = -delta[flip]
     offset = np.angle(np.exp(1j * (delta - nominal)))
-    offset -= np.angle(np.mean(np.exp(1j * offset), axis=-1, keepdims=True))
+    # no mean offset (the phase at the group's mean time), wrapped again to (−π, π]
+    offset = np.angle(np.exp(1j * offset)
+                      * np.conj(np.mean(np.exp(1j * offset), axis=-1, keepdims=True)))
     out[good] = nominal + offset
     return out
 
