@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from nail2nail.simulation.scenes import Scene, SurfaceInfo
 
@@ -27,14 +28,8 @@ __all__ = ["Motion", "Moved", "tremor"]
 
 
 def _rotation(rotvec) -> np.ndarray:
-    """Rotation matrix of a rotation vector (rad), Rodrigues."""
-    v = np.asarray(rotvec, dtype=float)
-    angle = float(np.linalg.norm(v))
-    if angle < 1e-15:
-        return np.eye(3)
-    k = v / angle
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+    """Rotation matrix of a rotation vector (rad)."""
+    return Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
 
 
 @dataclass(frozen=True)
