@@ -1,10 +1,16 @@
-"""Shared by the benches: median wall times and peak memory (RSS) of a stage."""
+"""Shared by the benches: median wall times and peak memory (RSS) of a stage, a progress line."""
 
 from __future__ import annotations
 
 import statistics
+import sys
 import time
 from pathlib import Path
+
+
+def log(message: str) -> None:
+    """A progress line on stderr (the figures go to stdout)."""
+    print(message, file=sys.stderr, flush=True)
 
 
 def median_time(fn, repeats: int) -> tuple[float, object]:

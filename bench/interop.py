@@ -57,16 +57,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sourceafis
 import unroll_matcher as um
+from _measure import log
 
 PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
 SYNTHETIC_SEED0 = 100
 REAL_SEED0 = 200
 THRESHOLD = 40.0
 PROBE_VS_MATCHING = 235.6  # SourceAFIS 3.18.1, measured by the issue
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def body_and_cap(rolled, scans, uv, y0: float, acc: dict) -> dict:

@@ -46,14 +46,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sourceafis
+from _measure import log
 
 FINGER_SEED = 3
 MOTION_SEED = 7
 STILL_SEED0 = 500
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def strategies() -> dict:

@@ -56,6 +56,7 @@ import scipy.ndimage as ndi
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sourceafis
+from _measure import log
 
 from nail2nail.io.capture import read_capture, read_truth
 from nail2nail.io.prints import read_print_image
@@ -68,10 +69,6 @@ from nail2nail.unroll.accuracy import geometric_accuracy
 PPI = 500.0
 RATIO_TARGET = 0.8
 IMPOSTOR_LIMIT = 40.0
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 # --- calibration (the demo's "best" configuration) -----------------------------------------

@@ -156,7 +156,23 @@ def dc_groups(pattern_set: PatternSet) -> list[tuple[str, list[int]]]:
 
 
 def mm_per_pixel(xyz, mask) -> float | None:
-    """Median distance between horizontally adjacent valid points of a scan, mm."""
+    """Median distance between horizontally adjacent valid points of a scan: its sampling of
+    the surface, mm.
+
+    Parameters
+    ----------
+    xyz : (H, W, 3) float
+        Points, world mm (NaN where invalid).
+    mask : (H, W) bool
+        Valid pixels; a step counts where both of its pixels are valid.
+
+    Returns
+    -------
+    float or None
+        mm (about 0.033 for the default rig at full resolution); None without two adjacent
+        valid pixels. (``nail2nail.unroll.ridges.pixel_spacing_mm`` is its compiled float32
+        twin, which raises instead.)
+    """
     xyz = np.asarray(xyz)
     both = np.asarray(mask)[:, 1:] & np.asarray(mask)[:, :-1]
     if not both.any():

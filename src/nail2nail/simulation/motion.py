@@ -78,17 +78,6 @@ class Motion:
         c = self.center_mm
         return R, c - R @ c + self.translation_mm[frame, step]
 
-    def displacement_mm(self, points) -> np.ndarray:
-        """Displacement of `points` ``(N, 3)`` (world mm, at the reference time) at every frame's
-        mid-exposure: ``(n_frames, N, 3)``, mm (the mean over the exposure's sub-steps)."""
-        pts = np.asarray(points, dtype=float).reshape(-1, 3)
-        out = np.zeros((self.n_frames, len(pts), 3))
-        for k in range(self.n_frames):
-            for j in range(self.blur_steps):
-                R, t = self.pose(k, j)
-                out[k] += pts @ R.T + t - pts
-        return out / self.blur_steps
-
     def to_dict(self) -> dict:
         """JSON-ready: the model and the pose at every frame's mid-exposure."""
         mid = self.blur_steps // 2
@@ -239,6 +228,15 @@ class Moved(Scene):
 
     Normals turn with ``R``; albedo and surface parameters (the finger's ``u, v``) are those
     of the scene's own point, so a moving finger carries its print.
+
+    Attributes
+    ----------
+    scene : Scene
+        The scene at its reference pose.
+    R : (3, 3) float64
+        Rotation (world frame).
+    t : (3,) float64
+        Translation, world mm (:meth:`Motion.pose` folds the centre of rotation into it).
     """
 
     scene: Scene
@@ -256,9 +254,3 @@ class Moved(Scene):
 
     def to_dict(self):
         return self.scene.to_dict()
-
-    def __getattr__(self, name):
-        # the scene's own attributes (a finger's print, its geometry) stay reachable
-        if name in ("scene", "R", "t"):
-            raise AttributeError(name)
-        return getattr(self.scene, name)

@@ -31,6 +31,7 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.scan.motion import mm_per_pixel
 from nail2nail.simulation.rig import Photometry, Rig
 from nail2nail.simulation.scenes import Scene
 
@@ -199,9 +200,8 @@ def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry
         name=rig.camera_names[camera_index],
         specular=full(spec, 0.0, np.float32),
     )
-    step = np.linalg.norm(np.diff(xyz, axis=1), axis=-1)
-    step = step[np.isfinite(step)]
-    geometry.mm_per_px = float(np.median(step)) if step.size else float("nan")
+    spacing = mm_per_pixel(xyz, geometry.surface)  # the scan stage's own measure of it
+    geometry.mm_per_px = float("nan") if spacing is None else spacing
     geometry._sampler = _bilinear_plan(geometry, rig.panel_size)
     if photometry.projector_fill_factor is not None:
         geometry._aperture = aperture_weights(geometry, photometry)
