@@ -64,16 +64,16 @@ def strategies() -> dict:
             (default_pattern_set(), {}, 0),
         "pmp-18 (1/8/64 periods, 3 steps each, x and y)":
             (PatternSet(x=three, y=three, gamma=2.2), {}, 1),
-        "pmp-24 + compensation (the 6-step groups' per-frame offsets, --compensate-motion)":
+        "pmp-18 + compensation (frequencies registered, --compensate-motion)":
+            (PatternSet(x=three, y=three, gamma=2.2),
+             {"decode_options": {"compensate_motion": True}}, 1),
+        "pmp-24 + compensation (per-frame offsets, frequencies registered, --compensate-motion)":
             (default_pattern_set(), {"decode_options": {"compensate_motion": True}}, 0),
         "pmp-24, yp only (triangulated from one direction's phase: one time, --use yp)":
             (default_pattern_set(), {"use": "yp"}, 0),
         "pmp-24 + compensation, yp only (--compensate-motion --use yp)":
             (default_pattern_set(), {"use": "yp", "decode_options": {"compensate_motion": True}},
              0),
-        "pmp-24 + compensation, unwrap tolerance 0.4 periods (--unwrap-tolerance 0.4)":
-            (default_pattern_set(), {"decode_options": {"compensate_motion": True,
-                                                        "unwrap_tolerance": 0.8 * np.pi}}, 0),
     }
 
 

@@ -25,6 +25,7 @@ from nail2nail.scan.motion import (
     compensate_phase_steps,
     dc_groups,
     estimate_motion,
+    register_frequencies,
 )
 from nail2nail.scan.patterns import (
     Frequency,
@@ -249,7 +250,7 @@ def test_compensation_removes_per_frame_phase_offsets():
     pattern_set = PatternSet(x=(Frequency(1, 3), Frequency(64, 6)), gamma=None)
     frames, table, idx, truth = _offset_frames(pattern_set, offsets=True)
     err = np.angle(np.exp(1j * (_phase(frames, table, idx) - truth)))
-    out, info = compensate_phase_steps(frames, pattern_set, None)
+    out, info = compensate_phase_steps(frames, pattern_set, None, between_frequencies=False)
     fixed = np.angle(np.exp(1j * (_phase(out, table, idx) - truth)))
     rms_before, rms_after = np.sqrt(np.mean(err**2)), np.sqrt(np.mean(fixed**2))
     assert rms_before > 0.15  # measured 0.216 rad
@@ -263,8 +264,68 @@ def test_compensation_removes_per_frame_phase_offsets():
 def test_compensation_of_still_frames_changes_nothing_measurable():
     pattern_set = PatternSet(x=(Frequency(1, 3), Frequency(64, 6)), gamma=None)
     frames, table, idx, truth = _offset_frames(pattern_set, offsets=False)
-    out, info = compensate_phase_steps(frames, pattern_set, None)
+    out, info = compensate_phase_steps(frames, pattern_set, None, between_frequencies=False)
     before = np.angle(np.exp(1j * (_phase(frames, table, idx) - truth)))
     after = np.angle(np.exp(1j * (_phase(out, table, idx) - truth)))
     assert np.sqrt(np.mean(after**2)) < np.sqrt(np.mean(before**2)) + 0.005
     assert info["groups"][0]["offset_rms_rad"] < 0.02
+
+
+def _moving_frequency_frames(pattern_set, shift_periods: float, *, seed=0):
+    """Frames of a surface whose panel coordinate ``u`` changes between the frequencies: the
+    coarser groups see ``u + Δu``, ``Δu`` smooth and up to `shift_periods` of the finest
+    fringe (as a finger moving between them). Returns frames, the frame table and ``u``."""
+    table = frame_table(pattern_set)
+    h, w = 160, 224
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    rng = np.random.default_rng(seed)
+    u = 150 + 4.1 * xx + 0.8 * yy + 6 * np.sin(yy / 25)  # panel px, the finest group's time
+    fine_period = 1280 / 64
+    du = shift_periods * fine_period * (0.4 + 0.6 * xx / w) * np.cos(yy / 60)
+    a = 100 + 20 * np.sin(xx / 9) * np.cos(yy / 7)
+    b = 60 + 10 * np.cos(xx / 11)
+    frames = []
+    for row in table:
+        seen = u if row.periods == 64 else u + du * (1 if row.periods == 8 else 0.6)
+        phase = 2 * np.pi * row.periods * (seen + 0.5) / 1280
+        frames.append(a + b * np.cos(phase + row.shift) + rng.normal(0, 1.0, (h, w)))
+    return np.clip(np.rint(frames), 0, 255).astype(np.uint8), table, u
+
+
+def _panel_u(frames, table):
+    from nail2nail.scan.phase_shift import unwrap_hierarchical
+
+    periods = [1.0, 8.0, 64.0]
+    phases = [np.mod(_phase(frames, table, [r.index for r in table if r.periods == n]),
+                     2 * np.pi) for n in periods]
+    phi, bad = unwrap_hierarchical(phases, periods)
+    return phi * 1280 / (2 * np.pi * 64) - 0.5, bad
+
+
+def test_registering_frequencies_restores_the_fringe_order_of_a_moving_finger():
+    pattern_set = PatternSet(x=(Frequency(1, 3), Frequency(8, 3), Frequency(64, 6)), gamma=None)
+    frames, table, u = _moving_frequency_frames(pattern_set, 0.4)
+    before, bad_before = _panel_u(frames, table)
+    out, info = register_frequencies(frames, pattern_set)
+    after, bad_after = _panel_u(out, table)
+    wrong_before = np.abs(before - u) > 5  # a quarter of the fine period
+    wrong_after = np.abs(after - u) > 5
+    assert (wrong_before | bad_before).mean() > 0.15  # measured 0.20 refused, 0 wrong
+    assert wrong_after.mean() == 0 and bad_after.mean() < 0.001, (wrong_after.mean(),
+                                                                   bad_after.mean())
+    # the finest frequency, which sets the geometry, is untouched
+    fine = [r.index for r in table if r.periods == 64]
+    np.testing.assert_array_equal(out[fine], frames[fine])
+    assert [lv["label"] for lv in info["levels"]] == ["x/8", "x/1"]
+    assert 1.0 < info["levels"][0]["misfit_max_rad"] < 0.4 * 2 * np.pi + 0.2
+
+
+def test_registering_frequencies_of_still_frames_changes_no_fringe_order():
+    pattern_set = PatternSet(x=(Frequency(1, 3), Frequency(8, 3), Frequency(64, 6)), gamma=None)
+    frames, table, _ = _moving_frequency_frames(pattern_set, 0.0, seed=1)
+    out, info = register_frequencies(frames, pattern_set)
+    before, bad_before = _panel_u(frames, table)
+    after, bad_after = _panel_u(out, table)
+    np.testing.assert_allclose(after, before, atol=1e-3)
+    assert not bad_after.any() and not bad_before.any()
+    assert info["levels"][0]["misfit_rms_rad"] < 0.05

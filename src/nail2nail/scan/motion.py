@@ -26,12 +26,14 @@ rows, of a group's DC image relative to the first group's; a region is a cell of
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.ndimage as ndi
 
 from nail2nail.scan.patterns import PatternSet, frame_table
+from nail2nail.scan.phase_shift import unwrap_hierarchical
 
 __all__ = [
     "MOTION_WARN_MM",
@@ -40,6 +42,7 @@ __all__ = [
     "dc_groups",
     "estimate_motion",
     "mm_per_pixel",
+    "register_frequencies",
 ]
 
 #: Motion (spread of the groups' shifts) above which a capture is flagged as moving, mm: about
@@ -302,6 +305,17 @@ COMPENSATION_TILE_PX = 48
 #: Fewest radians of fringe phase spread (circular standard deviation) a region needs for its
 #: offsets to be estimated; flatter regions (a coarse frequency) keep the nominal shifts.
 MIN_PHASE_SPREAD = 1.0
+#: Gaussian σ of the window over which :func:`register_frequencies` averages the misfit between
+#: two frequencies, px: wide enough to average the coarse phase's noise (times the frequency
+#: ratio), narrow against the motion field's variation over the finger.
+REGISTRATION_SIGMA_PX = 16.0
+#: Gaussian σ over which :func:`register_frequencies` averages a coarse frequency's phase, px:
+#: the skin's texture moving under a 3-step group's fringes errs its phase at the ridges'
+#: frequency (0.4–0.5 mm: 9–18 px on the thesis rig), which the frequency ratio multiplies.
+COARSE_SMOOTHING_PX = 6.0
+#: Smallest weight of lit pixels in the smoothing window (of 1) for the average to replace a
+#: coarse phase (about 2 σ inside the edge of the lit area or the image).
+MIN_SMOOTHING_COVER = 0.98
 
 
 def _tile_shifts(values: np.ndarray, weight: np.ndarray, nominal: np.ndarray) -> np.ndarray:
@@ -354,9 +368,193 @@ def _tile_shifts(values: np.ndarray, weight: np.ndarray, nominal: np.ndarray) ->
     return out
 
 
+def _phase_design(nominal: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` design ``[1, cos δ_k, −sin δ_k]`` of a group's frames ``a + C cos δ − S sin δ``
+    (so ``atan2(S, C)`` is the fringe phase up to the pattern set's sign convention, the same
+    for every group of a set)."""
+    return np.stack([np.ones(len(nominal)), np.cos(nominal), -np.sin(nominal)], axis=-1)
+
+
+def register_frequencies(frames, pattern_set: PatternSet, mask=None, *,
+                         sigma_px: float = REGISTRATION_SIGMA_PX,
+                         saturation: float | None = None,
+                         regularise_order: bool = True,
+                         smooth_px: float = COARSE_SMOOTHING_PX) -> tuple[np.ndarray, dict]:
+    """Frames whose coarser frequencies are shifted in phase to agree with the finest's.
+
+    Temporal unwrapping takes the fringe order of frequency ``n_f`` from the next coarser
+    ``n_c``: ``r = (n_f / n_c) Φ_c − φ_f`` must be a multiple of ``2π`` up to noise (the
+    decoder refuses a misfit over its unwrap tolerance, π/2 by default). The frequencies are
+    shown one after another: a finger that moves between them changes its projector coordinate
+    by ``Δu`` and adds ``2π n_f Δu / size`` to the misfit, a field as smooth as the motion
+    (rigid) and the surface. Per direction, from the finest frequency down, the misfit's
+    wrapped value is averaged over a Gaussian window (σ `sigma_px`, a circular mean weighted by
+    both fringes' amplitude) and taken out of the coarser phase, ``Φ_c ← Φ_c − δ n_c / n_f``;
+    the coarser group's frames are re-synthesised as ``a + b cos(Φ_c + δ_k)``. The finest
+    frequency, which sets the geometry, is not changed: only the fringe order the coarser
+    ones give it. A misfit of more than half a fine period (about 0.5 / n_f of the panel) is
+    beyond reach: it wraps and gives a whole period's error over its region.
+
+    Only for ``"pmp"`` pattern sets whose consecutive frequencies of a direction have an
+    integer ratio (the default 1, 8, 64); other sets are returned as they are.
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W) array
+        One camera's frames; not modified.
+    pattern_set : PatternSet
+    mask : (H, W) bool, optional
+        Pixels to average the misfit over; None: those whose fringe amplitude in both groups
+        is at least 2 % of the frames' largest value.
+    sigma_px : float
+    saturation : float, optional
+        Frame value at or above which a pixel keeps its frames.
+
+    Returns
+    -------
+    frames : (n_frames, H, W) array of the input's dtype
+    info : dict
+        ``{"levels": [{"label", "misfit_rms_rad", "misfit_max_rad"}]}``, the misfit taken out
+        of each coarser group (over the weighted pixels).
+    """
+    frames = np.asarray(frames)
+    out = frames.copy()
+    info: dict = {"levels": []}
+    if pattern_set.scheme != "pmp":
+        return out, info
+    table = frame_table(pattern_set)
+    full = float(frames.max()) if frames.size else 1.0
+    integer = np.issubdtype(frames.dtype, np.integer)
+    keep = np.zeros(frames.shape[1:], bool)
+    if saturation is not None:
+        keep |= (frames >= saturation).any(axis=0)
+    for direction in pattern_set.directions:
+        groups = sorted(
+            ((row.periods, [r.index for r in table if r.kind == "phase"
+                            and r.direction == direction and r.periods == row.periods])
+             for row in table if row.kind == "phase" and row.direction == direction
+             and row.step == 0), reverse=True)
+        if len(groups) < 2:
+            continue
+        ratios = [f / c for (f, _), (c, _) in itertools.pairwise(groups)]
+        if any(abs(q - round(q)) > 1e-9 for q in ratios):
+            continue
+        coefficients = []
+        for _, idx in groups:
+            nominal = np.array([table[i].shift for i in idx])
+            values = frames[idx].astype(np.float64)
+            coef = np.einsum("ck,khw->chw", np.linalg.pinv(_phase_design(nominal)), values)
+            coefficients.append((nominal, coef))
+        phases = [np.arctan2(coefficients[0][1][2], coefficients[0][1][1])]
+        amplitudes = [np.hypot(coefficients[0][1][1], coefficients[0][1][2])]
+        lit = amplitudes[0] >= 0.02 * full
+        for level in range(1, len(groups)):
+            ratio = ratios[level - 1]
+            _, (_, c, s) = coefficients[level]
+            amplitudes.append(np.hypot(c, s))
+            lit &= amplitudes[-1] >= 0.02 * full
+            weight = ((amplitudes[-1] >= 0.02 * full) & (amplitudes[-2] >= 0.02 * full)
+                      if mask is None else np.asarray(mask, bool)).astype(float)
+            coarse = np.arctan2(s, c)
+            if smooth_px > 0:  # the coarse phase only orders: average its noise away
+                lit_c = (amplitudes[-1] >= 0.02 * full).astype(float)
+                phasor = lit_c * np.exp(1j * coarse)
+                cover = ndi.gaussian_filter(lit_c, smooth_px, mode="constant")
+                smooth = np.angle(ndi.gaussian_filter(phasor.real, smooth_px, mode="constant")
+                                  + 1j * ndi.gaussian_filter(phasor.imag, smooth_px,
+                                                             mode="constant"))
+                # only where the window is whole: a one-sided mean of a ramp is biased
+                coarse = np.where(cover >= MIN_SMOOTHING_COVER, smooth, coarse)
+            misfit = np.exp(1j * (ratio * coarse - phases[-1]))
+            total = ndi.gaussian_filter(weight, sigma_px)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean = (ndi.gaussian_filter(weight * misfit.real, sigma_px)
+                        + 1j * ndi.gaussian_filter(weight * misfit.imag, sigma_px)) / total
+            delta = np.where(total > 1e-3, np.angle(mean), 0.0)
+            phases.append(coarse - delta / ratio)
+            used = weight > 0
+            info["levels"].append({
+                "label": f"{direction}/{groups[level][0]:g}",
+                "misfit_rms_rad": round(float(np.sqrt(np.mean(delta[used] ** 2))), 4)
+                if used.any() else None,
+                "misfit_max_rad": round(float(np.abs(delta[used]).max()), 4)
+                if used.any() else None,
+            })
+        if regularise_order:
+            valid = lit if mask is None else np.asarray(mask, bool)
+            phases, changed = _regularised_orders(phases, [g[0] for g in groups], valid)
+            info["levels"][-1]["orders_changed"] = int(changed)
+        for level in range(1, len(groups)):
+            nominal, (a, _, _) = coefficients[level]
+            # a + C cos δ − S sin δ with (C, S) = b (cos Φ, sin Φ)
+            synthetic = a + amplitudes[level] * np.cos(phases[level][None]
+                                                       + nominal[:, None, None])
+            if integer:
+                synthetic = np.clip(np.rint(synthetic), 0, np.iinfo(frames.dtype).max)
+            idx = groups[level][1]
+            out[idx] = np.where(keep, frames[idx], synthetic).astype(frames.dtype)
+    return out, info
+
+
+#: Half side of the window whose median fringe order :func:`register_frequencies` gives a pixel
+#: (5 × 5: a fine fringe spans 10 or more camera pixels on a finger).
+ORDER_RADIUS_PX = 2
+#: Smallest share of a neighbourhood (9 × 9) whose own fringe order agrees with its median for
+#: the median to be given to a pixel.
+MIN_ORDER_AGREEMENT = 0.75
+
+
+def _regularised_orders(phases: list, periods: list, valid: np.ndarray,
+                        radius: int = ORDER_RADIUS_PX) -> tuple[list, int]:
+    """Coarser phases that give every pixel the fringe order of its neighbourhood.
+
+    ``phases`` are one direction's wrapped phases from the finest frequency down (already
+    registered to one another), ``periods`` theirs. The finest phase is unwrapped through the
+    coarser ones (each pixel on its own), and the median of the unwrapped phase over a
+    ``(2r + 1)²`` window of `valid` pixels taken as the reference: a pixel whose coarse phase
+    noise (times the frequency ratio) gave it a wrong order differs from it by about ``2π``.
+    The coarser phases are then replaced by the median scaled to their frequency: the temporal
+    unwrapping reads the neighbourhood's order, and its residual is the pixel's distance from
+    its neighbourhood's median (a pixel that disagrees with its neighbours is still refused).
+    Pixels with fewer than half a window of valid neighbours keep their phases. Returns the
+    phases and the number of valid pixels whose order changed.
+    """
+    ascending = [np.mod(p, 2 * np.pi) for p in phases[::-1]]
+    unwrapped, _ = unwrap_hierarchical(ascending, periods[::-1], tolerance=np.inf)
+    unwrapped = unwrapped.astype(np.float64)
+    side = 2 * radius + 1
+    if not valid.any():
+        return phases, 0
+    # invalid pixels take their nearest valid one's value (the median's window then sees the
+    # valid area's edge repeated, as a replicate padding would)
+    _, nearest = ndi.distance_transform_edt(~valid, return_indices=True)
+    filled = unwrapped[nearest[0], nearest[1]]
+    count = ndi.uniform_filter(valid.astype(float), side, mode="constant") * side * side
+    enough = valid & (count >= 0.5 * side * side)
+    median = np.where(enough, ndi.median_filter(filled, size=side, mode="nearest"), np.nan)
+    use = np.isfinite(median)
+    # where most pixels' own order disagrees with their median the neighbourhood itself is in
+    # doubt (noise or a misfit beyond half a period): leave those to the decoder's check
+    agree = use & (np.abs(unwrapped - median) < np.pi)
+    near = 4 * radius + 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = (ndi.uniform_filter(agree.astype(float), near, mode="constant")
+                / ndi.uniform_filter(use.astype(float), near, mode="constant"))
+    use &= rate >= MIN_ORDER_AGREEMENT
+    fine = np.mod(phases[0], 2 * np.pi)
+    before = np.rint((unwrapped - fine) / (2 * np.pi))
+    after = np.rint((median - fine) / (2 * np.pi))
+    changed = int(np.count_nonzero(use & (before != after)))
+    out = [phases[0]]
+    for period, phase in zip(periods[1:], phases[1:], strict=True):
+        out.append(np.where(use, median * (period / periods[0]), phase))
+    return out, changed
+
+
 def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
                            tile_px: int = COMPENSATION_TILE_PX,
-                           saturation: float | None = None) -> tuple[np.ndarray, dict]:
+                           saturation: float | None = None,
+                           between_frequencies: bool = True) -> tuple[np.ndarray, dict]:
     """Frames of a moving finger corrected for the phase offsets motion puts between steps.
 
     Within one phase-shift group a moving surface adds an unknown offset ``ε_k`` to each step's
@@ -370,8 +568,10 @@ def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
     the group's mean time. Three-step groups (a pixel's three unknowns fit any three shifts),
     coarse groups (too little phase in a region) and saturated pixels keep their frames.
 
-    Not corrected: the motion between groups (the frequencies and the two directions are
-    shown at different times) and the skin's texture moving under the fringes.
+    Then, with `between_frequencies`, the coarser frequencies' phases are registered to the
+    finest's (:func:`register_frequencies`), so that the motion between groups does not break
+    the temporal unwrapping. Not corrected: the two directions, shown at different times, and
+    the skin's texture moving under the fringes.
 
     Parameters
     ----------
@@ -386,12 +586,15 @@ def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
     tile_px : int
     saturation : float, optional
         Frame value at or above which a pixel keeps its frames.
+    between_frequencies : bool
+        Also register the frequencies to one another (default).
 
     Returns
     -------
     frames : (n_frames, H, W) array of the input's dtype
     info : dict
-        Per group: its label, the regions estimated, and the RMS and largest offset (rad).
+        ``"groups"``, per group: its label, the regions estimated, and the RMS and largest
+        offset (rad); ``"levels"``: :func:`register_frequencies`'s.
     """
     frames = np.asarray(frames)
     out = frames.copy()
@@ -467,4 +670,7 @@ def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
             "offset_rms_rad": round(float(np.sqrt(np.mean(off**2))), 4) if off.size else None,
             "offset_max_rad": round(float(np.abs(off).max()), 4) if off.size else None,
         })
+    if between_frequencies:
+        out, registered = register_frequencies(out, pattern_set, None, saturation=saturation)
+        info.update(registered)
     return out, info
