@@ -463,8 +463,9 @@ def calibrate_board(
     Raises
     ------
     ValueError
-        An unknown model or world, a camera with fewer than :data:`MIN_VIEWS` usable views, no
-        projector points in enough poses, or a device that shares no pose with the others.
+        An unknown model or world, `outlier_sigma` not > 0 (NaN), a camera with fewer than
+        :data:`MIN_VIEWS` usable views, no projector points in enough poses, or a device that
+        shares no pose with the others.
     """
     terms = {}
     for option, spec in (("camera_distortion", camera_distortion),
@@ -474,6 +475,10 @@ def calibrate_board(
         except ValueError as exc:
             raise ValueError(f"{option}: {str(exc).removeprefix('distortion: ')}") from exc
     camera_terms, projector_terms = terms["camera_distortion"], terms["projector_lens"]
+    if isinstance(outlier_sigma, bool) or not (isinstance(outlier_sigma, int | float | np.number)
+                                               and outlier_sigma > 0):
+        raise ValueError(f"outlier_sigma: expected a positive number (inf keeps every point), "
+                         f"got {outlier_sigma!r}")
     if projector_model not in PROJECTOR_MODELS:
         raise ValueError(f"projector_model: expected one of {PROJECTOR_MODELS}, got "
                          f"{projector_model!r}")

@@ -29,9 +29,14 @@ from nail2nail.calibration.distortion import ProjectorDistortion, as_projector_d
 from nail2nail.io._json import read_json, write_json
 
 __all__ = [
+    "MAX_INTRINSIC_PX",
+    "MAX_SIZE_PX",
+    "MAX_TRANSLATION_MM",
     "CameraCalibration",
     "RigCalibration",
     "check_handedness",
+    "check_pinhole_values",
+    "check_size",
     "load_calibration",
     "model_from_dict",
     "model_to_dict",
@@ -41,6 +46,75 @@ __all__ = [
 FORMAT = "nail2nail-calibration"
 
 Model = np.ndarray | Pinhole
+
+#: Largest image or panel side accepted, px. The largest sensors and projector panels have
+#: about 16 000 px a side; 100 000 leaves room and refuses numbers that are not sizes (a width
+#: of 1e10 px, which OpenCV's 32-bit integers wrap to 1 410 065 408, made a rig that cannot be
+#: used).
+MAX_SIZE_PX = 100_000
+#: Largest |fx|, |fy|, |skew|, |cx|, |cy| of a pinhole model accepted, px. A 16 000 px sensor
+#: of 3 µm pixels behind a 1000 mm lens has f ≈ 3.3e5 px, and an off-axis projector's principal
+#: point lies within a few panel sizes of the panel; 1e6 px leaves room.
+MAX_INTRINSIC_PX = 1e6
+#: Largest |t| of a pinhole model accepted, mm (100 m). The scanner's cameras and projector
+#: stand within a metre of the finger and of each other; a larger |t| is a unit error (m, µm)
+#: or not a number of this rig (1e308 was accepted, and written back by export-calibration).
+MAX_TRANSLATION_MM = 1e5
+
+
+def check_size(size, name: str) -> tuple[int, int]:
+    """`size` as ``(W, H)``, each an integer in ``1 … MAX_SIZE_PX``; ``ValueError`` naming
+    `name` otherwise.
+
+    Examples
+    --------
+    >>> check_size((1280, 1024.0), "size")
+    (1280, 1024)
+    """
+    try:
+        w, h = size
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected [W, H] in pixels, got {size!r}") from None
+    for v in (w, h):
+        ok = (not isinstance(v, bool) and isinstance(v, int | float | np.integer | np.floating)
+              and np.isfinite(v) and v == int(v) and 1 <= v <= MAX_SIZE_PX)
+        if not ok:
+            shown = [v.item() if isinstance(v, np.generic) else v for v in (w, h)]
+            raise ValueError(f"{name}: expected [W, H], integers in 1 … {MAX_SIZE_PX} px, "
+                             f"got {shown}")
+    return int(w), int(h)
+
+
+def check_pinhole_values(model: Pinhole, name: str, *,
+                         keys: dict[str, str] | None = None) -> None:
+    """Refuse a pinhole model whose numbers are not those of a camera or projector.
+
+    Its image size must be integers in ``1 … MAX_SIZE_PX`` px, ``fx, fy, skew, cx, cy`` at
+    most ``MAX_INTRINSIC_PX`` px in magnitude and ``|t|`` below ``MAX_TRANSLATION_MM`` mm
+    (every number is already finite: :class:`Pinhole`). `keys` renames the fields in the
+    message (``{"K": "Kc", "t": "Tp"}`` for a file's own keys).
+
+    Raises
+    ------
+    ValueError
+        Naming `name`, the field and its value.
+    """
+    keys = {"K": "K", "t": "t", "size": "size", **(keys or {})}
+    check_size(model.size, f"{name}: {keys['size']}")
+    K = model.K
+    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1]), ("skew", K[0, 1]), ("cx", K[0, 2]),
+                         ("cy", K[1, 2])):
+        if not abs(value) <= MAX_INTRINSIC_PX:
+            raise ValueError(f"{name}: {keys['K']}: {label} = {value:.6g} px, beyond "
+                             f"{MAX_INTRINSIC_PX:g} px: not an intrinsic matrix in pixels")
+    largest = float(np.max(np.abs(model.t)))
+    # scaled first: no overflow in the norm (a Python float product gives inf, no warning)
+    norm = largest * float(np.linalg.norm(model.t / largest)) if largest else 0.0
+    if not norm < MAX_TRANSLATION_MM:
+        shown = ", ".join(f"{v:.6g}" for v in model.t)
+        raise ValueError(f"{name}: {keys['t']}: translation [{shown}] mm, |t| = {norm:.6g} mm "
+                         f"is not below {MAX_TRANSLATION_MM:g} mm (100 m): not a translation of "
+                         "this rig in mm")
 
 
 def model_to_dict(model: Model, *, size=None) -> dict:
@@ -149,6 +223,9 @@ class RigCalibration:
             projector = model_from_dict(
                 c.get("projector"), where=f"{where}: cameras[{i}].projector"
             )
+            for role, model in (("camera", camera), ("projector", projector)):
+                if isinstance(model, Pinhole):  # DLT matrices: any scale, no ranges
+                    check_pinhole_values(model, f"{where}: cameras[{i}] ({name!r}).{role}")
             size = c["camera"].get("size")
             if size is not None and not (
                 isinstance(size, list) and len(size) == 2
@@ -156,6 +233,8 @@ class RigCalibration:
             ):
                 raise ValueError(f"{where}: cameras[{i}].camera.size must be [W, H] in pixels, "
                                  f"got {size!r}")
+            if size is not None:
+                check_size(size, f"{where}: cameras[{i}] ({name!r}).camera.size")
             cameras.append(
                 CameraCalibration(name, camera, projector, tuple(size) if size else None)
             )

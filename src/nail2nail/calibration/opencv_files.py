@@ -29,6 +29,13 @@ coefficients are read as they are; longer ones (8, 12, 14: the rational, thin-pr
 models) only when the coefficients beyond ``k3`` are zero. Rotations stored as float32 are
 re-orthonormalised with a warning (:func:`nail2nail.calibration.camera_models.nearest_rotation`).
 
+A file is checked before OpenCV parses it, and that same text is parsed
+(``FILE_STORAGE_MEMORY``): a regular file of at most :data:`MAX_FILE_BYTES`, nested at most
+:data:`MAX_NESTING` levels (OpenCV's parsers recurse per level and crashed on deep files), no
+integer beyond 32 bits where one is read (OpenCV wraps it silently), matrix headers within
+:data:`MAX_MATRIX_ELEMENTS` and matching their data; the values read are checked against the
+physical ranges of :func:`nail2nail.calibration.files.check_pinhole_values`.
+
 Export writes the same keys in float64 (the ``FileStorage`` text holds every double exactly:
 export then import gives the same rig bit for bit). A DLT matrix is decomposed into ``K``,
 ``R``, ``t`` (:func:`nail2nail.calibration.camera_models.pinhole_from_dlt`, no distortion) with a
@@ -41,18 +48,29 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import stat
 import warnings
 from pathlib import Path
 
 import numpy as np
 
 from nail2nail.calibration.camera_models import Pinhole, pinhole_from_dlt
-from nail2nail.calibration.files import CameraCalibration, RigCalibration
-from nail2nail.io._atomic import atomic_path
+from nail2nail.calibration.files import (
+    MAX_SIZE_PX,
+    CameraCalibration,
+    RigCalibration,
+    check_pinhole_values,
+    check_size,
+)
+from nail2nail.io._atomic import atomic_path, check_output_file
 from nail2nail.scan.patterns import PANEL_SIZE
 
 __all__ = [
     "LAYOUTS",
+    "MAX_FILE_BYTES",
+    "MAX_MATRIX_ELEMENTS",
+    "MAX_NESTING",
     "RIG_FORMAT",
     "detect_layout",
     "read_opencv_calibration",
@@ -63,6 +81,42 @@ __all__ = [
 LAYOUTS = ("slstudio", "stereo", "nail2nail")
 #: ``format`` of the nail2nail multi-camera layout.
 RIG_FORMAT = "nail2nail-opencv-rig"
+
+#: Largest calibration file read, bytes. A calibration of these layouts is a few kilobytes
+#: (SLStudio's calibration.xml and stereo_calib's files about 1 to 3 KB, a rig of several
+#: cameras under 20 KB); 1 MiB leaves room for other keys beside them and bounds the memory and
+#: the time of the checks below (about 1 s at worst: a 300 MB file of spaces, /dev/zero).
+MAX_FILE_BYTES = 2**20
+#: Deepest nesting of maps, sequences and XML elements read. A calibration is 3 to 7 levels
+#: deep (cameras, a camera's map, its projector map, a matrix map, its data); OpenCV's parsers
+#: recurse once per level and a file 100 000 levels deep killed the process (segmentation
+#: fault), so deeper files are refused before OpenCV sees them.
+MAX_NESTING = 32
+#: Largest matrix read, rows × cols × channels. The largest of a calibration has 14 numbers
+#: (a distortion vector); 10⁶ (8 MB of doubles) bounds what OpenCV allocates for a matrix
+#: header, checked before it allocates (a header claiming 100 000 × 100 000 doubles asked for
+#: 80 GB).
+MAX_MATRIX_ELEMENTS = 1_000_000
+#: OpenCV's matrix element types (``dt``), with an optional channel count first (``"3d"``).
+_DT = re.compile(r"\s*(\d*)\s*([ucwsifdh])\s*")
+#: OpenCV reads integers as 32-bit ``int``: larger ones wrap around silently (a width of
+#: 10000000000 px was read as 1410065408, 4294967552 as 256).
+_INT32 = 2**31
+#: The keys whose integers nail2nail reads (sizes, matrix headers and data, version): a key
+#: and its value in YAML/JSON (a flow sequence up to its closing bracket) and in XML.
+_INT_KEYS = ("frameWidth|frameHeight|screenResX|screenResY|size|size1|size2|version|rows|cols|"
+             "sizes|data")
+_YAML_INT_VALUE = re.compile(
+    rf"(?:^|[\s{{,])[\"']?({_INT_KEYS})[\"']?[ \t]*:[ \t]*(\[[^\]]*\]?|[^\n#]*)", re.M)
+_XML_INT_VALUE = re.compile(rf"<({_INT_KEYS})(?:\s[^<>]*)?>([^<]*)")
+_BIG_INT = re.compile(r"(?<![\w.])[-+]?\d{10,}(?![\w.])")
+#: A YAML (or JSON) line's indentation with its sequence dashes, a quoted scalar, a comment,
+#: a flow bracket.
+_YAML_TOKEN = re.compile(r"""
+    (?P<line>^[ \t]*(?:-[ \t]+)*(?=[^ \t\n]))
+    | "(?:[^"\\\n]|\\.)*"? | '[^'\n]*'? | \#[^\n]*
+    | (?P<open>[\[{]) | (?P<close>[\]}])
+""", re.M | re.X)
 
 _SUFFIXES = (".xml", ".yml", ".yaml", ".json")
 _DIST_SIZES = (4, 5, 8, 12, 14)
@@ -89,9 +143,155 @@ def _quiet_opencv():
         logging.setLogLevel(level)
 
 
+def _file_kind(mode: int) -> str:
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO, a named pipe"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a plain file"
+
+
+def _read_text(path: Path) -> str:
+    """The text of the calibration file `path`: a regular file (checked before it is opened,
+    so a FIFO or a device never blocks or streams), at most :data:`MAX_FILE_BYTES`, UTF-8
+    without NUL characters, not blank; ``ValueError`` naming `path` otherwise."""
+    try:
+        info = os.stat(path)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    too_big = (f"{path}: larger than {MAX_FILE_BYTES // 2**20} MiB, not a calibration file "
+               "(one is a few kilobytes)")
+    if not stat.S_ISREG(info.st_mode):
+        raise ValueError(f"{path}: not a regular file ({_file_kind(info.st_mode)}); give the "
+                         "calibration file itself")
+    if info.st_size > MAX_FILE_BYTES:
+        raise ValueError(too_big)
+    try:  # non-blocking: a FIFO put in its place since the check does not hang the open
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise ValueError(f"{path}: not a regular file; give the calibration file "
+                                 "itself")
+            data = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if len(data) > MAX_FILE_BYTES:
+        raise ValueError(too_big)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not an OpenCV FileStorage file (not UTF-8 text: "
+                         f"{exc.reason})") from exc
+    if "\0" in text:
+        raise ValueError(f"{path}: not an OpenCV FileStorage file (binary data: a NUL "
+                         f"character at byte {data.index(0)})")
+    if not text.strip():
+        raise ValueError(f"{path}: not an OpenCV FileStorage file (empty)")
+    return text.replace("\r\n", "\n").replace("\r", "\n")  # as a text-mode read
+
+
+def _line(text: str, pos: int) -> int:
+    return text.count("\n", 0, pos) + 1
+
+
+def _too_deep(path: Path, text: str, pos: int):
+    return ValueError(
+        f"{path}: nested deeper than {MAX_NESTING} levels (line {_line(text, pos)}); a "
+        "calibration file is a few levels deep: refused before OpenCV parses it")
+
+
+def _check_yaml_nesting(path: Path, text: str) -> None:
+    """Refuse YAML (or JSON) text nested deeper than :data:`MAX_NESTING`: block levels by
+    indentation (and sequence dashes), flow levels by brackets outside quotes and comments.
+    An upper bound of the levels OpenCV's parser recurses into."""
+    block: list[int] = []  # indentation columns of the open block levels
+    flow = 0
+    for m in _YAML_TOKEN.finditer(text):
+        kind = m.lastgroup
+        if kind == "open":
+            flow += 1
+            if len(block) + flow > MAX_NESTING:
+                raise _too_deep(path, text, m.start())
+        elif kind == "close":
+            flow = max(flow - 1, 0)
+        elif kind == "line" and flow == 0:  # not a flow sequence's next line
+            line = m.group()
+            if not line:  # column 0: a top-level line
+                block[:] = [0]
+                continue
+            columns = [i for i, c in enumerate(line) if c == "-"] + [len(line)]
+            for col in columns:
+                while block and block[-1] > col:
+                    block.pop()
+                if not block or block[-1] < col:
+                    block.append(col)
+            if len(block) > MAX_NESTING:
+                raise _too_deep(path, text, m.start())
+
+
+def _check_xml_nesting(path: Path, text: str) -> None:
+    """Refuse XML text with elements nested deeper than :data:`MAX_NESTING` (comments,
+    declarations and CDATA skipped); linear in the text."""
+    depth, pos = 0, 0
+    ends = {"<!--": "-->", "<![CDATA[": "]]>", "<?": "?>", "<!": ">"}
+    while (start := text.find("<", pos)) >= 0:
+        for opening, closing in ends.items():
+            if text.startswith(opening, start):
+                end = text.find(closing, start + len(opening))
+                pos = -1 if end < 0 else end + len(closing)
+                break
+        else:
+            end = text.find(">", start + 1)
+            if end < 0:
+                return
+            pos = end + 1
+            tag = text[start + 1:end]
+            if tag.startswith("/"):
+                depth = max(depth - 1, 0)
+            elif not tag.endswith("/"):
+                depth += 1
+                if depth > MAX_NESTING:
+                    raise _too_deep(path, text, start)
+        if pos < 0:
+            return
+
+
+def _check_integers(path: Path, text: str) -> None:
+    """Refuse an integer beyond 32 bits in a key whose integers are read (sizes, matrix
+    headers and data, version): OpenCV would read it wrapped around, silently."""
+    for pattern in (_YAML_INT_VALUE, _XML_INT_VALUE):
+        for m in pattern.finditer(text):
+            for number in _BIG_INT.finditer(m.group(2)):
+                if abs(int(number.group())) >= _INT32:
+                    raise ValueError(
+                        f"{path}: {m.group(1)}: {number.group()} (line "
+                        f"{_line(text, m.start(2) + number.start())}) is beyond the 32-bit "
+                        "integers OpenCV reads (it would read it wrapped around)")
+
+
+def _check_text(path: Path, text: str) -> None:
+    """The checks of a file's text before OpenCV parses it: nesting (both syntaxes: an upper
+    bound whatever OpenCV takes the text for) and integers beyond 32 bits."""
+    _check_yaml_nesting(path, text)
+    _check_xml_nesting(path, text)
+    _check_integers(path, text)
+
+
+def _cv_detail(exc: BaseException) -> str:
+    cause = exc.__cause__ or exc.__context__ or exc
+    lines = str(cause).strip().splitlines()
+    return lines[-1].strip() if lines else type(cause).__name__
+
+
 class _Storage:
     """The top-level nodes of one or several ``FileStorage`` files (a key in two files must
-    hold the same value), with errors naming the file and the key."""
+    hold the same value), with errors naming the file and the key.
+
+    Each file is read by :func:`_read_text` and checked by :func:`_check_text`; OpenCV then
+    parses that same text from memory (``FILE_STORAGE_MEMORY``), so what was checked is what
+    it parses.
+    """
 
     def __init__(self, paths):
         import cv2
@@ -102,30 +302,22 @@ class _Storage:
         self.origin: dict = {}
         self._storages = []
         for path in self.paths:
-            try:
-                text = path.read_text(encoding="utf-8")
-            except UnicodeDecodeError as exc:
-                raise ValueError(f"{path}: not an OpenCV FileStorage file (not UTF-8 text: "
-                                 f"{exc.reason})") from exc
-            except OSError as exc:
-                raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-            if not text.strip():
-                raise ValueError(f"{path}: not an OpenCV FileStorage file (empty)")
+            text = _read_text(path)
+            _check_text(path, text)
             try:
                 with _quiet_opencv():
                     fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
             except (cv2.error, SystemError) as exc:
-                cause = exc.__cause__ or exc.__context__ or exc
-                detail = str(cause).strip().splitlines()
                 raise ValueError(f"{path}: not a valid OpenCV FileStorage file (XML or YAML: "
-                                 f"{detail[-1] if detail else type(cause).__name__})") from exc
+                                 f"{_cv_detail(exc)})") from exc
             if not fs.isOpened():
                 raise ValueError(f"{path}: not a valid OpenCV FileStorage file")
             self._storages.append(fs)
             root = fs.root()
             for key in root.keys():
                 node = root.getNode(key)
-                if key in self.nodes and not _same(self.nodes[key], node):
+                if key in self.nodes and not _same(self.nodes[key], node,
+                                                   (str(self.origin[key]), str(path)), key):
                     raise ValueError(f"{path}: key {key!r} differs from its value in "
                                      f"{self.origin[key]}")
                 self.nodes.setdefault(key, node)
@@ -143,21 +335,75 @@ class _Storage:
         return self.nodes[key]
 
 
-def _same(a, b) -> bool:
-    va, vb = _values(a), _values(b)
+def _same(a, b, where: tuple[str, str], key: str) -> bool:
+    va, vb = _values(a, where[0], key), _values(b, where[1], key)
     if va is None or vb is None:
         return False
     return va.shape == vb.shape and np.array_equal(va, vb)
 
 
-def _values(node) -> np.ndarray | None:
+def _whole(node, where: str, name: str) -> int:
+    """A matrix header's integer (``rows``, ``cols``, an entry of ``sizes``), ≥ 0."""
+    value = node.real() if node.isInt() or node.isReal() else float("nan")
+    if not (np.isfinite(value) and value == int(value) and value >= 0):
+        raise ValueError(f"{where}: {name}: expected an integer >= 0, got "
+                         f"{value if np.isfinite(value) else node.string() or '(none)'}")
+    return int(value)
+
+
+def _matrix(node, where: str, key: str) -> np.ndarray | None:
+    """An OpenCV matrix map's numbers, its header checked before OpenCV allocates it: a known
+    ``dt``, at most :data:`MAX_MATRIX_ELEMENTS` elements, as many numbers in ``data``. None
+    for a map that is not a matrix (no ``dt``)."""
+    dt_node = node.getNode("dt")
+    if dt_node.empty() or not dt_node.isString():
+        return None
+    dt = dt_node.string()
+    m = _DT.fullmatch(dt)
+    if m is None:
+        raise ValueError(f"{where}: {key}.dt: expected an OpenCV element type (u c w s i f d "
+                         f"h, with a channel count first, e.g. 'd' or '3d'), got {dt!r}")
+    channels = int(m.group(1) or 1)
+    sizes = node.getNode("sizes")
+    if not sizes.empty():
+        if not sizes.isSeq() or not 1 <= sizes.size() <= 32:
+            raise ValueError(f"{where}: {key}.sizes: expected 1 to 32 dimensions")
+        dims = [_whole(sizes.at(i), where, f"{key}.sizes[{i}]") for i in range(sizes.size())]
+        shown = " x ".join(map(str, dims))
+    else:
+        dims = [_whole(node.getNode(k), where, f"{key}.{k}") for k in ("rows", "cols")]
+        shown = f"{dims[0]} x {dims[1]}"
+    elements = int(np.prod(dims, dtype=object)) * channels
+    if not 1 <= channels <= 512 or elements > MAX_MATRIX_ELEMENTS:
+        raise ValueError(f"{where}: {key}: a {shown} matrix of {channels} channel(s) "
+                         f"({elements} numbers): beyond {MAX_MATRIX_ELEMENTS} numbers, not a "
+                         "calibration matrix")
+    data = node.getNode("data")
+    n = 0 if data.empty() else data.size()
+    if n != elements:
+        raise ValueError(f"{where}: {key}: a {shown} matrix of {channels} channel(s) needs "
+                         f"{elements} numbers, its data holds {n}")
+    import cv2
+
+    try:
+        with _quiet_opencv():
+            mat = node.mat()
+    except (cv2.error, SystemError) as exc:
+        raise ValueError(f"{where}: {key}: not a valid OpenCV matrix ({_cv_detail(exc)})") \
+            from exc
+    return None if mat is None else np.asarray(mat)
+
+
+def _values(node, where: str, key: str) -> np.ndarray | None:
     """A node's numbers: a matrix, a sequence of numbers or one number; None otherwise."""
     if node is None or node.empty():
         return None
     if node.isMap():
-        mat = node.mat()
-        return None if mat is None else np.asarray(mat)
+        return _matrix(node, where, key)
     if node.isSeq():
+        if node.size() > MAX_MATRIX_ELEMENTS:
+            raise ValueError(f"{where}: {key}: a sequence of {node.size()} items, beyond "
+                             f"{MAX_MATRIX_ELEMENTS}: not a calibration value")
         items = [node.at(i) for i in range(node.size())]
         if not items or not all(i.isReal() or i.isInt() for i in items):
             return None
@@ -169,7 +415,7 @@ def _values(node) -> np.ndarray | None:
 
 def _array(node, where: str, key: str, sizes: tuple[int, ...], what: str) -> np.ndarray:
     """The float64 numbers of `node`, flattened, of one of `sizes`; ValueError otherwise."""
-    values = _values(node)
+    values = _values(node, where, key)
     if values is None:
         raise ValueError(f"{where}: {key}: expected {what} (an OpenCV matrix or a sequence of "
                          "numbers)")
@@ -204,23 +450,29 @@ def _distortion(node, where, key) -> np.ndarray:
 
 def _size(node, where, key) -> tuple[int, int]:
     values = _array(node, where, key, (2,), "[W, H] in pixels")
-    if not np.all((values == np.round(values)) & (values > 0) & (values < 2**31)):
+    if not np.all((values == np.round(values)) & (values > 0)):
         raise ValueError(f"{where}: {key}: expected [W, H], two positive integers, got "
                          f"{values.tolist()}")
-    return int(values[0]), int(values[1])
+    return check_size(values, f"{where}: {key}")
 
 
 def _int(node, where, key) -> int:
     values = _array(node, where, key, (1,), "a positive integer")
     value = values[0]
-    if not (value == round(value) and 0 < value < 2**31):
+    if not (value == round(value) and 0 < value):
         raise ValueError(f"{where}: {key}: expected a positive integer, got {value:g}")
+    if value > MAX_SIZE_PX:
+        raise ValueError(f"{where}: {key}: {value:g} px, beyond {MAX_SIZE_PX} px: not an "
+                         "image or panel size")
     return int(value)
 
 
-def _pinhole(where: str, keys: str, **fields) -> Pinhole:
+def _pinhole(where: str, keys: str, *, device: str, names: dict[str, str],
+             **fields) -> Pinhole:
     """A :class:`Pinhole` of read fields; its warnings (a float32 rotation) and errors name
-    the file and the keys."""
+    the file and the keys. Its numbers are checked
+    (:func:`nail2nail.calibration.files.check_pinhole_values`): the message names the file,
+    `device` (the camera, or the projector as calibrated with it) and the field by `names`."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -229,10 +481,13 @@ def _pinhole(where: str, keys: str, **fields) -> Pinhole:
             raise ValueError(f"{where}: {keys}: {exc}") from exc
     for w in caught:
         warnings.warn(f"{where}: {keys}: {w.message}", w.category, stacklevel=4)
+    check_pinhole_values(model, f"{where}: {device}", keys=names)
     return model
 
 
 def _check_size_option(where, key, stored, option, flag) -> tuple[int, int]:
+    if option is not None:
+        option = check_size(option, flag)
     if stored is None and option is None:
         raise ValueError(f"{where}: no image size (key {key!r}); give {flag} W H")
     if stored is not None and option is not None and tuple(option) != tuple(stored):
@@ -300,7 +555,15 @@ def read_opencv_calibration(
     ValueError
         One line naming the file and the key: an unreadable or invalid file, a missing key,
         a wrong shape, a non-zero coefficient beyond ``k3``, a matrix that is not a rotation
-        (beyond float32 rounding), a missing size, a mirrored or rank-deficient model.
+        (beyond float32 rounding), a missing size, a mirrored or rank-deficient model. Before
+        OpenCV parses a file: not a regular file (a FIFO, a device, a directory), larger than
+        :data:`MAX_FILE_BYTES`, nested deeper than :data:`MAX_NESTING`, an integer beyond 32
+        bits in a size, a matrix header or data; before it allocates a matrix: more than
+        :data:`MAX_MATRIX_ELEMENTS` numbers, an unknown ``dt``, a header that disagrees with
+        its data. Numbers out of range (naming the camera and the field): a size beyond
+        :data:`nail2nail.calibration.files.MAX_SIZE_PX`, an intrinsic beyond
+        ``MAX_INTRINSIC_PX``, a translation beyond ``MAX_TRANSLATION_MM``. Every error of
+        OpenCV's (``cv2.error``) is one of these, naming the file.
 
     Warns
     -----
@@ -314,16 +577,23 @@ def read_opencv_calibration(
         raise ValueError("paths: expected at least one calibration file")
     if layout not in ("auto", *LAYOUTS):
         raise ValueError(f"layout: expected 'auto' or one of {LAYOUTS}, got {layout!r}")
+    import cv2
+
     storage = _Storage(paths)
     if layout == "auto":
         try:
             layout = detect_layout(storage.keys())
         except ValueError as exc:
             raise ValueError(f"{storage.where}: {exc}") from exc
-    if layout == "nail2nail":
-        rig = _read_rig(storage, camera_size, projector_size)
-    else:
-        rig = _read_one_camera(storage, layout, camera_size, projector_size)
+    try:  # OpenCV's errors on reading a node are the file's: bad input, never internal
+        with _quiet_opencv():
+            if layout == "nail2nail":
+                rig = _read_rig(storage, camera_size, projector_size)
+            else:
+                rig = _read_one_camera(storage, layout, camera_size, projector_size)
+    except (cv2.error, SystemError) as exc:
+        raise ValueError(f"{storage.where}: not a valid OpenCV FileStorage file "
+                         f"({_cv_detail(exc)})") from exc
     rig.extra = {"source": storage.where, "source_layout": layout, **rig.extra}
     # the checks of a calibration file (rank, handedness), naming the source
     return RigCalibration.from_dict(rig.to_dict(), where=storage.where,
@@ -368,16 +638,21 @@ def _read_one_camera(storage: _Storage, layout: str, camera_size, projector_size
     proj_size = _check_size_option(storage.where, size_keys[1], stored_projector,
                                    projector_size, "--projector-size")
     camera = _pinhole(where(names["K1"]), f"{names['K1']}, {names['D1']}", K=values["K1"],
-                      R=np.eye(3), t=np.zeros(3), dist=values["D1"], size=cam_size)
+                      R=np.eye(3), t=np.zeros(3), dist=values["D1"], size=cam_size,
+                      device="camera 'cam0'",
+                      names={"K": names["K1"], "size": "image size"})
     projector = _pinhole(where(names["R"]),
                          f"{names['K2']}, {names['D2']}, {names['R']}, {names['T']}",
                          K=values["K2"], R=values["R"], t=values["T"], dist=values["D2"],
-                         size=proj_size)
+                         size=proj_size, device="the projector (of camera 'cam0')",
+                         names={"K": names["K2"], "t": names["T"],
+                                "size": "panel size"})
     return RigCalibration(cameras=[CameraCalibration("cam0", camera, projector, cam_size)],
                           extra={"world_frame": "cam0"})
 
 
-def _model_map(storage: _Storage, node, where: str, label: str, size_option, flag) -> Pinhole:
+def _model_map(storage: _Storage, node, where: str, label: str, size_option, flag, *,
+               device: str) -> Pinhole:
     if node is None or node.empty() or not node.isMap():
         raise ValueError(f"{where}: {label}: expected a map with K, dist, R, t, size")
     fields = {}
@@ -392,7 +667,8 @@ def _model_map(storage: _Storage, node, where: str, label: str, size_option, fla
     sub = node.getNode("size")
     stored = None if sub.empty() else _size(sub, where, f"{label}.size")
     size = _check_size_option(where, f"{label}.size", stored, size_option, flag)
-    return _pinhole(where, label, size=size, **fields)
+    return _pinhole(where, label, size=size, device=device,
+                    names={k: f"{label}.{k}" for k in ("K", "t", "size")}, **fields)
 
 
 def _read_rig(storage: _Storage, camera_size, projector_size) -> RigCalibration:
@@ -402,7 +678,7 @@ def _read_rig(storage: _Storage, camera_size, projector_size) -> RigCalibration:
         if not fmt.isString() or fmt.string() != RIG_FORMAT:
             raise ValueError(f"{storage.file_of('format')}: format: expected {RIG_FORMAT!r}")
     if "version" in storage.nodes:
-        version = _values(storage.node("version"))
+        version = _values(storage.node("version"), storage.file_of("version"), "version")
         if version is None or version.shape != () or float(version) != 1:
             raise ValueError(f"{storage.file_of('version')}: version: expected 1 (written by a "
                              "newer nail2nail?)")
@@ -419,17 +695,19 @@ def _read_rig(storage: _Storage, camera_size, projector_size) -> RigCalibration:
         name_node = node.getNode("name")
         if name_node.empty() or not name_node.isString():
             raise ValueError(f"{where}: missing key '{label}.name' (a string)")
-        camera = _model_map(storage, node, where, label, camera_size, "--camera-size")
+        name = name_node.string()
+        camera = _model_map(storage, node, where, label, camera_size, "--camera-size",
+                            device=f"camera {name!r}")
         own = node.getNode("projector")
         if not own.empty():
             projector = _model_map(storage, own, where, f"{label}.projector", projector_size,
-                                   "--projector-size")
+                                   "--projector-size", device=f"the projector of {name!r}")
         elif shared is not None:
             projector = _model_map(storage, shared, storage.file_of("projector"), "projector",
-                                   projector_size, "--projector-size")
+                                   projector_size, "--projector-size", device="the projector")
         else:
             raise ValueError(f"{storage.where}: missing key 'projector'")
-        cameras.append(CameraCalibration(name_node.string(), camera, projector, camera.size))
+        cameras.append(CameraCalibration(name, camera, projector, camera.size))
     return RigCalibration(cameras=cameras)
 
 
@@ -490,7 +768,9 @@ def write_opencv_calibration(
     ------
     ValueError
         An unknown suffix or layout; a projector radial distortion (no OpenCV form); a
-        one-camera layout without `camera` for a rig of several, or an unknown camera.
+        one-camera layout without `camera` for a rig of several, or an unknown camera; the
+        numbers import refuses (:func:`nail2nail.calibration.files.check_pinhole_values`);
+        `path` a directory, or not writable (named as given, not the temporary file).
     """
     import cv2
 
@@ -498,6 +778,7 @@ def write_opencv_calibration(
     if path.suffix.lower() not in _SUFFIXES:
         raise ValueError(f"{path}: expected a .xml, .yml or .yaml file name (the suffix picks "
                          "the FileStorage format)")
+    check_output_file(path)
     if layout not in LAYOUTS:
         raise ValueError(f"layout: expected one of {LAYOUTS}, got {layout!r}")
     if calibration.projector_distortion is not None:
@@ -525,6 +806,9 @@ def write_opencv_calibration(
                        _as_pinhole(cam.camera, cam_size, f"camera {cam.name!r}", notes),
                        _as_pinhole(cam.projector, panel, f"the projector of {cam.name!r}",
                                    notes)))
+    for name, cam_model, proj_model in models:  # the numbers import would refuse
+        check_pinhole_values(cam_model, f"calibration: camera {name!r}")
+        check_pinhole_values(proj_model, f"calibration: the projector of {name!r}")
     fs = cv2.FileStorage(path.suffix, cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     if layout == "nail2nail":
         fs.write("format", RIG_FORMAT)
@@ -574,8 +858,11 @@ def write_opencv_calibration(
             fs.write("size1", np.array([cam_model.size], np.int32))
             fs.write("size2", np.array([proj_model.size], np.int32))
     text = fs.releaseAndGetString()
-    with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    except OSError as exc:  # named by the user's path, not the hidden temporary file's
+        raise ValueError(f"{path}: cannot write ({exc.strerror or exc})") from exc
     for note in notes:
         warnings.warn(f"{path}: {note}", UserWarning, stacklevel=2)
     return notes

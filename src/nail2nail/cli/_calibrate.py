@@ -15,6 +15,7 @@ from nail2nail.calibration.files import (
     save_calibration,
 )
 from nail2nail.cli._calibrate_capture import run_capture
+from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
 from nail2nail.io.points import read_points
 
@@ -107,8 +108,12 @@ def run(args: argparse.Namespace) -> int:
     if args.mark_diameter_px is not None and not args.mark_diameter_px > 2:
         raise ValueError(f"--mark-diameter-px: expected a diameter > 2 px, got "
                          f"{args.mark_diameter_px:g}")
+    if args.output is not None:  # before anything is read or written (a capture's tables)
+        try:
+            check_output_file(args.output)
+        except ValueError as exc:  # OutputRefusedError kept
+            raise type(exc)(f"-o/--output: {exc}") from exc
     if args.source.is_dir():
-
         return run_capture(args)
     table = read_points(args.source)
     results = {}
@@ -129,7 +134,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.allow_mirrored:  # depth sign taken at the table's points
         check_handedness(calib, str(args.source), scene_point=table.xyz_world.mean(axis=0))
     if args.output:
-        save_calibration(args.output, calib)
+        try:
+            save_calibration(args.output, calib)
+        except OSError as exc:  # named by the user's path, not the temporary file beside it
+            raise ValueError(f"-o/--output: {args.output}: cannot write "
+                             f"({exc.strerror or exc})") from exc
     if args.json:
         out = report_dict(report, table.labels)
         out["compare"] = {m: {"rms_mm": r.rms_mm.round(6).tolist()} for m, r in results.items()}

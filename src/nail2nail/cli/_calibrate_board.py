@@ -3,16 +3,26 @@
 from __future__ import annotations
 
 import argparse
+import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from nail2nail._progress import Stages
-from nail2nail.calibration.board import DISTORTION_TERMS, PROJECTOR_MODELS, calibrate_board
+from nail2nail.calibration.board import (
+    DISTORTION_TERMS,
+    MIN_VIEWS,
+    PROJECTOR_MODELS,
+    calibrate_board,
+    distortion_terms,
+)
 from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.observe import board_views
+from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
+from nail2nail.io.capture import read_capture
 
 __all__ = ["add_parser", "run"]
 
@@ -31,7 +41,8 @@ def add_parser(sub) -> None:
         "does not find the board is skipped for that camera with a warning.",
     )
     p.add_argument("poses", type=Path, nargs="+", metavar="POSE_DIR",
-                   help="capture directory of one board pose (at least 3)")
+                   help=f"capture directory of one board pose (at least {MIN_VIEWS}, each "
+                   "given once)")
     p.add_argument("--board", required=True, choices=BOARD_KINDS, help="board kind")
     p.add_argument("--rows", required=True, type=int,
                    help="squares (checkerboard, ChArUco) or circles along the board's y")
@@ -71,14 +82,75 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-
-    board = Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
-                  marker=args.marker)
-    if args.window is not None and not args.window > 0:
+def _check_options(args: argparse.Namespace) -> Board:
+    """The options checked before any capture is read (bad input first, no warning before)."""
+    for option, value in (("--spacing", args.spacing), ("--marker", args.marker)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option}: expected a positive length in mm, got {value}")
+    if args.window is not None and not (math.isfinite(args.window) and args.window > 0):
         raise ValueError(f"--window: expected a positive number of pixels, got {args.window}")
-    if args.output.is_dir():
-        raise ValueError(f"{args.output}: is a directory; give the calibration file to write")
+    for option, spec in (("--camera-distortion", args.camera_distortion),
+                         ("--projector-lens", args.projector_lens)):
+        try:
+            distortion_terms(spec)
+        except ValueError as exc:
+            raise ValueError(f"{option}: {str(exc).removeprefix('distortion: ')}") from exc
+    try:
+        check_output_file(args.output)
+    except ValueError as exc:
+        raise type(exc)(f"-o/--output: {exc}") from exc
+    return Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
+                 marker=args.marker)
+
+
+def _check_poses(poses: list[Path], world: str | None) -> None:
+    """The pose directories checked from their manifests and first frames (cheap) before any
+    is decoded, so that a bad input is refused before the warnings of the poses: each given
+    once, a capture with a pattern set coding both directions, one projector panel and one
+    image size per camera, at least :data:`MIN_VIEWS`, and `world` one of their cameras (or
+    'board')."""
+    seen: dict[str, Path] = {}
+    for pose in poses:
+        key = os.path.realpath(pose)
+        if key in seen:
+            same = "" if str(seen[key]) == str(pose) else f" (as {seen[key]} and {pose})"
+            raise ValueError(f"POSE_DIR: {pose} given more than once{same}; each pose is "
+                             "one capture directory")
+        seen[key] = pose
+    sizes: dict[str, tuple[int, int]] = {}
+    panel = None
+    for pose in poses:
+        capture = read_capture(pose, load=False)
+        ps = capture.pattern_set
+        if ps is None:
+            raise ValueError(f"{pose}: the manifest names no pattern set")
+        if not (ps.x and ps.y):
+            raise ValueError(f"{pose}: the pattern set codes one projector direction; board "
+                             "calibration needs both (xp and yp)")
+        projector = capture.manifest.get("projector")
+        size = projector.get("size", ps.panel_size) if isinstance(projector, dict) \
+            else ps.panel_size
+        if panel is not None and tuple(size) != panel:
+            raise ValueError(f"{pose}: projector panel {tuple(size)}, the first pose's is "
+                             f"{panel}")
+        panel = tuple(size)
+        for name in capture.camera_names:  # the first frame's header only
+            h, w = capture.frame_shape(name)
+            if sizes.setdefault(name, (w, h)) != (w, h):
+                raise ValueError(f"{pose}: camera {name} has {w}x{h} images, "
+                                 f"{sizes[name][0]}x{sizes[name][1]} in an earlier pose")
+    names = list(sizes)
+    if len(poses) < MIN_VIEWS:
+        raise ValueError(f"POSE_DIR: {len(poses)} pose(s) given; need at least {MIN_VIEWS} "
+                         "(Zhang's method per camera)")
+    if world is not None and world != "board" and world not in names:
+        raise ValueError(f"--world: expected 'board' or a camera name ({', '.join(names)}), "
+                         f"got {world!r}")
+
+
+def run(args: argparse.Namespace) -> int:
+    board = _check_options(args)
+    _check_poses(args.poses, args.world)
     captures = board_views(args.poses, board, window_px=args.window, progress=True)
     Stages(prefix="calibrate-board: ")(  # stderr, a terminal only, not with --quiet
         f"fit the cameras and the projector ({len(captures.views)} views)")
@@ -93,7 +165,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.allow_mirrored:
         centre = np.mean([T[:3, 3] for T in result.board_poses.values()], axis=0)
         check_handedness(calib, str(args.output), scene_point=centre)
-    save_calibration(args.output, calib)
+    try:
+        save_calibration(args.output, calib)
+    except OSError as exc:  # named by the user's path, not the temporary file beside it
+        raise ValueError(f"-o/--output: {args.output}: cannot write "
+                         f"({exc.strerror or exc})") from exc
     summary = result.summary()
     poses = {str(captures.poses[int(k)]): v for k, v in summary.pop("poses").items()}
     used = [[c, str(captures.poses[k])] for c, k in result.views_used]

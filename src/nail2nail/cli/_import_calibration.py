@@ -10,12 +10,22 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nail2nail.calibration.files import load_calibration, save_calibration
+from nail2nail.calibration.files import (
+    MAX_INTRINSIC_PX,
+    MAX_SIZE_PX,
+    MAX_TRANSLATION_MM,
+    load_calibration,
+    save_calibration,
+)
 from nail2nail.calibration.opencv_files import (
     LAYOUTS,
+    MAX_FILE_BYTES,
+    MAX_MATRIX_ELEMENTS,
+    MAX_NESTING,
     read_opencv_calibration,
     write_opencv_calibration,
 )
+from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run_export", "run_import"]
@@ -26,9 +36,31 @@ def _size(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    if not 0 < value <= MAX_SIZE_PX:
+        raise argparse.ArgumentTypeError(f"expected an integer in 1 … {MAX_SIZE_PX} px, got "
+                                         f"{text!r}")
     return value
+
+
+#: The limits of a file read and of its values, said in the help.
+LIMITS = (f"Files are checked before OpenCV parses them: regular files of at most "
+          f"{MAX_FILE_BYTES // 2**20} MiB, nested at most {MAX_NESTING} levels, matrices of at "
+          f"most {MAX_MATRIX_ELEMENTS:,} numbers, integers within 32 bits; values: image and "
+          f"panel sizes integers in 1 … {MAX_SIZE_PX} px, |fx|, |fy|, |cx|, |cy|, |skew| at "
+          f"most {MAX_INTRINSIC_PX:g} px, |t| below {MAX_TRANSLATION_MM:g} mm.")
+
+
+def _check_out(path: Path) -> None:
+    """Refuse `--out` naming a directory (or under a file) before anything is read."""
+    try:
+        check_output_file(path)
+    except ValueError as exc:  # OutputRefusedError kept
+        raise type(exc)(f"--out: {exc}") from exc
+
+
+def _write_error(option: str, path: Path, exc: OSError) -> ValueError:
+    """A write failure named by the user's path (the temporary file beside it is not)."""
+    return ValueError(f"{option}: {path}: cannot write ({exc.strerror or exc})")
 
 
 def add_parser(sub) -> None:
@@ -42,7 +74,8 @@ def add_parser(sub) -> None:
         "projector, x_proj = Rp x_cam + Tp, mm), OpenCV's stereo_calib (M1 D1 M2 D2 R T, the "
         "projector as the second device; both of its files may be given) and nail2nail's "
         "multi-camera layout. For the one-camera layouts the world frame is the camera's, "
-        "named cam0. Rotations stored as float32 are re-orthonormalised (a warning).",
+        "named cam0. Rotations stored as float32 are re-orthonormalised (a warning). "
+        + LIMITS,
     )
     p.add_argument("files", type=Path, nargs="+", metavar="FILE",
                    help="the calibration file(s) (keys of several files are joined)")
@@ -51,9 +84,11 @@ def add_parser(sub) -> None:
     p.add_argument("--layout", choices=["auto", *LAYOUTS], default="auto",
                    help="keys of the file (default: recognised from them)")
     p.add_argument("--camera-size", type=_size, nargs=2, metavar=("W", "H"),
-                   help="camera image size in pixels, where the file holds none")
+                   help=f"camera image size in pixels (1 … {MAX_SIZE_PX}), where the file "
+                   "holds none")
     p.add_argument("--projector-size", type=_size, nargs=2, metavar=("W", "H"),
-                   help="projector panel size in pixels, where the file holds none")
+                   help=f"projector panel size in pixels (1 … {MAX_SIZE_PX}), where the file "
+                   "holds none")
     p.add_argument("--allow-mirrored", action="store_true",
                    help="accept a mirrored camera or projector (refused by default)")
     p.add_argument("-o", "--out", type=Path, required=True, help="rig calibration JSON to write")
@@ -67,7 +102,9 @@ def add_parser(sub) -> None:
         ".yaml) in the nail2nail multi-camera layout (default), SLStudio's or stereo_calib's "
         "(one camera, in its own frame). DLT matrices are decomposed into K, R, t "
         "(pinhole_from_dlt; a warning); a projector radial distortion (the thesis's centre "
-        "and rho) has no OpenCV form and is refused.",
+        "and rho) has no OpenCV form and is refused. The values import-calibration refuses "
+        f"are refused here too (sizes 1 … {MAX_SIZE_PX} px, |fx|, |fy|, |cx|, |cy|, |skew| at "
+        f"most {MAX_INTRINSIC_PX:g} px, |t| below {MAX_TRANSLATION_MM:g} mm).",
     )
     p.add_argument("calibration", type=Path, help="rig calibration JSON")
     p.add_argument("-o", "--out", type=Path, required=True,
@@ -78,7 +115,8 @@ def add_parser(sub) -> None:
                    help="the camera of the slstudio and stereo layouts (needed for a rig of "
                    "several cameras)")
     p.add_argument("--projector-size", type=_size, nargs=2, metavar=("W", "H"),
-                   help="panel size of a DLT projector (default 1280 x 1040)")
+                   help=f"panel size of a DLT projector (default 1280 x 1040; 1 … {MAX_SIZE_PX} "
+                   "px)")
     p.add_argument("--allow-mirrored", action="store_true",
                    help="accept a mirrored camera or projector (refused by default)")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
@@ -93,10 +131,14 @@ def run_import(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".json":
         raise ValueError(f"--out: {args.out}: expected a .json file name (the rig "
                          "calibration)")
+    _check_out(args.out)
     calibration = read_opencv_calibration(
         args.files, layout=args.layout, camera_size=args.camera_size,
         projector_size=args.projector_size, allow_mirrored=args.allow_mirrored)
-    save_calibration(args.out, calibration)
+    try:
+        save_calibration(args.out, calibration)
+    except OSError as exc:
+        raise _write_error("--out", args.out, exc) from exc
     summary = {"out": str(args.out), "layout": calibration.extra.get("source_layout"),
                "world_frame": calibration.extra.get("world_frame", "as stored"),
                "cameras": _summary(calibration)}
@@ -111,6 +153,10 @@ def run_import(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    if args.out.suffix.lower() not in (".xml", ".yml", ".yaml", ".json"):
+        raise ValueError(f"--out: {args.out}: expected a .xml, .yml or .yaml file name (the "
+                         "suffix picks the FileStorage format)")
+    _check_out(args.out)
     calibration = load_calibration(args.calibration, allow_mirrored=args.allow_mirrored)
     notes = write_opencv_calibration(args.out, calibration, layout=args.layout,
                                      camera=args.camera, projector_size=args.projector_size)

@@ -24,6 +24,7 @@ __all__ = [
     "atomic_files",
     "atomic_path",
     "check_output_directory",
+    "check_output_file",
     "relocate_paths",
     "save_figure",
     "write_npz",
@@ -80,6 +81,12 @@ class OutputRefusedError(ValueError):
     """
 
 
+def _writable(path: Path) -> bool:
+    """Whether this process may write in the directory `path` and its owner made it writable
+    (no write permission bit at all: made read-only on purpose, even for root)."""
+    return os.access(path, os.W_OK) and bool(path.stat().st_mode & 0o222)
+
+
 def check_output_directory(path: str | os.PathLike, *,
                            marker: str | tuple[str, ...] | None = None) -> Path:
     """Check that :func:`atomic_directory` may replace `path`; return it (links followed).
@@ -91,6 +98,9 @@ def check_output_directory(path: str | os.PathLike, *,
         path = Path(os.path.realpath(path))
     if path.exists() and not path.is_dir():
         raise OutputRefusedError(f"{path}: exists and is not a directory")
+    if path.is_dir() and not _writable(path):  # the user protected it: not replaced
+        raise OutputRefusedError(f"{path}: the directory is read-only: not replaced (make it "
+                                 "writable or choose another directory)")
     if marker is not None and path.is_dir():
         markers = (marker,) if isinstance(marker, str) else tuple(marker)
         if any(path.iterdir()) and not any((path / m).exists() for m in markers):
@@ -98,6 +108,24 @@ def check_output_directory(path: str | os.PathLike, *,
                 f"{path}: exists, is not empty and holds no {' or '.join(markers)}, so it is "
                 "not an earlier result of this command: not replaced (remove it or choose "
                 "another directory)")
+    return path
+
+
+def check_output_file(path: str | os.PathLike) -> Path:
+    """Check that :func:`atomic_path` may write the file `path`; return it as a ``Path``.
+
+    Refused (``ValueError`` naming `path` as given, never the hidden temporary file): an
+    existing directory, or a path under an existing non-directory. Writers call it before
+    their computation and before writing anything else (a calibration's points tables).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputRefusedError(f"{path}: is a directory; give the file to write")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputRefusedError(f"{path}: cannot write ({parent} is not a directory)")
+            break
     return path
 
 
@@ -126,7 +154,8 @@ def atomic_directory(path: str | os.PathLike, *, marker: str | tuple[str, ...] |
     Raises
     ------
     ValueError
-        `path` exists and is not a directory, or is a non-empty directory without `marker`.
+        `path` exists and is not a directory, is a read-only directory, or is a non-empty
+        directory without `marker`.
 
     Examples
     --------
