@@ -8,6 +8,7 @@ Thin command layer: reads a scan directory (:func:`nail2nail.io.scans.load_scans
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -15,19 +16,58 @@ from nail2nail._progress import Stages
 from nail2nail.io._json import dumps_json
 from nail2nail.io.rolled import write_rolled_print
 from nail2nail.io.scans import load_scans
-from nail2nail.unroll import DEFAULT_LENGTH_MM, DEFAULT_METHOD, METHODS, MIN_CLARITY, unroll_scans
+from nail2nail.unroll import (
+    DEFAULT_LENGTH_MM,
+    DEFAULT_METHOD,
+    MAX_LENGTH_MM,
+    MAX_PPI,
+    METHODS,
+    MIN_CLARITY,
+    MIN_LENGTH_MM,
+    MIN_PPI,
+    unroll_scans,
+)
 
 __all__ = ["add_parser", "add_unroll_options", "check_unroll_options", "run", "unroll_options"]
 
 
+class _Number(float):
+    """A float that keeps the text the user gave, for the error messages."""
+
+    text = ""
+
+
+class _Triple(tuple):
+    """Three floats that keep the text the user gave, for the error messages."""
+
+    text = ""
+
+
+def _number(text: str) -> float:
+    value = _Number(text)  # ValueError: argparse's "invalid float value"
+    value.text = text
+    return value
+
+
+_number.__name__ = "float"  # argparse names the type in its message
+
+
 def _vector(text: str) -> tuple[float, float, float]:
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = _Triple(float(v) for v in text.split(","))
     except ValueError:
-        values = ()
-    if len(values) != 3 or not any(values):
-        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z (not all 0), got {text!r}")
-    return values
+        values = _Triple()
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(
+            f"expected three finite numbers X,Y,Z (not all 0), got {text!r}")
+    values.text = text
+    return values  # finite and not zero: check_unroll_options
+
+
+def _given(value) -> str:
+    """`value` as the user gave it (its text), else as Python writes it."""
+    return getattr(value, "text", "") or (f"{value:g}" if isinstance(value, float)
+                                          else ",".join(f"{v:g}" for v in value))
 
 
 def add_unroll_options(p) -> None:
@@ -35,18 +75,19 @@ def add_unroll_options(p) -> None:
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"flattening (default: {DEFAULT_METHOD}, the least distortion; "
                    "docs/unroll.md)")
-    p.add_argument("--ppi", type=float, default=500.0,
-                   help="resolution, pixels per inch (default 500; 1000 writes JPEG 2000 "
-                   "instead of WSQ)")
+    p.add_argument("--ppi", type=_number, default=500.0,
+                   help=f"resolution, pixels per inch, {MIN_PPI:g} to {MAX_PPI:g} (default 500; "
+                   "other values write JPEG 2000 instead of WSQ)")
     p.add_argument("--tip-direction", type=_vector, default=None,
-                   help="rough direction of the fingertip in the scans' frame, X,Y,Z (default: "
-                   "up in the cameras' images, measured on the scans, whatever the frame: give "
-                   "it when the fingertip does not point to the top of the images)")
+                   help="rough direction of the fingertip in the scans' frame, X,Y,Z: three "
+                   "finite numbers, not all 0 (default: up in the cameras' images, measured on "
+                   "the scans, whatever the frame: give it when the fingertip does not point to "
+                   "the top of the images)")
     length = p.add_mutually_exclusive_group()
-    length.add_argument("--length", type=float, default=DEFAULT_LENGTH_MM, metavar="MM",
+    length.add_argument("--length", type=_number, default=DEFAULT_LENGTH_MM, metavar="MM",
                         help="keep only the skin within MM below the fingertip, as an inked "
-                        f"roll does (default {DEFAULT_LENGTH_MM:g}: the distal crease of an "
-                        "adult finger)")
+                        f"roll does, {MIN_LENGTH_MM:g} to {MAX_LENGTH_MM:g} mm (default "
+                        f"{DEFAULT_LENGTH_MM:g}: the distal crease of an adult finger)")
     length.add_argument("--full-length", dest="length", action="store_const", const=None,
                         help="keep all the skin the cameras saw below the tip")
     p.add_argument("--min-clarity", type=float, default=MIN_CLARITY, metavar="Q",
@@ -58,11 +99,18 @@ def add_unroll_options(p) -> None:
 
 
 def check_unroll_options(args: argparse.Namespace) -> None:
-    """Refuse a bad ``--ppi`` or ``--length`` before anything is read."""
-    if not 100 <= args.ppi <= 4000:
-        raise ValueError(f"--ppi: expected 100..4000 pixels per inch, got {args.ppi}")
-    if args.length is not None and not args.length > 0:
-        raise ValueError(f"--length: expected a positive length in mm, got {args.length}")
+    """Refuse a bad ``--ppi``, ``--length``, ``--tip-direction`` or ``--min-clarity`` before
+    anything is read (exit 2)."""
+    if not MIN_PPI <= args.ppi <= MAX_PPI:
+        raise ValueError(f"--ppi: expected {MIN_PPI:g} to {MAX_PPI:g} pixels per inch, got "
+                         f"{_given(args.ppi)}")
+    if args.length is not None and not MIN_LENGTH_MM <= args.length <= MAX_LENGTH_MM:
+        raise ValueError(f"--length: expected {MIN_LENGTH_MM:g} to {MAX_LENGTH_MM:g} mm "
+                         f"(--full-length keeps all the skin), got {_given(args.length)}")
+    tip = args.tip_direction
+    if tip is not None and not (all(math.isfinite(v) for v in tip) and any(tip)):
+        raise ValueError("--tip-direction: expected three finite numbers X,Y,Z (not all 0), "
+                         f"got {_given(tip)}")
     if not 0 <= args.min_clarity < 1:
         raise ValueError(f"--min-clarity: expected a clarity in [0, 1), got {args.min_clarity}")
 

@@ -383,11 +383,12 @@ def _cell(x, origin, size, n):
 
 
 @numba.njit(**_JIT)
-def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - compiled
+def _grid_build(points, group_start, size, max_cells, low, high):  # pragma: no cover - compiled
     """Sort each group's points (``points[group_start[g]:group_start[g + 1]]``) by column and
-    coordinate along it, with columns of `size` from the points' lowest corner, at most
-    `max_cells` across along ``axes[0]`` and ``axes[1]`` (the points' extents, longest first;
-    the columns run along ``axes[2]``).
+    coordinate along it, with columns of `size` from the corner `low` of the box
+    ``[low, high]`` (:func:`_grid_box`: the bulk of the points; points beyond fall in the
+    border columns), at most `max_cells` across along ``axes[0]`` and ``axes[1]`` (the box's
+    extents, longest first; the columns run along ``axes[2]``).
 
     Returns ``(column_start, sorted_points, sorted_index, origin, shape, axes)``: column
     ``t = (g × shape[0] + a) × shape[1] + b`` holds the sorted points
@@ -396,12 +397,6 @@ def _grid_build(points, group_start, size, max_cells):  # pragma: no cover - com
     """
     n = points.shape[0]
     n_groups = group_start.size - 1
-    low = np.full(3, np.inf)
-    high = np.full(3, -np.inf)
-    for i in range(n):
-        for d in range(3):
-            low[d] = min(low[d], points[i, d])
-            high[d] = max(high[d], points[i, d])
     extent = high - low
     axes = np.argsort(-extent, kind="mergesort")
     shape = np.empty(3, np.int64)
@@ -832,14 +827,40 @@ def _fused_images(index, keep, fused, normals, count, xp, yp, intensity, out_xyz
                 out_intensity[r, c] = 0
 
 
+#: Far outliers are left out of the box the fusion's search grid spans (:func:`_grid_box`):
+#: per axis, the box reaches from the median this many times the median's distance to the
+#: 5th and 95th percentiles (and no further than the points): a finger's points all lie within
+#: it, and up to 5 % of the points on either side may be far outliers.
+GRID_BOX_FACTOR = 2.0
+
+
+def _grid_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` (3,) float64: the box of the bulk of `points` that the search grid spans.
+
+    A scan's far outliers (a stray point metres away) would otherwise stretch the grid's 512
+    columns across so wide a box that the whole finger falls into one column, and the search
+    becomes quadratic in the points (minutes instead of seconds on a full-resolution finger).
+    Points outside the box fall in its border columns (``_cell`` clamps), which loses none.
+    """
+    if not len(points):
+        return np.zeros(3), np.zeros(3)
+    low, high = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
+    sample = np.asarray(points[::max(1, len(points) // 200_000)], np.float64)
+    q05, q50, q95 = np.percentile(sample, [5, 50, 95], axis=0)
+    low = np.maximum(low, q50 - GRID_BOX_FACTOR * (q50 - q05))
+    high = np.minimum(high, q50 + GRID_BOX_FACTOR * (q95 - q50))
+    return low, np.maximum(high, low)
+
+
 def _grid(points: np.ndarray, group_start: np.ndarray, size: float) -> tuple:
     """The cell grid of :func:`_grid_build` over `points` with cells of `size` mm: the leading
     arguments of :func:`_dedupe_kernel` and :func:`_off_surface_kernel`. At most 512 × 512
-    columns (points beyond fall in the border cells, which only slows the search); they run
-    along the shortest extent, so they cross a finger's surface (and hold points) only where it
-    faces that axis: a column is short."""
+    columns over the bulk of the points (:func:`_grid_box`; points beyond fall in the border
+    cells, which only slows the search); they run along the shortest extent, so they cross a
+    finger's surface (and hold points) only where it faces that axis: a column is short."""
+    low, high = _grid_box(points)
     column_start, sorted_points, index, origin, shape, axes = _grid_build(
-        points, group_start, size, np.array([512, 512, 1 << 20]))
+        points, group_start, size, np.array([512, 512, 1 << 20]), low, high)
     return column_start, sorted_points, index, origin, size, shape, axes
 
 

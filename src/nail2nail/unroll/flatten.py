@@ -45,17 +45,23 @@ from nail2nail._quantile import weighted_quantiles
 from nail2nail.unroll._kernels import axis_distance
 
 __all__ = [
+    "MAX_EXTENT_MM",
+    "MAX_MESH_CELLS",
     "METHODS",
+    "OUTLIER_FACTOR",
+    "OUTLIER_PERCENTILE",
     "CylinderMap",
     "IsometricMap",
     "RolledMap",
     "SphereMap",
+    "bulk_sphere",
     "fit_cylinder",
     "fit_flattening",
     "fit_sphere",
     "map_distortion",
     "section_pad",
     "surface_mesh",
+    "within_sphere",
 ]
 
 #: Unrolling methods, in the order the docs list them.
@@ -298,7 +304,87 @@ def _sample(points, n_max: int, seed: int = 0) -> np.ndarray:
     return points[np.random.default_rng(seed).choice(len(points), n_max, replace=False)]
 
 
-def _check_points(xyz) -> np.ndarray:
+#: Far outliers (a scanner's stray points, a reflection off the rig): points farther from the
+#: points' median (per coordinate) than :data:`OUTLIER_FACTOR` times the
+#: :data:`OUTLIER_PERCENTILE`-th percentile of the points' distances from it. Every point of a
+#: compact surface lies well within (the virtual finger's farthest point, on its tip, at 1.27
+#: times that percentile; a cylinder 16 mm across and 30 mm long: 1.08; a disc: 1.05), so no
+#: point of the skin is lost, and the percentile stays on the skin while fewer than 10 % of
+#: the points are far outliers.
+OUTLIER_FACTOR = 2.0
+OUTLIER_PERCENTILE = 90.0
+
+#: Largest side of the box holding the points (far outliers left out) that the flattening
+#: accepts, mm: ten times a finger's length. Beyond it the points are not one finger, and the
+#: grids sized from them (1 mm sections, the 0.5 mm mesh, the print) would not fit in memory.
+MAX_EXTENT_MM = 300.0
+
+#: Most cells of :func:`surface_mesh`'s grid (a 1000 mm square at 0.5 mm: far beyond
+#: :data:`MAX_EXTENT_MM`, which a cylinder fit gone wrong can still reach around the finger);
+#: about 100 MB of work arrays.
+MAX_MESH_CELLS = 4_000_000
+
+
+def bulk_sphere(xyz, *, n_max: int = 20000, seed: int = 2) -> tuple[np.ndarray, float]:
+    """The sphere holding the bulk of the points: far outliers lie outside it.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Points, mm; non-finite rows are ignored.
+    n_max : int
+        Points used (a random subset).
+    seed : int
+        Seed of the subset.
+
+    Returns
+    -------
+    center : (3,) float64
+        Median of the points, per coordinate, mm.
+    radius : float
+        :data:`OUTLIER_FACTOR` × the :data:`OUTLIER_PERCENTILE`-th percentile of the points'
+        distances from `center`, mm.
+
+    Raises
+    ------
+    ValueError
+        If no point is finite.
+
+    Examples
+    --------
+    >>> pts = np.random.default_rng(0).normal(size=(1000, 3))
+    >>> pts[:3] = 1e30  # far outliers
+    >>> center, radius = bulk_sphere(pts)
+    >>> bool(np.abs(center).max() < 0.2), bool(2 < radius < 10)
+    (True, True)
+    """
+    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        raise ValueError("xyz: no finite point")
+    pts = _sample(pts, n_max, seed=seed)
+    center = np.median(pts, axis=0)
+    dist = _distance(pts, center)
+    return center, float(OUTLIER_FACTOR * np.percentile(dist, OUTLIER_PERCENTILE))
+
+
+def _distance(xyz, center) -> np.ndarray:
+    """Distances of points ``(N, 3)`` from `center`, float64, without overflow (inf at most)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.asarray(xyz, dtype=np.float64) - center
+        return np.hypot(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
+
+
+def within_sphere(xyz, center, radius: float) -> np.ndarray:
+    """``(N,) bool``: the points ``(N, 3)`` that are finite and within `radius` of `center`."""
+    return _distance(xyz, center) <= radius  # NaN compares False
+
+
+def _check_points(xyz, n_max: int | None = None, seed: int = 0) -> np.ndarray:
+    """The finite points of `xyz` without far outliers (:func:`bulk_sphere`), float64; with
+    `n_max`, of a random subset of `n_max` finite points (:func:`_sample`), drawn before the far
+    ones are left out, so that the points kept are those drawn from the same points without
+    outliers (a fit does not change because a few far points were removed)."""
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"xyz: expected shape (N, 3), got {xyz.shape}")
@@ -306,6 +392,19 @@ def _check_points(xyz) -> np.ndarray:
         xyz = xyz[np.isfinite(xyz).all(axis=1)]
     if len(xyz) < 100:
         raise ValueError(f"xyz: need at least 100 finite surface points to unroll, got {len(xyz)}")
+    sphere = bulk_sphere(xyz)
+    if n_max is not None:
+        xyz = _sample(xyz, n_max, seed)
+    inside = within_sphere(xyz, *sphere)
+    if not inside.all():  # (no copy when there is no far outlier)
+        xyz = xyz[inside]
+    if len(xyz) < 100:
+        raise ValueError(f"xyz: need at least 100 surface points to unroll, got {len(xyz)} "
+                         "without the far outliers")
+    span = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
+    if span > MAX_EXTENT_MM:
+        raise ValueError(f"xyz: the points span {span:.4g} mm (far outliers left out), more than "
+                         f"the {MAX_EXTENT_MM:g} mm a finger's scan can (MAX_EXTENT_MM)")
     return xyz
 
 
@@ -323,7 +422,8 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
     Parameters
     ----------
     xyz : (N, 3) float
-        Surface points, world mm; non-finite rows are ignored.
+        Surface points, world mm; non-finite rows and far outliers (:func:`bulk_sphere`) are
+        ignored.
     tip_direction : (3,) float
         Rough direction of the fingertip (sign of the axis); the world ``+Y`` of
         ``docs/conventions.md`` by default.
@@ -342,9 +442,10 @@ def fit_cylinder(xyz, *, tip_direction=(0.0, 1.0, 0.0), pad_direction=(0.0, 0.0,
     Raises
     ------
     ValueError
-        Fewer than 100 points, or the pad direction parallel to the axis.
+        Fewer than 100 points, points spanning more than :data:`MAX_EXTENT_MM`, or the pad
+        direction parallel to the axis.
     """
-    pts = _sample(_check_points(xyz), n_max)
+    pts = _check_points(xyz, n_max)
     centroid = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
     # start from the principal direction nearest the tip direction (a patch may be wider
@@ -440,7 +541,7 @@ def section_pad(xyz, cylinder: CylinderMap, *, n_max: int = 20000) -> tuple[Cyli
     info : dict
         ``{"source": "section" | "rough", "turn_deg", "ellipticity_mm"}``.
     """
-    pts = _sample(_check_points(xyz), n_max, seed=1)
+    pts = _check_points(xyz, n_max, seed=1)
     theta, t, rho = cylinder.angles(pts)
     # the body only (the cap's radius falls towards the tip): within 6 % of the cone
     cone = cylinder.radius + cylinder.taper * t
@@ -557,7 +658,7 @@ def fit_sphere(xyz, *, axis, pad_direction=(0.0, 0.0, 1.0), n_max: int = 20000) 
     Wang, Lau and Hassebrook, *Fit-sphere unwrapping and performance analysis of 3D
     fingerprints*, Appl. Opt. 49(4), 592–600, 2010, doi:10.1364/AO.49.000592.
     """
-    pts = _sample(_check_points(xyz), n_max)
+    pts = _check_points(xyz, n_max)
     A = np.column_stack([2 * pts, np.ones(len(pts))])
     sol, *_ = np.linalg.lstsq(A, (pts**2).sum(axis=1), rcond=None)
     center = sol[:3]
@@ -596,7 +697,8 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
                  min_samples: int = 3) -> SurfaceMesh:
     """Resample surface points on a regular grid of cylinder coordinates and mesh the grid.
 
-    Each grid cell's vertex is the mean of the points that fall in it (which averages out
+    Far outliers (:func:`bulk_sphere`) are left out. Each grid cell's vertex is the mean of
+    the points that fall in it (which averages out
     ridges, so the mesh is the skin's base surface); cells with fewer than `min_samples`
     points are empty. Neighbouring cells are joined by two triangles per square, triangles with
     an edge longer than 3 `grid_mm` are dropped (depth jumps), and only the largest connected
@@ -620,11 +722,21 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     Raises
     ------
     ValueError
-        If fewer than 10 triangles remain.
+        If fewer than 10 triangles remain, or the grid would exceed :data:`MAX_MESH_CELLS`.
     """
+    if not (np.isfinite(grid_mm) and grid_mm > 0):
+        raise ValueError(f"grid_mm: expected a positive cell size in mm, got {grid_mm!r}")
     pts = _check_points(xyz)
     st = cylinder(pts)
-    origin = np.array([st[:, 0].min(), st[:, 1].min()])
+    if not np.isfinite(st).all():
+        raise ValueError("cylinder: maps some points to non-finite print coordinates")
+    origin = st.min(axis=0)
+    size = st.max(axis=0) - origin
+    cells = np.floor(size / grid_mm) + 2  # (gw, gh), as float: no overflow
+    if cells[0] * cells[1] > MAX_MESH_CELLS:
+        raise ValueError(f"xyz: the surface spans {size[0]:.4g} x {size[1]:.4g} mm in the "
+                         f"cylinder's coordinates, {cells[0]:.4g} x {cells[1]:.4g} cells of "
+                         f"{grid_mm:g} mm: more than {MAX_MESH_CELLS} (MAX_MESH_CELLS)")
     cr = np.floor((st - origin) / grid_mm).astype(np.int64)
     gw, gh = int(cr[:, 0].max()) + 2, int(cr[:, 1].max()) + 2
     cell = cr[:, 1] * gw + cr[:, 0]

@@ -22,10 +22,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
+from nail2nail.unroll._kernels import block_mean
 from nail2nail.unroll.quality import block_quality
 from nail2nail.unroll.ridges import masked_gaussian
 
-__all__ = ["clarity_map", "gate_mask", "mix_layers"]
+__all__ = ["CLARITY_PITCH_MM", "clarity_map", "gate_mask", "mix_layers", "reduce_print",
+           "upsample_blocks"]
 
 #: block size and step of the clarity maps, mm (3.2 mm: about six ridges per block, the
 #: print's quality blocks)
@@ -36,6 +38,12 @@ CLARITY_STEP_MM = 0.8
 HIGHPASS_MM = 0.35
 #: ridge periods searched, mm (adult friction ridges: 0.3–0.7 mm, wider on the sides)
 PERIOD_RANGE_MM = (0.3, 1.0)
+#: finest pitch clarity is measured at, mm (500 ppi): a finer print is reduced by block means
+#: first (by the largest whole factor that keeps the pitch at most this), so that the measure
+#: (its share of the block's energy, which a finer grid spreads over more noise frequencies)
+#: and its cost do not grow with the ppi; the ridges (periods ≥ 0.3 mm) are far below 500
+#: ppi's Nyquist period (0.1 mm)
+CLARITY_PITCH_MM = 25.4 / 500
 
 
 def clarity_map(value, mask, pitch: float, *, block_mm: float = CLARITY_BLOCK_MM,
@@ -62,9 +70,12 @@ def clarity_map(value, mask, pitch: float, *, block_mm: float = CLARITY_BLOCK_MM
         Clarity in [0, 1] (:func:`~nail2nail.unroll.quality.block_quality`) bilinearly
         interpolated between block centres; pixels of `mask` nearer the edge than half a
         block take the nearest measured block's value; NaN off `mask`, and everywhere when no
-        block fits.
+        block fits. A print finer than :data:`CLARITY_PITCH_MM` is measured reduced to it.
     """
     mask = np.asarray(mask, dtype=bool)
+    f = int(CLARITY_PITCH_MM / pitch * (1 + 1e-9))  # whole reduction factor
+    if f >= 2:
+        return _reduced_clarity(value, mask, pitch, f, block_mm=block_mm, step_mm=step_mm)
     v = np.where(mask, np.nan_to_num(np.asarray(value, dtype=np.float32)), 0.0)
     v = np.where(mask, v - np.nan_to_num(masked_gaussian(v, mask, HIGHPASS_MM / pitch)), 0.0)
     n = max(8, round(block_mm / pitch))
@@ -87,6 +98,59 @@ def clarity_map(value, mask, pitch: float, *, block_mm: float = CLARITY_BLOCK_MM
     rr, cc = np.meshgrid(np.clip(rows, 0, grid.shape[0] - 1), np.clip(cols, 0, grid.shape[1] - 1),
                          indexing="ij")
     out[mask] = ndi.map_coordinates(grid.astype(np.float64), [rr[mask], cc[mask]], order=1)
+    return out
+
+
+def reduce_print(value, mask, f: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of `value` over the `mask` pixels of ``f × f`` blocks.
+
+    Returns
+    -------
+    value : (⌈H/f⌉, ⌈W/f⌉) float32
+        Mean over each block's pixels in `mask` (0 where none).
+    half : (⌈H/f⌉, ⌈W/f⌉) bool
+        Blocks with at least half their pixels in `mask`.
+    full : (⌈H/f⌉, ⌈W/f⌉) bool
+        Blocks wholly in `mask` (and inside the image).
+    """
+    mask = np.asarray(mask, dtype=bool)
+    v = np.where(mask, np.nan_to_num(np.asarray(value, dtype=np.float32)), np.float32(0))
+    total, share = block_mean(v[..., None], mask, f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(share > 0, total[..., 0] / share, 0).astype(np.float32)
+    return mean, share >= 0.5, share >= 1 - 0.5 / (f * f)
+
+
+def upsample_blocks(small, f: int, shape) -> np.ndarray:
+    """``(H, W) float32``: bilinear interpolation of a map of ``f × f`` blocks (NaN filled from
+    the nearest finite block) at the pixels of the full grid of `shape`; NaN when none is
+    finite."""
+    small = np.asarray(small, dtype=np.float64)
+    finite = np.isfinite(small)
+    if not finite.any():
+        return np.full(shape, np.nan, np.float32)
+    if not finite.all():
+        _, (ir, ic) = ndi.distance_transform_edt(~finite, return_indices=True)
+        small = small[ir, ic]
+    # the centre of block i is full pixel i·f + (f − 1)/2
+    rows = np.clip((np.arange(shape[0]) - (f - 1) / 2) / f, 0, small.shape[0] - 1)
+    cols = np.clip((np.arange(shape[1]) - (f - 1) / 2) / f, 0, small.shape[1] - 1)
+    r0 = np.floor(rows).astype(int)
+    c0 = np.floor(cols).astype(int)
+    r1 = np.minimum(r0 + 1, small.shape[0] - 1)
+    c1 = np.minimum(c0 + 1, small.shape[1] - 1)
+    fr = (rows - r0)[:, None]
+    fc = (cols - c0)[None, :]
+    top = small[r0][:, c0] * (1 - fc) + small[r0][:, c1] * fc
+    bottom = small[r1][:, c0] * (1 - fc) + small[r1][:, c1] * fc
+    return (top * (1 - fr) + bottom * fr).astype(np.float32)
+
+
+def _reduced_clarity(value, mask, pitch: float, f: int, **blocks) -> np.ndarray:
+    """:func:`clarity_map` of the print reduced by ``f × f`` block means, at every pixel."""
+    small, half, _ = reduce_print(value, mask, f)
+    out = upsample_blocks(clarity_map(small, half, pitch * f, **blocks), f, mask.shape)
+    out[~mask] = np.nan
     return out
 
 

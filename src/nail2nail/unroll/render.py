@@ -10,7 +10,7 @@ with ``(s, t)`` of :mod:`nail2nail.unroll.flatten`. Each camera's valid pixels a
 ``(s, t)`` and splatted bilinearly with their blending weight (fringe modulation × cos² of the
 viewing angle × a wide feather at the edge of the camera's valid region), so that cameras fade
 into each other across their overlaps and no seam is visible; small gaps are filled by a
-normalised Gaussian of ≈ 0.6 px.
+normalised Gaussian of ≈ 0.6 px (of a 500-ppi pixel on finer grids, :data:`SUPPORT_PPI`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,22 @@ from nail2nail.unroll._kernels import camera_points, rolled_map, splat, tail_per
 from nail2nail.unroll.flatten import RolledMap
 from nail2nail.unroll.ridges import masked_gaussian
 
-__all__ = ["MM_PER_INCH", "PrintGrid", "binarize", "blend_cameras", "print_grid", "to_gray"]
+__all__ = ["MAX_PRINT_PIXELS", "MM_PER_INCH", "SUPPORT_PPI", "PrintGrid", "binarize",
+           "blend_cameras", "print_grid", "to_gray"]
 
 MM_PER_INCH = 25.4
+
+#: The resolution whose pixel the data region of a print is found on, ppi: at a finer pitch
+#: the camera samples no longer cover every print pixel (a full-resolution camera samples the
+#: skin every 0.03 mm, 0.05-0.1 mm on the finger's sides: 1–3 samples per 500-ppi pixel), so
+#: :func:`blend_cameras`'s gap filling, density threshold and closing keep their size in mm
+#: from this pitch, and a 1000- or 2000-ppi print covers the skin a 500-ppi one does
+SUPPORT_PPI = 500.0
+
+#: Most pixels of a print grid (:func:`print_grid`): the unroll's peak memory is about 280
+#: bytes per pixel of the grid (1.4 GB for a full-resolution finger's 5 M pixels at 2000 ppi),
+#: so about 6 GB at this size: a 56 × 56 mm print plane at 2000 ppi, more than a finger's
+MAX_PRINT_PIXELS = 20_000_000
 
 
 class PrintGrid:
@@ -78,9 +91,9 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     Raises
     ------
     ValueError
-        If `ppi` is not positive.
+        If `ppi` is not positive, or the grid would exceed :data:`MAX_PRINT_PIXELS`.
     """
-    if not ppi > 0:
+    if not (ppi > 0 and np.isfinite(ppi)):
         raise ValueError(f"ppi: expected a positive number, got {ppi}")
     pitch = MM_PER_INCH / ppi
     parts = [np.asarray(p, dtype=np.float64) for p in st_all] \
@@ -93,9 +106,14 @@ def print_grid(st_all, *, ppi: float, margin_mm: float = 1.0) -> PrintGrid:
     # snap s0, t0 to the pitch so that prints of one finger at one ppi share a lattice
     s0 = np.ceil(hi[0] / pitch) * pitch
     t0 = np.ceil(hi[1] / pitch) * pitch
-    w = int(np.ceil((s0 - lo[0]) / pitch)) + 1
-    h = int(np.ceil((t0 - lo[1]) / pitch)) + 1
-    return PrintGrid(s0, t0, pitch, (h, w))
+    size = np.array([s0, t0]) - lo
+    n = np.ceil(size / pitch) + 1  # (w, h), as float: no overflow
+    if not (np.isfinite(n).all() and n[0] * n[1] <= MAX_PRINT_PIXELS):
+        raise ValueError(f"st_all: the print plane's points span {size[0]:.4g} x {size[1]:.4g} "
+                         f"mm, {n[0]:.4g} x {n[1]:.4g} px at {ppi:g} ppi: more than "
+                         f"{MAX_PRINT_PIXELS} px (MAX_PRINT_PIXELS); a lower ppi, or a scan of "
+                         "one finger")
+    return PrintGrid(s0, t0, pitch, (int(n[1]), int(n[0])))
 
 
 def _splat(grid: PrintGrid, st, values, weights):
@@ -106,7 +124,7 @@ def _splat(grid: PrintGrid, st, values, weights):
 
 def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
                   min_support: float = 0.3, edge_sigma_px: float = 0.0,
-                  min_piece: float = 0.1):
+                  min_piece: float = 0.1, support_pitch: float | None = None):
     """Blend per-camera samples ``(st (N, 2), value (N,), weight (N,))`` on the print grid.
 
     Parameters
@@ -115,11 +133,21 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
     samples : sequence of (st, value, weight)
         One entry per camera.
     fill_sigma_px : float
-        σ of the normalised Gaussian that fills gaps between splatted samples, print px.
+        σ of the normalised Gaussian that fills gaps between splatted samples, print px (of
+        a pixel of `support_pitch` when the grid is finer).
     min_support : float
-        A pixel has data where the smoothed sample density (samples per pixel) is at least this.
+        A pixel has data where the smoothed sample density (samples per pixel, per pixel of
+        `support_pitch` when the grid is finer) is at least this.
     edge_sigma_px : float
         σ of the Gaussian that smooths the outline of the data region, print px (0: none).
+    min_piece : float
+        Pieces of the data region smaller than this fraction of the largest are dropped.
+    support_pitch : float, optional
+        When the grid's pitch is finer than this (mm), `fill_sigma_px`, `min_support` and the
+        closing of pinholes keep the size in mm they have at this pitch (the fill's σ with
+        the bilinear splat's own spread), so that the data region does not depend on the pitch
+        (``unroll_scans`` gives 500 ppi's, :data:`SUPPORT_PPI`): at a pitch finer than the
+        samples' spacing, a fill of 0.6 px leaves most pixels without a sample near enough.
 
     Returns
     -------
@@ -131,6 +159,13 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
         Each camera's fraction of the blending weight per pixel.
     """
     h, w = grid.shape
+    closing = 2
+    if support_pitch is not None and support_pitch > grid.pitch:
+        ratio = support_pitch / grid.pitch
+        # the same spread in mm, the bilinear splat's own included (variance 1/6 px² per axis)
+        fill_sigma_px = float(np.sqrt(ratio * ratio * (fill_sigma_px**2 + 1 / 6) - 1 / 6))
+        min_support /= ratio * ratio  # a density: samples per pixel
+        closing = round(closing * ratio)
     num = np.zeros((h, w))
     count = np.zeros((h, w))
     per_camera = []
@@ -148,7 +183,7 @@ def blend_cameras(grid: PrintGrid, samples, *, fill_sigma_px: float = 0.6,
     support = g(count)
     mask = support >= min_support
     # close pinholes, drop specks: the print's data region is one solid piece
-    mask = ndi.binary_closing(mask, iterations=2, border_value=0)
+    mask = ndi.binary_closing(mask, iterations=closing, border_value=0)
     mask = ndi.binary_fill_holes(mask)
     mask &= den_s > 1e-9 * max(float(den_s.max()), 1e-300)
     if edge_sigma_px > 0:

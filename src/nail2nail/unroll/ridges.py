@@ -293,6 +293,7 @@ def camera_layer(
     feather_px: float = 40.0,
     max_view_angle_deg: float = 75.0,
     valid: np.ndarray | None = None,
+    feather_mask: np.ndarray | None = None,
     floor_fraction: float = 0.0,
     curvature: bool = False,
     highpass_mm: float = 0.0,
@@ -329,6 +330,10 @@ def camera_layer(
         merging rejects pairs beyond 70° for the same reason). Needs ``camera_center``.
     valid : (H, W) bool, optional
         ``scan_valid(scan)`` when the caller has it already (not checked).
+    feather_mask : (H, W) bool, optional
+        The region whose edge the feather ramps from (default: the valid pixels); pixels left
+        out of `valid` inside it (far outliers) then get no weight without a dip of
+        `feather_px` around each.
     floor_fraction : float
         RMS floor of the local normalisations, as a fraction of the ridges' level
         (:func:`local_normalize`; 0: none): skin without ridges stays faint.
@@ -400,9 +405,10 @@ def camera_layer(
     # the ridges' level: pixels weighed by cos² of their viewing angle (not the grazing edge)
     floor = {"floor_fraction": floor_fraction, "level_weights": np.nan_to_num(cos) ** 2}
     signal = local_normalize(relief, m, csig, reduce=creduce, **floor)
+    fm = m if feather_mask is None else np.asarray(feather_mask, bool)[box]
     if separate:
         weight_args = (np.asarray(scan.modulation[box], np.float32), cos,
-                       _feather(m, feather_px, max(1, reduce // 2)), m)
+                       _feather(fm, feather_px, max(1, reduce // 2)), m)
         cos_min = np.cos(np.radians(max_view_angle_deg))
         relief_out, weight = layer_outputs(*weight_args, signal, cos_min, box, valid.shape)
         albedo_out = None
@@ -419,7 +425,7 @@ def camera_layer(
     # weight = clip(modulation, 0) · cos² · feather, 0 beyond the largest viewing angle; both
     # outputs on the full grid (compiled, one pass over the box)
     return layer_outputs(np.asarray(scan.modulation[box], np.float32), cos,
-                         _feather(m, feather_px, max(1, reduce // 2)), m, signal,
+                         _feather(fm, feather_px, max(1, reduce // 2)), m, signal,
                          np.cos(np.radians(max_view_angle_deg)), box, valid.shape)
 
 

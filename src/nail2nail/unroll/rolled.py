@@ -23,12 +23,22 @@ from nail2nail.unroll.flatten import (
     IsometricMap,
     RolledMap,
     SphereMap,
+    bulk_sphere,
     fit_flattening,
     map_distortion,
+    within_sphere,
 )
-from nail2nail.unroll.mixing import clarity_map, gate_mask, mix_layers
+from nail2nail.unroll.mixing import (
+    CLARITY_PITCH_MM,
+    clarity_map,
+    gate_mask,
+    mix_layers,
+    reduce_print,
+)
 from nail2nail.unroll.quality import block_quality
 from nail2nail.unroll.render import (
+    MM_PER_INCH,
+    SUPPORT_PPI,
     PrintGrid,
     binarize,
     blend_cameras,
@@ -36,10 +46,11 @@ from nail2nail.unroll.render import (
     print_grid,
     to_gray,
 )
-from nail2nail.unroll.ridges import camera_layer, masked_gaussian, scan_valid
+from nail2nail.unroll.ridges import camera_layer, masked_gaussian, pixel_spacing_mm, scan_valid
 
-__all__ = ["DEFAULT_LENGTH_MM", "DEFAULT_METHOD", "FLOOR_FRACTION", "MIN_CLARITY", "RolledPrint",
-           "image_up_direction", "unroll_scans"]
+__all__ = ["DEFAULT_LENGTH_MM", "DEFAULT_METHOD", "FLOOR_FRACTION", "MAX_LENGTH_MM", "MAX_PPI",
+           "MIN_CLARITY", "MIN_LENGTH_MM", "MIN_PPI", "RolledPrint", "image_up_direction",
+           "unroll_scans"]
 
 #: The default unrolling method: the one with the least length and area distortion (README).
 DEFAULT_METHOD = "rolled"
@@ -47,6 +58,27 @@ DEFAULT_METHOD = "rolled"
 #: Length of skin kept below the fingertip by default, mm (:data:`~nail2nail.io.rolled.
 #: ROLLED_LENGTH_MM`)
 DEFAULT_LENGTH_MM = ROLLED_LENGTH_MM
+
+#: Shortest and longest skin kept below the fingertip (`length_mm`), mm: under 5 mm a print
+#: holds no 3.2 mm quality block below the tip's rounded edge (about ten ridges); 100 mm is
+#: longer than any finger (``length_mm=None`` keeps all the cameras saw)
+MIN_LENGTH_MM = 5.0
+MAX_LENGTH_MM = 100.0
+
+#: Resolution range of the print, pixels per inch: under 100 ppi (0.25 mm pixels) a ridge
+#: period of 0.4–0.5 mm is under two pixels; 2000 ppi (12.7 µm pixels) is twice the FBI's
+#: finest (1000 ppi) and 2.6 times finer than the full-resolution cameras sample the skin
+#: (0.033 mm), so a finer print only interpolates, at four times the memory per doubling (a
+#: full-resolution finger at 2000 ppi: 31 s, 1.4 GB; at 4000 ppi its grid of 20.1 M pixels
+#: exceeds :data:`~nail2nail.unroll.render.MAX_PRINT_PIXELS`)
+MIN_PPI = 100.0
+MAX_PPI = 2000.0
+
+#: Band of ridge periods the print's quality blocks search, px of a 500-ppi print (the
+#: defaults of :func:`~nail2nail.unroll.quality.block_quality`: 0.2–1.27 mm), scaled to the
+#: print's pitch so that it is the same in mm at any ppi (4–25 px at 2000 ppi missed the
+#: ridges, 38 px there)
+QUALITY_PERIOD_PX_500 = (4.0, 25.0)
 
 #: RMS floor of the ridge signal's local normalisations, as a fraction of the ridges' level
 #: (``unroll.ridges.local_normalize``): skin without ridges stays faint, not blown up
@@ -98,6 +130,8 @@ class RolledPrint:
         Block ridge period and clarity (:func:`~nail2nail.unroll.quality.block_quality`).
     timings : dict
         Seconds per step.
+    outliers : dict
+        The scans' far points left out of the print (:func:`unroll_scans`).
     """
 
     image: np.ndarray
@@ -112,6 +146,9 @@ class RolledPrint:
     distortion: dict
     quality: dict
     timings: dict = field(default_factory=dict)
+    #: far points left out (``unroll_scans``): ``{"points", "per_camera", "center_mm",
+    #: "radius_mm"}``; empty when not measured
+    outliers: dict = field(default_factory=dict)
 
     @property
     def ppi(self) -> float:
@@ -150,6 +187,7 @@ class RolledPrint:
             "print_area_mm2": round(area_px * pitch * pitch, 2),
             "print_size_mm": _extent_mm(self.mask, pitch),
             "distortion": self.distortion,
+            "outliers": self.outliers or None,
             "coverage": coverage,
             "quality": {
                 "measure": "ridge clarity per 3.2 mm block (overlapping by half): fraction of "
@@ -208,7 +246,97 @@ def _cut_length(grid: PrintGrid, value, mask, share, length_mm: float):
     return PrintGrid(grid.s0, grid.t0, grid.pitch, mask.shape), value, mask, share
 
 
-def image_up_direction(scans, *, step: int = 4) -> np.ndarray:
+def _direction(v, name: str) -> np.ndarray:
+    """A direction given by the caller (three finite numbers, not all 0), made unit."""
+    try:
+        d = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected three numbers X, Y, Z, got {v!r}") from None
+    if not (d.shape == (3,) and np.isfinite(d).all() and np.any(d != 0)):
+        raise ValueError(f"{name}: expected three finite numbers X, Y, Z, not all 0, got "
+                         f"{v!r}")
+    d = d / np.max(np.abs(d))  # (1e308, 1e308, 0) has no finite length
+    return d / np.linalg.norm(d)
+
+
+def _leave_out_far_points(scans, valids) -> tuple[list[np.ndarray], dict]:
+    """The scans' valid pixels without the far outliers of all of them together.
+
+    A scanner's stray points (a reflection, a wrong phase order) can lie metres away; the
+    flattening, the mesh and the print are sized from the points, so they are left out first:
+    every camera's pixels outside the sphere of :func:`~nail2nail.unroll.flatten.bulk_sphere`
+    of every camera's points (twice the 90th percentile of their distances from their median).
+    """
+    sample = np.concatenate([np.asarray(s.xyz).reshape(-1, 3)[np.flatnonzero(v)[::16]]
+                             for s, v in zip(scans, valids, strict=True)])
+    center, radius = bulk_sphere(sample)
+    out, per_camera = [], {}
+    for s, v in zip(scans, valids, strict=True):
+        index = np.flatnonzero(v)
+        far = index[~within_sphere(np.asarray(s.xyz).reshape(-1, 3)[index], center, radius)]
+        per_camera[s.name] = int(far.size)
+        if far.size:
+            v = v.copy()
+            v.reshape(-1)[far] = False
+            if not v.any():
+                raise ValueError(f"scans: {s.name!r} has no valid pixels near the others' "
+                                 f"points (all beyond {radius:.4g} mm of their median)")
+        out.append(v)
+    info = {"points": sum(per_camera.values()), "per_camera": per_camera,
+            "center_mm": np.round(center, 4).tolist(), "radius_mm": round(radius, 4)}
+    return out, info
+
+
+#: Finest print pixel, in sample spacings of the coarsest camera, whose data region a camera
+#: alone fills: the pad's centre then holds 0.64 samples per pixel (0.3 is the threshold,
+#: ``render.blend_cameras``), and the finger's sides, seen obliquely, fewer. Measured on the
+#: centre camera of a scale-0.25 finger (0.13 mm): no data at 500 ppi, a print at 250 ppi.
+MIN_PIXEL_SPACINGS = 0.8
+
+
+def _no_data(scans, valids, ppi: float) -> str:
+    """Why the blend left no pixel with data: the cameras' samples too sparse for the print's
+    pixels (with the finest ppi that works), or no pixel with a blending weight."""
+    spacing = {}
+    for s, v in zip(scans, valids, strict=True):
+        try:
+            spacing[s.name] = pixel_spacing_mm(s.xyz, v)
+        except ValueError:  # no two adjacent valid pixels
+            continue
+    pitch = max(MM_PER_INCH / ppi, MM_PER_INCH / SUPPORT_PPI)  # the data region's pixel
+    if spacing:
+        name = max(spacing, key=spacing.__getitem__)
+        finest = MM_PER_INCH / (MIN_PIXEL_SPACINGS * spacing[name])
+        if finest < MM_PER_INCH / pitch:
+            return (f"scans: the print has no pixel with data at {ppi:g} ppi: the cameras sample "
+                    f"the skin every {spacing[name]:.3g} mm ({name!r}), too sparsely for a data "
+                    f"region of {pitch:.3g} mm pixels (0.3 samples each); at most "
+                    f"{10 * int(finest // 10)} ppi, or scans of finer cameras, or more of them "
+                    "overlapping")
+    return ("scans: the print has no pixel with data: no camera pixel got a blending weight "
+            "(every view beyond 75 degrees from the skin's normal, or no fringe modulation)")
+
+
+def _print_quality(image, mask, pitch: float) -> dict:
+    """:func:`~nail2nail.unroll.quality.block_quality` of the print in 3.2 mm blocks, on the
+    print reduced to 500 ppi at most (by whole block means, as
+    :func:`~nail2nail.unroll.mixing.clarity_map`), in the print's pixels."""
+    f = max(1, int(CLARITY_PITCH_MM / pitch * (1 + 1e-9)))
+    if f > 1:
+        small, _, full = reduce_print(image, mask, f)
+        image, mask, pitch = small, full, pitch * f
+    per_500 = (MM_PER_INCH / 500.0) / pitch  # 500-ppi pixels to this print's
+    q = block_quality(image, mask, block_px=round(3.2 / pitch),
+                      min_period_px=QUALITY_PERIOD_PX_500[0] * per_500,
+                      max_period_px=QUALITY_PERIOD_PX_500[1] * per_500)
+    if f > 1:  # back to the print's pixels: block i covers pixels i·step … i·step + block − 1
+        q.update(rows=q["rows"] * f + (f - 1) / 2, cols=q["cols"] * f + (f - 1) / 2,
+                 period_px=q["period_px"] * f, block_px=q["block_px"] * f,
+                 step_px=q["step_px"] * f)
+    return q
+
+
+def image_up_direction(scans, *, step: int = 4, valid=None) -> np.ndarray:
     """The world direction that is *up* in the cameras' images, measured on their scans.
 
     For each scan, the mean world displacement from a valid pixel to the valid pixel above it
@@ -223,6 +351,8 @@ def image_up_direction(scans, *, step: int = 4) -> np.ndarray:
         Scans on their camera's pixel grid (``xyz (H, W, 3)``, world mm).
     step : int
         Sampling of rows and columns, camera px.
+    valid : sequence of (H, W) bool, optional
+        Per scan, its pixels to use (default: its mask and finite points).
 
     Returns
     -------
@@ -235,10 +365,11 @@ def image_up_direction(scans, *, step: int = 4) -> np.ndarray:
         When no scan has two valid pixels one above the other.
     """
     total = np.zeros(3)
-    for s in scans:
+    for i, s in enumerate(scans):
         xyz = np.asarray(s.xyz)[::step, ::step].astype(np.float64)
-        valid = np.asarray(s.mask)[::step, ::step] & np.all(np.isfinite(xyz), axis=-1)
-        both = valid[:-1] & valid[1:]
+        ok = np.asarray(s.mask if valid is None else valid[i])[::step, ::step]
+        ok = ok & np.all(np.isfinite(xyz), axis=-1)
+        both = ok[:-1] & ok[1:]
         if not both.any():
             continue
         up = np.mean((xyz[:-1] - xyz[1:])[both], axis=0)
@@ -277,7 +408,8 @@ def unroll_scans(
         Flattening (:mod:`nail2nail.unroll.flatten`); ``rolled`` by default, the method with
         the smallest geometric error against the true skin coordinates (``docs/unroll.md``).
     ppi : float
-        Resolution of the print, pixels per inch (500 is the FBI's rolled-print standard).
+        Resolution of the print, pixels per inch, :data:`MIN_PPI` … :data:`MAX_PPI` (500 is the
+        FBI's rolled-print standard).
     tip_direction : (3,) float, optional
         Rough direction of the fingertip in the world frame (only its sign along the finger's
         axis matters). Default: up in the cameras' images (:func:`image_up_direction`), i.e.
@@ -298,7 +430,8 @@ def unroll_scans(
     length_mm : float or None
         Keep only the skin within this distance (print-plane ``t``) below the fingertip, as an
         inked roll does: :data:`DEFAULT_LENGTH_MM` (25 mm reaches the distal crease of an
-        adult finger); None keeps everything the cameras saw.
+        adult finger), :data:`MIN_LENGTH_MM` … :data:`MAX_LENGTH_MM`; None keeps everything
+        the cameras saw.
     mix : bool
         Blend relief and albedo apart and average them by their measured ridge clarity, the
         albedo's sign measured (:func:`~nail2nail.unroll.mixing.mix_layers`); normalise with
@@ -315,11 +448,20 @@ def unroll_scans(
     Returns
     -------
     RolledPrint
+        Its ``outliers`` counts the far points left out: every camera's points farther from
+        the median of all cameras' points than twice the 90th percentile of their distances
+        from it (:func:`~nail2nail.unroll.flatten.bulk_sphere`), a scanner's stray points,
+        which would otherwise size the mesh and the print.
 
     Raises
     ------
     ValueError
-        No scans, a scan without valid pixels, an unknown method, a bad `ppi`.
+        No scans, a scan without valid pixels (near the others'), an unknown method, `ppi`
+        outside :data:`MIN_PPI` … :data:`MAX_PPI`, `length_mm` outside :data:`MIN_LENGTH_MM`
+        … :data:`MAX_LENGTH_MM`, a direction not three finite numbers (not all 0), points
+        spanning more than a finger can (``flatten.MAX_EXTENT_MM``, ``render.
+        MAX_PRINT_PIXELS``), or cameras too coarse for the print's pixels (the message gives
+        the finest ppi that works).
     """
     scans = list(scans)
     if not scans:
@@ -329,28 +471,47 @@ def unroll_scans(
             raise TypeError(f"scans[{i}]: expected a Scan, got {type(s).__name__}")
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
-    if not (isinstance(ppi, (int, float)) and 100 <= ppi <= 4000):
-        raise ValueError(f"ppi: expected a number in 100..4000, got {ppi!r}")
+    if not (isinstance(ppi, (int, float)) and MIN_PPI <= ppi <= MAX_PPI):
+        raise ValueError(f"ppi: expected a number in {MIN_PPI:g}..{MAX_PPI:g}, got {ppi!r}")
+    if length_mm is not None and not (isinstance(length_mm, (int, float))
+                                      and MIN_LENGTH_MM <= length_mm <= MAX_LENGTH_MM):
+        raise ValueError(f"length_mm: expected {MIN_LENGTH_MM:g}..{MAX_LENGTH_MM:g} mm or None, "
+                         f"got {length_mm!r}")
+    if tip_direction is not None:
+        tip_direction = _direction(tip_direction, "tip_direction")
+    if pad_direction is not None:
+        pad_direction = _direction(pad_direction, "pad_direction")
     lap = StepClock()
     timings = lap.seconds
 
-    picked, valids = [], []
+    valids = []
     for s in scans:
         v = scan_valid(s)
         if not v.any():
             raise ValueError(f"scans: {s.name!r} has no valid pixels")
         valids.append(v)
-        # every fourth valid point (row-major), converted once they are picked
-        xyz = np.asarray(s.xyz).reshape(-1, 3)
-        picked.append(xyz[np.flatnonzero(v)[::4]].astype(np.float64))
+    valid_near, outliers = _leave_out_far_points(scans, valids)
+    picked, near = [], []
+    for s, v, k in zip(scans, valids, valid_near, strict=True):
+        # every fourth valid point (row-major), converted once they are picked; the far
+        # outliers stay among them, for the flattening's fits draw their random subsets first
+        # and leave the far points out after (flatten._check_points): the fits of a scan with a
+        # few far outliers are those of the scan without them
+        index = np.flatnonzero(v)[::4]
+        picked.append(np.asarray(s.xyz).reshape(-1, 3)[index].astype(np.float64))
+        near.append(k.reshape(-1)[index])
     points = np.concatenate(picked)
+    # the feather ramps from the edge of each camera's region as scanned: a far outlier
+    # left out leaves a pixel without weight, not a dip of feather_px around it
+    feathers = [None if k is v else v for v, k in zip(valids, valid_near, strict=True)]
+    valids = valid_near
     if tip_direction is None:
-        tip_direction = image_up_direction(scans)
+        tip_direction = image_up_direction(scans, valid=valids)
     pad_from_section = pad_direction is None
     if pad_direction is None:
         centers = [np.asarray(s.camera_center, float) for s in scans if s.camera_center is not None]
         if centers:
-            centroid = points.mean(axis=0)
+            centroid = points[np.concatenate(near)].mean(axis=0)
             pad_direction = np.mean([(c - centroid) / np.linalg.norm(c - centroid)
                                      for c in centers], axis=0)
         else:
@@ -363,8 +524,9 @@ def unroll_scans(
     if mix:
         options = {"floor_fraction": FLOOR_FRACTION, "curvature": True,
                    "highpass_mm": HIGHPASS_MM, **options}
-    layers = [camera_layer(s, feather_px=feather_px, valid=v, separate=mix, **options)
-              for s, v in zip(scans, valids, strict=True)]
+    layers = [camera_layer(s, feather_px=feather_px, valid=v, feather_mask=f, separate=mix,
+                           **options)
+              for s, v, f in zip(scans, valids, feathers, strict=True)]
     lap("ridges")
     samples, albedo_samples = [], []
     for s, layer in zip(scans, layers, strict=True):
@@ -375,14 +537,16 @@ def unroll_scans(
             st, _, w = samples[-1]
             albedo_samples.append((st, np.nan_to_num(layer[1][ok]), w))
     grid = print_grid([st for st, _, _ in samples], ppi=ppi)
-    # the outline smoothed over about one ridge period (0.5 mm)
-    value, mask, share = blend_cameras(grid, samples, edge_sigma_px=0.25 / grid.pitch)
+    # the data region found at 500 ppi's pitch at most (render.SUPPORT_PPI); the outline
+    # smoothed over about one ridge period (0.5 mm)
+    blend = {"edge_sigma_px": 0.25 / grid.pitch, "support_pitch": MM_PER_INCH / SUPPORT_PPI}
+    value, mask, share = blend_cameras(grid, samples, **blend)
     albedo = None
     if albedo_samples and len(albedo_samples) == len(samples):
-        albedo, _, _ = blend_cameras(grid, albedo_samples, edge_sigma_px=0.25 / grid.pitch)
+        albedo, _, _ = blend_cameras(grid, albedo_samples, **blend)
     lap("blend")
     if not mask.any():
-        raise ValueError("scans: the print has no pixel with data")
+        raise ValueError(_no_data(scans, valids, ppi))
     if length_mm is not None:
         grid, value, mask, share = _cut_length(grid, value, mask, share, length_mm)
         if albedo is not None:
@@ -416,7 +580,7 @@ def unroll_scans(
             image = np.where(mask, image, 255).astype(np.uint8)
     binary = binarize(image, mask, period_px=0.48 / pitch)
     lap("render")
-    quality = block_quality(image, mask, block_px=round(3.2 / pitch))
+    quality = _print_quality(image, mask, pitch)
     quality["mixing"] = None if mixing is None else {
         "albedo_share": round(mixing["albedo_share"], 4)}
     quality["gate"] = gated
@@ -425,4 +589,4 @@ def unroll_scans(
     return RolledPrint(image=image, mask=mask, binary=binary, ridge=value, share=share,
                        grid=grid, method=method, flattening=flat,
                        cameras=[s.name for s in scans], distortion=distortion,
-                       quality=quality, timings=timings)
+                       quality=quality, timings=timings, outliers=outliers)
