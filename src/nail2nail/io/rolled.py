@@ -24,7 +24,7 @@ import numpy as np
 
 from nail2nail.io._atomic import atomic_directory, atomic_path
 from nail2nail.io._json import write_json
-from nail2nail.io.prints import write_print_image
+from nail2nail.io.prints import WSQ_BITRATE, encode_jpeg2000, write_print_image
 
 __all__ = ["ROLLED_FORMAT", "write_rolled_print"]
 
@@ -46,7 +46,7 @@ def _write_png(path: Path, image: np.ndarray, ppi: float) -> None:
 
 
 def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
-                       extra: dict | None = None) -> dict:
+                       extra: dict | None = None, wsq_bitrate: float = WSQ_BITRATE) -> dict:
     """Write a :class:`~nail2nail.unroll.RolledPrint` and its metadata; return the metadata.
 
     Parameters
@@ -58,6 +58,9 @@ def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
     rolled : RolledPrint
     wsq : bool
         Also write the compressed print (WSQ at 500 ppi, JPEG 2000 otherwise).
+    wsq_bitrate : float
+        WSQ bit rate, bits per pixel (:func:`nail2nail.io.prints.encode_wsq`; default 0.75,
+        the FBI's); ``print.json`` records it with the achieved rate and ratio (``wsq``).
     extra : dict, optional
         Added to the metadata (e.g. the scan directory it came from, timings).
 
@@ -67,24 +70,22 @@ def write_rolled_print(out_dir: str | os.PathLike, rolled, *, wsq: bool = True,
         The content of ``print.json``; ``files`` maps each output to its name in `out_dir`.
     """
     with atomic_directory(out_dir, marker="print.json") as out:
-        return _write_print(out, rolled, wsq=wsq, extra=extra)
+        return _write_print(out, rolled, wsq=wsq, extra=extra, wsq_bitrate=wsq_bitrate)
 
 
-def _write_print(out: Path, rolled, *, wsq: bool, extra: dict | None) -> dict:
+def _write_print(out: Path, rolled, *, wsq: bool, extra: dict | None,
+                 wsq_bitrate: float = WSQ_BITRATE) -> dict:
     ppi = rolled.ppi
     files = {}
     write_print_image(out / "print.png", rolled.image, ppi=ppi)
     files["print"] = "print.png"
     if wsq:
         if abs(ppi - 500.0) < 1e-6:
-            write_print_image(out / "print.wsq", rolled.image, ppi=ppi)
+            write_print_image(out / "print.wsq", rolled.image, ppi=ppi, bitrate=wsq_bitrate)
             files["wsq"] = "print.wsq"
         else:
-            from PIL import Image
-
             with atomic_path(out / "print.jp2") as tmp:
-                Image.fromarray(rolled.image).save(tmp, format="JPEG2000", irreversible=True,
-                                                   quality_mode="rates", quality_layers=[15])
+                tmp.write_bytes(encode_jpeg2000(rolled.image))
             files["jpeg2000"] = "print.jp2"
     _write_png(out / "print_binary.png", rolled.binary, ppi)
     files["binary"] = "print_binary.png"
@@ -111,6 +112,9 @@ def _write_print(out: Path, rolled, *, wsq: bool, extra: dict | None) -> dict:
     if files.get("wsq"):
         size = (out / files["wsq"]).stat().st_size
         meta["wsq_compression_ratio"] = round(rolled.image.size / max(size, 1), 2)
+        meta["wsq"] = {"bitrate_bpp": float(wsq_bitrate),  # asked; achieved: the file's
+                       "achieved_bpp": round(8.0 * size / rolled.image.size, 4),
+                       "compression_ratio": meta["wsq_compression_ratio"], "bytes": size}
     meta["files"] = files
     if extra:
         meta.update(extra)

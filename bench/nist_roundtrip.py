@@ -1,0 +1,175 @@
+"""ANSI/NIST-ITL round trips of prints (issue 28): WSQ ratio and fidelity, ten-finger batch.
+
+Usage::
+
+    .venv/bin/python bench/nist_roundtrip.py [--print-dir demo-output/print] [--scale 0.25]
+                                             [--rates 0.75 0.6 0.55] [--no-batch] [--json]
+
+**WSQ on the demo print** (``--print-dir``: the ``print/`` directory of ``make demo``; by
+default ``demo-output/print``, else the demo is run at ``--demo-scale`` in a temporary
+directory, a few minutes): for each bit rate, a one-finger transaction is written
+(:func:`nail2nail.interchange.export_transaction`), read back with ``nistitl``
+(:func:`~nail2nail.interchange.read_transaction`) and with the tests' independent reader, and
+the print decoded from it is compared with the original: compression ratio (pixels / WSQ
+bytes), RMS grey error, and the SourceAFIS score of the decoded print against the original
+over the original's score against itself (target ≥ 0.95). SourceAFIS: ``bench/sourceafis.py``
+(Java 17 and Maven; skipped with a line when missing).
+
+**Ten fingers from a batch** (unless ``--no-batch``): ten virtual captures (seeds 1–10, scale
+``--scale``, the rig's true calibration) through ``nail2nail batch … --subjects TABLE`` (two
+workers): one transaction of ten Type-14 records, read back by both readers; its size and each
+print's ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "bench"))
+sys.path.insert(0, str(ROOT / "tests"))
+
+
+def demo_print_dir(args, tmp: Path) -> Path:
+    if args.print_dir is not None:
+        return args.print_dir
+    if (ROOT / "demo-output" / "print" / "print.json").is_file():
+        return ROOT / "demo-output" / "print"
+    from nail2nail.cli import main
+
+    print(f"running the demo at scale {args.demo_scale} (no demo-output/print) ...",
+          file=sys.stderr)
+    assert main(["-q", "demo", "--out", str(tmp / "demo"), "--scale", str(args.demo_scale),
+                 "--no-report"]) == 0
+    return tmp / "demo" / "print"
+
+
+def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
+    import sourceafis
+    from test_interchange import _independent_read
+
+    from nail2nail.interchange import export_transaction, read_job, read_transaction
+
+    original = read_job(print_dir).image
+    rows, pngs = [], {}
+    sourceafis.save_png(tmp / "original.png", original)
+    for rate in rates:
+        out = tmp / f"demo_{rate:g}.an2"
+        summary = export_transaction([print_dir], out, positions=[2], wsq_bitrate=rate)
+        back = read_transaction(out)
+        records = _independent_read(out.read_bytes())["records"]
+        assert records[1][1][999] == back["type14"][0][999]
+        decoded = back["images"][0]
+        rms = float(np.sqrt(np.mean((decoded.astype(float) - original) ** 2)))
+        pngs[rate] = sourceafis.save_png(tmp / f"decoded_{rate:g}.png", decoded)
+        p = summary["prints"][0]
+        rows.append({"bitrate_bpp": rate, "achieved_bpp": p["bits_per_pixel"],
+                     "ratio": p["compression_ratio"], "rms_grey": round(rms, 2),
+                     "transaction_bytes": summary["bytes"]})
+    result = {"print_dir": str(print_dir), "shape": list(original.shape), "rates": rows,
+              "sourceafis": None}
+    if not sourceafis.available():
+        print("SourceAFIS: java or mvn missing; scores skipped", file=sys.stderr)
+        return result
+    pairs = [(tmp / "original.png", tmp / "original.png")]
+    pairs += [(pngs[r], tmp / "original.png") for r in rates]
+    start = time.perf_counter()
+    scores = sourceafis.score_pairs(pairs, dpi=500)
+    self_score = float(scores[0])
+    for row, score in zip(rows, scores[1:], strict=True):
+        row["score_vs_original"] = round(float(score), 1)
+        row["score_ratio"] = round(float(score) / self_score, 3)
+        row["passes_0.95"] = bool(score >= 0.95 * self_score)
+    result["sourceafis"] = {"self_score": round(self_score, 1),
+                            "seconds": round(time.perf_counter() - start, 1)}
+    return result
+
+
+def ten_fingers(scale: float, tmp: Path) -> dict:
+    from test_interchange import _independent_read
+
+    from nail2nail.calibration.files import RigCalibration, save_calibration
+    from nail2nail.cli import main
+    from nail2nail.interchange import read_transaction
+    from nail2nail.simulation.capture import simulate_capture
+    from nail2nail.simulation.rig import default_rig, ideal_calibration
+
+    rig = default_rig(scale, projector_distortion="none")
+    calib = tmp / "rig.json"
+    save_calibration(calib, RigCalibration.from_dict(ideal_calibration(rig)))
+    start = time.perf_counter()
+    lines = ["capture,subject,finger_position"]
+    for position in range(1, 11):
+        name = f"finger{position:02d}"
+        simulate_capture(tmp / "captures" / name, "finger", rig=rig, seed=position,
+                         write_truth=False)
+        lines.append(f"{name},person1,{position}")
+    (tmp / "subjects.csv").write_text("\n".join(lines) + "\n")
+    simulated = time.perf_counter() - start
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):  # its table: not in this script's --json
+        code = main(["-q", "batch", str(tmp / "captures" / "*"), "--calib", str(calib),
+                     "--out", str(tmp / "out"), "--workers", "2", "--subjects",
+                     str(tmp / "subjects.csv")])
+    batch_s = time.perf_counter() - start
+    path = tmp / "out" / "transactions" / "person1.an2"
+    back = read_transaction(path)
+    records = _independent_read(path.read_bytes())["records"]
+    assert code == 0 and [int(r[13]) for r in back["type14"]] == list(range(1, 11))
+    assert [int(f[13]) for _, f in records[1:]] == list(range(1, 11))
+    sizes = [len(r[999]) for r in back["type14"]]
+    pixels = [img.size for img in back["images"]]
+    return {"scale": scale, "simulate_s": round(simulated, 1), "batch_s": round(batch_s, 1),
+            "records": [t for t, _ in records], "bytes": path.stat().st_size,
+            "ratios": [round(n / s, 2) for n, s in zip(pixels, sizes, strict=True)],
+            "impression": sorted({r[3] for r in back["type14"]})}
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--print-dir", type=Path, default=None)
+    parser.add_argument("--demo-scale", type=float, default=1.0)
+    parser.add_argument("--rates", type=float, nargs="+", default=[0.75, 0.6, 0.55])
+    parser.add_argument("--scale", type=float, default=0.25)
+    parser.add_argument("--no-batch", action="store_true")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="nist_roundtrip_") as tmp_name:
+        tmp = Path(tmp_name)
+        results = {"wsq": wsq_rates(demo_print_dir(args, tmp), args.rates, tmp)}
+        if not args.no_batch:
+            (tmp / "batch").mkdir()
+            results["ten_fingers"] = ten_fingers(args.scale, tmp / "batch")
+    if args.json:
+        print(json.dumps(results, indent=2))
+        return results
+    w = results["wsq"]
+    print(f"demo print {w['print_dir']} ({w['shape'][1]} x {w['shape'][0]} px)")
+    if w["sourceafis"]:
+        print(f"SourceAFIS: original vs itself {w['sourceafis']['self_score']}")
+    for r in w["rates"]:
+        score = (f", SourceAFIS {r['score_vs_original']} = {r['score_ratio']:.3f} x self "
+                 f"({'pass' if r['passes_0.95'] else 'FAIL'} >= 0.95)"
+                 if "score_ratio" in r else "")
+        print(f"  WSQ {r['bitrate_bpp']:g} bpp: achieved {r['achieved_bpp']:.3f} bpp, "
+              f"{r['ratio']:.2f}:1, RMS grey error {r['rms_grey']:.2f}{score}")
+    if "ten_fingers" in results:
+        t = results["ten_fingers"]
+        print(f"ten virtual captures (scale {t['scale']}): simulate {t['simulate_s']} s, batch "
+              f"{t['batch_s']} s; transaction {t['bytes']} bytes, records {t['records']}, "
+              f"IMP {t['impression']}, ratios {min(t['ratios'])}-{max(t['ratios'])}:1; read "
+              "back by nistitl and the independent reader")
+    return results
+
+
+if __name__ == "__main__":
+    main()
