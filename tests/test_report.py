@@ -214,13 +214,19 @@ def test_bad_input_writes_nothing(processed_finger, tmp_path, capsys):
     assert main(["report", str(tmp_path)]) == 2
     assert "not a nail2nail output directory" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
-    # a corrupt merge.json: exit 2 naming it; an earlier report is kept, no temporary file
+    # a corrupt merge.json (issue 29): its sections say so, the rest is drawn, one warning
+    # naming it, exit 0 (tests/test_robustness_messages.py); an unwritable --out: exit 2, an
+    # earlier report kept, no temporary file
     out = tmp_path / "job"
     shutil.copytree(processed_finger, out, ignore=shutil.ignore_patterns("report.html"))
-    (out / "report.html").write_text("earlier")
     (out / "merge" / "merge.json").write_text("{not json")
-    assert main(["report", str(out)]) == 2
-    assert "merge.json" in capsys.readouterr().err
+    assert main(["report", str(out), "--report-points", "2000"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "merge.json: not valid JSON" in err[0]
+    (out / "report.html").write_text("earlier")
+    (out / "blocker").write_text("a file")
+    assert main(["report", str(out), "--out", str(out / "blocker" / "report.html")]) == 2
+    assert "blocker" in capsys.readouterr().err
     assert (out / "report.html").read_text() == "earlier"
     assert not [p for p in out.iterdir() if p.name.startswith(".report.html")]
     assert main(["report", str(processed_finger), "--out", str(tmp_path)]) == 2

@@ -286,8 +286,11 @@ def _random_rig(rng):
 @given(seed=st.integers(0, 2**32 - 1), noise=st.sampled_from([0.0, 0.05, 0.5]))
 def test_ray_points_are_lsq_with_an_infinite_camera_weight(seed, noise):
     """reconstruct_points_ray is reconstruct_points_lsq with the point kept on the camera ray:
-    within 1e-6 mm of camera weight 1e3 (the reference's; its points leave the ray by
-    ~residual / 1e6), and exact for one projector coordinate."""
+    within 1e-6 mm plus 2e-5 of the coordinate of camera weight 1e3 (the reference's; its
+    points leave the ray by ~residual / 1e6, and its normal equations, weighted 1e6, lose about
+    six digits on the worse random rigs: measured at most 8e-6 of the coordinate over 4000
+    seeds at each noise level, 2e-5 mm; a fixed 1e-6 mm failed at seed 39391), and exact for
+    one projector coordinate."""
     rng = np.random.default_rng(seed)
     camera, projector = _random_rig(rng)
     Mc, Mp = dlt_from_pinhole(camera), dlt_from_pinhole(projector)
@@ -296,7 +299,7 @@ def test_ray_points_are_lsq_with_an_infinite_camera_weight(seed, noise):
     xp, yp = (project_dlt(Mp, X) + rng.normal(scale=noise, size=(50, 2))).T
     ray = reconstruct_points_ray(Mc, Mp, xc, yc, xp, yp)
     lsq = reconstruct_points_lsq(Mc, Mp, xc, yc, xp, yp, camera_weight=1e3)
-    np.testing.assert_allclose(ray, lsq, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(ray, lsq, rtol=2e-5, atol=1e-6)
     # on the camera ray: reprojects onto the pixel
     np.testing.assert_allclose(project_dlt(Mc, ray), np.column_stack([xc, yc]), atol=1e-7)
     for use, p in (("yp", yp), ("xp", xp)):

@@ -32,7 +32,15 @@ from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
 from nail2nail.io.scans import save_scans
 from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.scan.capture import MAX_GRADIENT, motion_summary, scan_capture
-from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
+from nail2nail.unroll import (
+    DEFAULT_METHOD,
+    MAX_LENGTH_MM,
+    MAX_PPI,
+    METHODS,
+    MIN_LENGTH_MM,
+    MIN_PPI,
+    unroll_scans,
+)
 
 __all__ = ["peak_rss_mb", "process_capture"]
 
@@ -148,10 +156,13 @@ def process_capture(
     method = DEFAULT_METHOD if method is None else method
     if unroll and method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    if not 100 <= float(ppi) <= 4000:
-        raise ValueError(f"ppi: expected 100..4000 pixels per inch, got {ppi}")
-    if length_mm is not None and not float(length_mm) > 0:
-        raise ValueError(f"length_mm: expected a positive length in mm, got {length_mm}")
+    # the unroll's bounds, checked before the scan and the merge run
+    if not (isinstance(ppi, (int, float)) and MIN_PPI <= ppi <= MAX_PPI):
+        raise ValueError(f"ppi: expected {MIN_PPI:g}..{MAX_PPI:g} pixels per inch, got {ppi!r}")
+    if length_mm is not None and not (isinstance(length_mm, (int, float))
+                                      and MIN_LENGTH_MM <= length_mm <= MAX_LENGTH_MM):
+        raise ValueError(f"length_mm: expected {MIN_LENGTH_MM:g}..{MAX_LENGTH_MM:g} mm or None, "
+                         f"got {length_mm!r}")
     out = check_output_directory(out, marker="process.json")
     times = StepClock()
 
@@ -163,6 +174,7 @@ def process_capture(
     transform = frame_transform(calibration, frame)
     if isinstance(capture, (str, os.PathLike)):
         capture = read_capture(capture, load=False)
+    _check_camera_names(capture, calibration, calibration_name)
 
     say("scan")
     scan_parts: dict[str, float] = {}
@@ -232,3 +244,16 @@ def process_capture(
 
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
+
+
+def _check_camera_names(capture, calibration, calibration_name: str) -> None:
+    """Refuse, naming both files and both lists of names, a calibration that lacks one of the
+    capture's cameras (the scan would stop at that camera with the calibration's bare
+    "calibration has no camera 'cam0'")."""
+    calibrated = [cam.name for cam in calibration.cameras]
+    missing = [name for name in capture.camera_names if name not in calibrated]
+    if missing:
+        raise ValueError(
+            f"{calibration_name}: calibrates cameras {calibrated}, but "
+            f"{capture.path / 'capture.json'} has cameras {capture.camera_names} (none for "
+            f"{', '.join(map(repr, missing))}): use a calibration of this capture's cameras")

@@ -14,12 +14,14 @@ capped so that N estimated captures fit in 80 % of the memory available now.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 
 from nail2nail.io.capture import read_capture
 
-__all__ = ["BASE_MB", "capture_memory_mb", "default_workers"]
+__all__ = ["BASE_MB", "capture_memory_mb", "check_memory_mb", "check_workers", "default_workers",
+           "max_workers"]
 
 BASE_MB = 600.0
 COPIES = 3  # float32 copies of every frame held at the peak
@@ -52,6 +54,43 @@ def capture_memory_mb(capture: str | os.PathLike) -> float:
     return BASE_MB + COPIES * 4 * pixels / 2**20
 
 
+def max_workers() -> int:
+    """The most local workers: the CPU count (each worker is a process running one capture,
+    single-threaded, at a time: more workers than CPUs only share them, and each holds its
+    interpreter and a capture's memory)."""
+    return os.cpu_count() or 1
+
+
+def check_workers(n_workers, n_captures: int, *, name: str = "n_workers") -> int:
+    """`n_workers` checked against :func:`max_workers`, capped at `n_captures` (a worker
+    beyond one per capture would stay idle).
+
+    Raises
+    ------
+    TypeError
+        `n_workers` is not an integer.
+    ValueError
+        `n_workers` is below 1 or above :func:`max_workers` (naming `name`).
+    """
+    if isinstance(n_workers, bool) or not isinstance(n_workers, int):
+        raise TypeError(f"{name}: expected an integer, got {n_workers!r}")
+    most = max_workers()
+    if not 1 <= n_workers <= most:
+        raise ValueError(f"{name}: expected at least 1 and at most {most} (the CPU count: each "
+                         f"worker is a process running one capture at a time), got {n_workers}")
+    return max(1, min(n_workers, n_captures))
+
+
+def check_memory_mb(memory_mb, *, name: str = "memory_mb") -> float:
+    """`memory_mb` as a finite float > 0 (MB of one capture's peak), else a ``ValueError``
+    naming `name` and the value."""
+    if isinstance(memory_mb, bool) or not isinstance(memory_mb, int | float):
+        raise TypeError(f"{name}: expected a number of MB, got {memory_mb!r}")
+    if not (math.isfinite(memory_mb) and memory_mb > 0):
+        raise ValueError(f"{name}: expected a positive, finite number of MB, got {memory_mb:g}")
+    return float(memory_mb)
+
+
 def default_workers(captures: Sequence[str | os.PathLike], *,
                     memory_mb: float | None = None) -> int:
     """The default number of local workers for `captures`.
@@ -68,9 +107,16 @@ def default_workers(captures: Sequence[str | os.PathLike], *,
     -------
     int
         ``min(CPU count, captures, 80 % of available memory // memory_mb)``, at least 1.
+
+    Raises
+    ------
+    ValueError
+        `memory_mb` is not a positive, finite number.
     """
     import psutil
 
+    if memory_mb is not None:
+        memory_mb = check_memory_mb(memory_mb)
     if memory_mb is None:
         estimates = []
         for c in captures:
@@ -80,5 +126,6 @@ def default_workers(captures: Sequence[str | os.PathLike], *,
                 continue
         memory_mb = max(estimates, default=BASE_MB)
     available = psutil.virtual_memory().available / 2**20
-    fit = int(0.8 * available // memory_mb)
-    return max(1, min(os.cpu_count() or 1, len(captures), fit))
+    cpus = max_workers()
+    fit = int(min(0.8 * available // memory_mb, cpus))  # a tiny memory_mb: no int(inf)
+    return max(1, min(cpus, len(captures), fit))

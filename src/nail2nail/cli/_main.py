@@ -27,6 +27,7 @@ from nail2nail.cli import (
     _crosscheck,
     _demo,
     _distortion,
+    _export_nist,
     _import_calibration,
     _merge,
     _patterns,
@@ -62,6 +63,7 @@ COMMANDS = (
     _report,
     _process,
     _batch,
+    _export_nist,
     _demo,
 )
 
@@ -81,6 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                        help=QUIET_HELP)
     return parser
+
+
+def _check_option_values(argv: list[str]) -> None:
+    """Refuse ``--option=--``: argparse (Python < 3.12) gives the option the empty list ``[]``
+    for it, not converted by its type, which would reach the command as its value."""
+    for arg in argv:
+        if arg == "--":  # positionals from here on
+            return
+        if arg.startswith("--") and arg.endswith("=--"):
+            raise ValueError(f"{arg[:-3]}: expected a value, got '--'")
 
 
 def _debug() -> bool:
@@ -107,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser()
         args = parser.parse_args(argv)
         command = f"nail2nail {args.command}"
+        _check_option_values(sys.argv[1:] if argv is None else argv)
         with quiet(args.quiet or is_quiet()):  # a caller's quiet() holds too
             return _run_with_warnings(args, command)
     except KeyboardInterrupt:

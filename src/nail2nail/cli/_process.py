@@ -17,7 +17,7 @@ from nail2nail.merge.report import parse_pairs
 from nail2nail.process import process_capture
 from nail2nail.report import write_report
 
-__all__ = ["add_parser", "add_process_options", "process_options", "run"]
+__all__ = ["add_parser", "add_process_options", "as_option_error", "process_options", "run"]
 
 
 def add_parser(sub) -> None:
@@ -66,7 +66,10 @@ def process_options(args: argparse.Namespace) -> dict:
     options = decode_options(args)
     min_modulation = options.pop("min_modulation")
     if args.pairs is not None:
-        parse_pairs(args.pairs, 2**31)  # the syntax now; the camera count once read
+        try:  # the syntax now; the camera count once the capture is read
+            parse_pairs(args.pairs, _ANY_COUNT)
+        except ValueError as exc:  # not "among 0..2147483647": the count is not known yet
+            raise ValueError(str(exc).split(f" among 0..{_ANY_COUNT - 1}")[0]) from None
     return dict(use=args.use, max_gradient=max_gradient(args), min_modulation=min_modulation,
                 decode_options=options, masks=masks(args), allow_mirrored=args.allow_mirrored,
                 pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
@@ -75,11 +78,38 @@ def process_options(args: argparse.Namespace) -> dict:
                 frame=args.frame, ridge_options=unroll_options(args))
 
 
+#: A camera count above any rig's, to check the syntax of --pairs before the capture is read.
+_ANY_COUNT = 2**31
+
+#: The library's words for the options :func:`nail2nail.process.process_capture` checks itself
+#: (``frame: expected …``, ``masks: masks given for unknown camera(s) …``), and the command
+#: line's (``--frame: expected …``).
+LIBRARY_NAMES = {"frame": "--frame", "masks": "--mask", "method": "--method", "ppi": "--ppi",
+                 "length_mm": "--length"}
+
+
+def as_option_error(exc: ValueError) -> ValueError:
+    """`exc` with the library's name of an option (:data:`LIBRARY_NAMES`) replaced by the
+    command line's, when its message starts with it (``frame: …``); else `exc`."""
+    text = str(exc)
+    for name, flag in LIBRARY_NAMES.items():
+        if text.startswith(f"{name}: "):
+            return ValueError(flag + text[len(name):])
+    return exc
+
+
 def run(args: argparse.Namespace) -> int:
 
     options = process_options(args)  # checks the options before any work
     check_report_options(args)
-    summary = process_capture(args.capture, args.calib, args.out, progress=True, **options)
+    try:
+        summary = process_capture(args.capture, args.calib, args.out, progress=True,
+                                  **options)
+    except ValueError as exc:
+        error = as_option_error(exc)
+        if error is exc:
+            raise
+        raise error from exc
     if args.report:
 
         summary["report"] = str(write_report(args.out, max_points=args.report_points,

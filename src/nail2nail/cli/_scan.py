@@ -14,7 +14,14 @@ from nail2nail.io.capture import read_capture
 from nail2nail.io.masks import parse_mask_option
 from nail2nail.io.scans import save_scans
 from nail2nail.scan.capture import MAX_GRADIENT, scan_capture
-from nail2nail.scan.inputs import ERODE, MIN_ALBEDO, MIN_MODULATION, SATURATION, UNWRAP_TOLERANCE
+from nail2nail.scan.inputs import (
+    ERODE,
+    MAX_ERODE,
+    MIN_ALBEDO,
+    MIN_MODULATION,
+    SATURATION,
+    UNWRAP_TOLERANCE,
+)
 
 __all__ = ["add_parser", "add_scan_options", "decode_options", "max_gradient", "run"]
 
@@ -48,7 +55,8 @@ def add_scan_options(p) -> None:
                    "that unwraps it, in periods of the finer fringe (default 0.25 = pi/2 rad)")
     g.add_argument("--erode", type=int, default=ERODE, metavar="PX",
                    help="drop valid pixels within this many camera pixels of an invalid one "
-                   "(blur mixes their signal with the neighbour's; default 1, 0 keeps them)")
+                   "(blur mixes their signal with the neighbour's; default 1, 0 keeps them; at "
+                   f"most {MAX_ERODE}, which empties the smallest camera accepted)")
     g.add_argument("--mask", action="append", default=[], metavar="CAMERA=IMAGE",
                    help="a validity mask for one camera (an image of its size, non-zero = keep), "
                    "applied after decoding; repeat for several cameras")
@@ -62,8 +70,10 @@ def add_scan_options(p) -> None:
                    "finger moving by more than MM mm (the spread of the frame groups' "
                    "registration, docs/motion.md); by default a warning above 0.02 mm")
     p.add_argument("--compensate-motion", action="store_true",
-                   help="correct the phase offsets a moving finger puts between the steps of "
-                   "each phase-shift group of 4 or more steps before decoding (docs/motion.md)")
+                   help="correct a moving finger's frames before decoding: the phase offsets "
+                   "between the steps of each phase-shift group of 4 or more steps, then the "
+                   "coarser frequencies registered to the finest so that unwrapping holds "
+                   "(docs/motion.md)")
     p.add_argument("--frame", default="world", metavar="world|CAMERA",
                    help="frame of the points written (scans, super scan): 'world' (the "
                    "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
@@ -145,8 +155,12 @@ def decode_options(args: argparse.Namespace) -> dict:
     if not 0 < args.unwrap_tolerance < 0.5:
         raise ValueError(f"--unwrap-tolerance: expected periods in (0, 0.5), got "
                          f"{args.unwrap_tolerance}")
-    if args.erode < 0:
-        raise ValueError(f"--erode: expected a number of pixels >= 0, got {args.erode}")
+    if not 0 <= args.erode <= MAX_ERODE:
+        raise ValueError(f"--erode: expected a number of pixels in 0..{MAX_ERODE}, got "
+                         f"{args.erode}")
+    if not args.max_gradient > 0:  # NaN too; checked as given, before any scaling
+        raise ValueError(f"--max-gradient: expected a positive number of projector px per "
+                         f"camera px ('inf' keeps all), got {args.max_gradient:g}")
     if args.max_motion is not None and not (math.isfinite(args.max_motion)
                                             and args.max_motion > 0):
         raise ValueError(f"--max-motion: expected a positive number of mm, got "

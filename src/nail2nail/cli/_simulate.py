@@ -6,7 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
-from nail2nail.calibration.boards import BOARD_KINDS, Board, default_board
+from nail2nail.calibration.boards import BOARD_KINDS
+from nail2nail.cli._print_target import board_from_options
 from nail2nail.io._json import dumps_json
 from nail2nail.io.prints import read_print_image
 from nail2nail.simulation.board_poses import simulate_board_captures
@@ -15,7 +16,19 @@ from nail2nail.simulation.conditions import draw_conditions
 from nail2nail.simulation.rig import load_rig
 from nail2nail.simulation.scenes import SCENES, make_scene
 
-__all__ = ["add_parser", "run"]
+__all__ = ["MAX_SCALE", "PRINT_PPI_RANGE", "SEED_MAX", "add_parser", "run"]
+
+#: ``--print-ppi`` (and a print file's own resolution), pixels per inch: fingerprint scans are
+#: 500 or 1000 ppi; below 100 a ridge period (about 0.5 mm) is under 2 px, and the print's
+#: contrast normalisation filters with a 1 mm Gaussian, ``ppi / 25.4`` px wide: 1e6 ppi took
+#: minutes, 1e9 gigabytes.
+PRINT_PPI_RANGE = (100.0, 2000.0)
+#: The largest ``--seed`` and ``--conditions`` seed (seeds are integers >= 0; 32 bits, as
+#: NumPy's legacy seeding and most tools record them).
+SEED_MAX = 2**32 - 1
+#: The largest ``--scale``: cameras of 2048 × 2560 px for the default rig, four times the
+#: pixels of scale 1; memory and time grow with the square (scale 1000 asked for 9.5 TiB).
+MAX_SCALE = 2.0
 
 
 def add_parser(sub) -> None:
@@ -37,14 +50,18 @@ def add_parser(sub) -> None:
     p.add_argument("--projector-distortion", choices=["thesis", "none"],
                    help="projector radial distortion (default: the rig's; thesis for the "
                    "default rig)")
-    p.add_argument("--scale", type=float, help="camera resolution scale (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="fingerprint and noise seed (default 0)")
+    p.add_argument("--scale", type=float,
+                   help=f"camera resolution scale (default 1, at most {MAX_SCALE:g}; at least "
+                   "0.0625 for the default rig: cameras of 64 px or more on a side)")
+    p.add_argument("--seed", type=int, default=0,
+                   help=f"fingerprint and noise seed, 0..{SEED_MAX} (default 0)")
     p.add_argument("--print", dest="print_image", type=Path, metavar="IMAGE",
                    help="finger only: wrap this fingerprint image (8-bit grayscale PNG or WSQ, "
                    "legacy convention: as an inked roll, tip up) around the finger instead of "
                    "a synthetic print; truth/rolled_print.png is this image")
     p.add_argument("--print-ppi", type=float, metavar="PPI",
-                   help="resolution of --print (default: the file's, else 500)")
+                   help="resolution of --print (default: the file's, else 500), "
+                   f"{PRINT_PPI_RANGE[0]:g} to {PRINT_PPI_RANGE[1]:g}")
     p.add_argument("--conditions", type=int, metavar="SEED",
                    help="finger only: draw the scanner's optics and the finger's shape, pose, "
                    "skin and print class at random from the stated ranges "
@@ -64,7 +81,7 @@ def add_parser(sub) -> None:
                        help="square side or circle spacing, mm (default 2.5)")
     board.add_argument("--marker", type=float, metavar="MM",
                        help="ChArUco marker side or circle diameter, mm (default 0.7 x "
-                       "spacing; circles 0.5 x spacing)")
+                       "spacing; circles 0.5 x spacing; not for a checkerboard)")
     board.add_argument("--dictionary", default=None,
                        help="ChArUco ArUco dictionary (default DICT_5X5_100)")
     board.add_argument("--pose", type=float, nargs=6,
@@ -81,18 +98,31 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    if args.scale is not None and not args.scale > 0:
-        raise ValueError(f"--scale: expected a positive number, got {args.scale}")
+    if args.scale is not None and not 0 < args.scale <= MAX_SCALE:
+        raise ValueError(f"--scale: expected a positive number of at most {MAX_SCALE:g}, got "
+                         f"{args.scale:g}")
+    for flag, seed in (("--seed", args.seed), ("--conditions", args.conditions)):
+        if seed is not None and not 0 <= seed <= SEED_MAX:
+            raise ValueError(f"{flag}: expected a seed in 0..{SEED_MAX}, got {seed}")
     if args.print_image is not None and args.scene != "finger":
         raise ValueError(f"--print: only with --scene finger, got --scene {args.scene}")
-    if args.print_ppi is not None and not args.print_ppi > 0:
-        raise ValueError(f"--print-ppi: expected a positive number, got {args.print_ppi}")
+    lo, hi = PRINT_PPI_RANGE
+    if args.print_ppi is not None:
+        if args.print_image is None:
+            raise ValueError(f"--print-ppi {args.print_ppi:g}: only with --print (the "
+                             "resolution of that image)")
+        if not lo <= args.print_ppi <= hi:
+            raise ValueError(f"--print-ppi: expected {lo:g} to {hi:g} pixels per inch, got "
+                             f"{args.print_ppi:g}")
     board = _board_from_args(args)
     print_image = None
     print_ppi = args.print_ppi
     if args.print_image is not None:
 
         print_image, file_ppi = read_print_image(args.print_image)
+        if print_ppi is None and file_ppi and not lo <= file_ppi <= hi:
+            raise ValueError(f"{args.print_image}: its resolution, {file_ppi:g} ppi, is not "
+                             f"{lo:g} to {hi:g}; give the right one with --print-ppi")
         print_ppi = print_ppi or file_ppi or 500.0
     rig = load_rig(args.rig) if args.rig else None
     conditions = None
@@ -177,19 +207,10 @@ def _board_from_args(args):
         raise ValueError("--pose: not with --poses (which draws the poses)")
     if args.poses is not None and not 1 <= args.poses <= 99:
         raise ValueError(f"--poses: expected a number of poses in 1..99, got {args.poses}")
-    base = default_board(args.board or "checkerboard")
-    options = {"kind": base.kind, "rows": base.rows if args.rows is None else args.rows,
-               "cols": base.cols if args.cols is None else args.cols,
-               "spacing": base.spacing if args.spacing is None else args.spacing}
-    if args.marker is not None:
-        options["marker"] = args.marker
-    if args.dictionary is not None:
-        options["dictionary"] = args.dictionary
-    try:
-        return Board(**options)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"--board {base.kind} --rows {options['rows']} --cols "
-                         f"{options['cols']} --spacing {options['spacing']:g}: {exc}") from None
+    # the bounds of print-target: a simulated board is one to print
+    return board_from_options(args.board or "checkerboard", rows=args.rows, cols=args.cols,
+                              spacing=args.spacing, marker=args.marker,
+                              dictionary=args.dictionary)
 
 
 def _run_poses(args, board, rig, patterns, names, start, pattern_set) -> int:

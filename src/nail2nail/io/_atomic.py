@@ -9,6 +9,7 @@ of files beside each other (a calibration and its points tables). ``docs/convent
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import tempfile
@@ -45,7 +46,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     'hello'
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError as exc:  # a file where a directory of `path` should be: name `path`
+        raise NotADirectoryError(errno.ENOTDIR, f"cannot write: {exc.filename} is a file, not a "
+                                 "directory", str(path)) from exc
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     umask = os.umask(0)

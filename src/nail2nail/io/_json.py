@@ -99,11 +99,15 @@ def read_json(path: str | os.PathLike) -> Any:
     Raises
     ------
     ValueError
-        Naming the file, if it is not valid UTF-8 JSON.
+        Naming the file, if it is not valid UTF-8 JSON or not a regular file.
     OSError
         If the file cannot be read (missing, permissions).
     """
     path = Path(path)
+    # a FIFO or a device would block or stream: refused before it is opened
+    if path.exists() and not path.is_file():
+        kind = "a directory" if path.is_dir() else "not a regular file (a FIFO or a device?)"
+        raise ValueError(f"{path}: {kind}; expected a JSON file")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -382,6 +382,14 @@ def read_capture(path: str | os.PathLike, *, load: bool = True) -> Capture:
             pattern_set = PatternSet.from_dict(manifest["pattern_set"])
         except (ValueError, TypeError, KeyError, OverflowError) as exc:
             raise ValueError(f"{manifest_path}: pattern_set: {describe_error(exc)}") from exc
+        # said here, naming the file and the camera, rather than by the decoder ("frames: the
+        # pattern set has 24 frames, got 23") that every command reaches later
+        for cam in manifest["cameras"]:
+            if len(cam["frames"]) != pattern_set.n_frames:
+                raise ValueError(
+                    f"{manifest_path}: camera {cam['name']!r} lists {len(cam['frames'])} "
+                    f"frames, its pattern_set projects {pattern_set.n_frames} (one frame per "
+                    "projected image, in order: nail2nail.scan.patterns.frame_table)")
     capture = Capture(path=path, manifest=manifest, pattern_set=pattern_set)
     if load:
         for name in capture.camera_names:

@@ -14,6 +14,7 @@ from nail2nail.calibration.camera_models import Pinhole, pinhole_from_dlt, proje
 from nail2nail.calibration.files import load_calibration
 from nail2nail.io.points import read_points
 from nail2nail.report._html import Section, figure_html, note_html, table_html
+from nail2nail.report._parts import CorruptPart, reading
 from nail2nail.report._plot import fmt, new_figure
 from nail2nail.report.inputs import ReportInputs, projector_panel
 from nail2nail.scan.triangulation import _panel_of_points
@@ -81,19 +82,24 @@ def section(inputs: ReportInputs) -> Section:
             "No calibration: the summary names no calibration JSON that is still there.",
             "missing"), status="missing")
     path = inputs.calibration
-    calib = load_calibration(path, allow_mirrored=True)
-    body = [note_html(f"{path}"), _geometry_table(calib, projector_panel(inputs))]
-    if calib.projector_distortion:
-        d = calib.projector_distortion
-        body.append(note_html(f"Projector radial distortion in the model: centre "
-                              f"({d.center[0]:.2f}, {d.center[1]:.2f}) px, "
-                              f"ρ = {d.rho:.6f}."))
+    with reading(path):
+        calib = load_calibration(path, allow_mirrored=True)
+        body = [note_html(f"{path}"), _geometry_table(calib, projector_panel(inputs))]
+        if calib.projector_distortion:
+            d = calib.projector_distortion
+            body.append(note_html(f"Projector radial distortion in the model: centre "
+                                  f"({d.center[0]:.2f}, {d.center[1]:.2f}) px, "
+                                  f"ρ = {d.rho:.6f}."))
     rows, found = [], {}
     for cam in calib.cameras:
         tsv = path.parent / f"{path.stem}_points_{cam.name}.tsv"
         if tsv.is_file():
-            table = read_points(tsv)
-            found[cam.name] = (*residuals(calib, cam.name, table), table.xy_camera)
+            try:  # the residuals of the other cameras without this table
+                with reading(tsv):
+                    table = read_points(tsv)
+                    found[cam.name] = (*residuals(calib, cam.name, table), table.xy_camera)
+            except CorruptPart as exc:
+                inputs.problems.append((exc.path, exc.reason))
     body.append("<h3>Residuals</h3>")
     status = "ok"
     if not found:

@@ -27,6 +27,7 @@ from nail2nail.io.capture import read_capture, read_frame
 from nail2nail.io.masks import read_mask
 from nail2nail.io.scans import load_scans
 from nail2nail.report._html import Section, escape, figure_html, image_html, note_html, table_html
+from nail2nail.report._parts import CorruptPart, number, quoted, reading
 from nail2nail.report._plot import decimate, extent, fmt, new_figure
 from nail2nail.report.inputs import ReportInputs
 from nail2nail.scan.capture import MAX_GRADIENT, MIN_KEPT_FRACTION, kept_fraction
@@ -83,16 +84,17 @@ def section(inputs: ReportInputs) -> Section:
     if capture is None:
         body.append(note_html(capture_note, "missing"))
     else:
-        body.append(_thumbnails(capture))
+        body.append(_thumbnails(capture, inputs.problems))
     if inputs.scans is None:
         body.append(note_html(f"No scans: {inputs.root / 'scans' / 'scan.json'} not found; no "
                               "decode quality maps or coverage.", "missing"))
         return Section(ID, TITLE, "".join(body), status=status)
-    scans = load_scans(inputs.scans, frame="stored")
-    classes, counts, exact = _pixel_classes(scans, options)
-    body.append("<h3>Decode quality</h3>")
-    body.append(_modulation_figure(scans, options["min_modulation"]))
-    body.append(_validity_figure(scans, classes, options, exact))
+    with reading(inputs.scans / "scan.json"):
+        scans = load_scans(inputs.scans, frame="stored")
+        classes, counts, exact = _pixel_classes(scans, options)
+        body.append("<h3>Decode quality</h3>")
+        body.append(_modulation_figure(scans, options["min_modulation"]))
+        body.append(_validity_figure(scans, classes, options, exact))
     if counts is not None:
         body.append(_reason_table(scans, counts))
     body.append("<h3>Coverage</h3>")
@@ -121,8 +123,19 @@ def _scan_options(inputs: ReportInputs) -> dict:
     options: dict[str, Any] = {**DECODE_DEFAULTS, "max_gradient": MAX_GRADIENT, "masks": {}}
     given = inputs.summary.get("options") if inputs.kind == "process" else None
     if isinstance(given, dict):
-        options.update({k: given[k] for k in (*DECODE_DEFAULTS, "max_gradient", "masks")
-                        if k in given})
+        try:  # values of the wrong kind: the defaults, and a note
+            with reading(inputs.summary_path or inputs.root):
+                for k in (*DECODE_DEFAULTS, "max_gradient"):
+                    if k in given:
+                        number(given[k], f"options.{k}")
+                if not isinstance(given.get("masks", {}), (dict, type(None))):
+                    raise ValueError(f"options.masks: expected an object, got "
+                                     f"{quoted(given['masks'])}")
+        except CorruptPart as exc:
+            inputs.problems.append((exc.path, exc.reason))
+        else:
+            options.update({k: given[k] for k in (*DECODE_DEFAULTS, "max_gradient", "masks")
+                            if k in given})
     if options["min_modulation"] is None:
         options["min_modulation"] = 0.0
     return options
@@ -141,8 +154,10 @@ def _open_capture(inputs: ReportInputs):
                           "there any more; frames not shown, maps from the stored scans.")
         return None, "No capture: the summary names none (capture.json)."
     try:
-        return read_capture(inputs.capture, load=False), ""
-    except ValueError as exc:
+        with reading(inputs.capture / "capture.json"):
+            return read_capture(inputs.capture, load=False), ""
+    except CorruptPart as exc:
+        inputs.problems.append((exc.path, exc.reason))
         return None, f"The capture cannot be read: {exc}"
 
 
@@ -157,8 +172,9 @@ def _frame_labels(capture) -> list[str]:
     return labels if len(labels) == n_frames else [""] * n_frames
 
 
-def _thumbnails(capture) -> str:
-    """Up to :data:`N_THUMBNAILS` evenly spaced frames of every camera."""
+def _thumbnails(capture, problems: list) -> str:
+    """Up to :data:`N_THUMBNAILS` evenly spaced frames of every camera; a frame that cannot
+    be read is a note (and a problem in `problems`)."""
 
     labels = _frame_labels(capture)
     bit_depth = capture.bit_depth
@@ -170,8 +186,10 @@ def _thumbnails(capture) -> str:
         figures = []
         for i in picks:
             try:
-                values = read_frame(capture.path / files[i], bit_depth=bit_depth, raw=True)
-            except ValueError as exc:
+                with reading(capture.path / files[i]):
+                    values = read_frame(capture.path / files[i], bit_depth=bit_depth, raw=True)
+            except CorruptPart as exc:
+                problems.append((exc.path, exc.reason))
                 figures.append(note_html(str(exc), "warn"))
                 continue
             if bit_depth > 8:  # right-aligned values: their top 8 bits
@@ -309,10 +327,17 @@ def _super_scan_cameras(inputs: ReportInputs) -> dict:
     if inputs.merge is None:
         return {}
     try:
-        cams = read_json(inputs.merge / "merge.json").get("super_scan", {}).get("cameras", {})
-    except (ValueError, AttributeError):
+        with reading(inputs.merge / "merge.json"):
+            cams = read_json(inputs.merge / "merge.json").get("super_scan", {}).get("cameras", {})
+            if not isinstance(cams, dict):
+                raise ValueError(f"super_scan.cameras: expected an object, got {quoted(cams)}")
+            for name, c in cams.items():
+                for k in ("owned", "fused"):
+                    number(c.get(k), f"super_scan.cameras.{name}.{k}", integer=True)
+    except CorruptPart as exc:  # the coverage without the super scan's shares
+        inputs.problems.append((exc.path, exc.reason))
         return {}
-    return cams if isinstance(cams, dict) else {}
+    return cams
 
 
 def _coverage(scans, inputs: ReportInputs, min_modulation: float) -> tuple[str, list[str]]:

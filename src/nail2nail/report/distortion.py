@@ -19,6 +19,7 @@ from nail2nail.calibration.distortion import grid_from_decoded, ideal_from_panel
 from nail2nail.io._json import read_json
 from nail2nail.io.capture import read_capture
 from nail2nail.report._html import Section, figure_html, image_html, note_html, table_html
+from nail2nail.report._parts import number, numbers, quoted, reading
 from nail2nail.report._plot import fmt, new_figure
 from nail2nail.report.inputs import ReportInputs, projector_panel
 from nail2nail.scan.decoding import decode
@@ -36,15 +37,37 @@ def _estimate(inputs: ReportInputs) -> tuple[dict | None, str]:
     """``({"center", "rho", …}, source)`` of the distortion estimate, or ``(None, why)``."""
 
     if inputs.distortion is not None:
-        data = read_json(inputs.distortion)
-        if "center_px" in data and "rho" in data:
-            return {**data, "center": data["center_px"]}, str(inputs.distortion)
+        with reading(inputs.distortion):
+            data = read_json(inputs.distortion)
+            if "center_px" in data and "rho" in data:
+                return _checked({**data, "center": data["center_px"]},
+                                "center_px"), str(inputs.distortion)
     if inputs.calibration is not None:
-        dist = read_json(inputs.calibration).get("projector_distortion")
-        if isinstance(dist, dict) and {"center", "rho"} <= set(dist):
-            return dist, f"{inputs.calibration} (projector_distortion)"
+        with reading(inputs.calibration):
+            dist = read_json(inputs.calibration).get("projector_distortion")
+            if isinstance(dist, dict) and {"center", "rho"} <= set(dist):
+                return (_checked(dist, "projector_distortion.center", "projector_distortion."),
+                        f"{inputs.calibration} (projector_distortion)")
     return None, ("No projector distortion: no distortion/projector_distortion.json and no "
                   "projector_distortion in the calibration.")
+
+
+def _checked(est: dict, center_key: str, prefix: str = "") -> dict:
+    """`est` with its numbers checked (``ValueError`` naming the key of one that is not)."""
+    for key, values in ((center_key, numbers(est["center"], center_key, 2)),
+                        (f"{prefix}rho", [number(est["rho"], f"{prefix}rho")])):
+        if not all(v is not None and np.isfinite(v) for v in values):
+            raise ValueError(f"{key}: expected finite numbers, got {quoted(values)}")
+    std = est.get("center_std_px")
+    if std is not None:
+        numbers(std, "center_std_px", 2)
+    for key in ("rho_std", "rms_px"):
+        number(est.get(key), key)
+    thesis = est.get("thesis")
+    if isinstance(thesis, dict) and "center_px" in thesis:
+        numbers(thesis["center_px"], "thesis.center_px", 2)
+        number(thesis.get("rho"), "thesis.rho")
+    return est
 
 
 def section(inputs: ReportInputs) -> Section:
@@ -61,7 +84,7 @@ def section(inputs: ReportInputs) -> Section:
     thesis = est.get("thesis")
     if isinstance(thesis, dict) and "center_px" in thesis:
         rows.append(["thesis method", fmt(thesis["center_px"][0], ".2f"),
-                     fmt(thesis["center_px"][1], ".2f"), f"{float(thesis['rho']):.6f}",
+                     fmt(thesis["center_px"][1], ".2f"), fmt(thesis.get("rho"), ".6f"),
                      "—", "—", "—", "—"])
     body = [note_html(source),
             table_html(rows, ["estimate", "centre x px", "centre y px", "ρ", "std x px",

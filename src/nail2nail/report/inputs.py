@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from nail2nail.io._json import read_json
+from nail2nail.report._parts import CorruptPart, quoted, reading
 from nail2nail.scan.patterns import PANEL_SIZE
 
 __all__ = ["ReportInputs", "find_inputs", "projector_panel"]
@@ -56,6 +57,13 @@ class ReportInputs:
         ``{"before/target": Path, …}``.
     notes : list of str
         What was looked for and not found (shown in the report).
+    summary_path : Path or None
+        The summary file :attr:`summary` was read from.
+    problems : list of (str, str)
+        Files that are there but cannot be used (not JSON, truncated, values of the wrong
+        kind) and why, as ``(file, problem)``: filled as the sections are drawn, each noted in
+        the sections that read the file and warned about once
+        (:mod:`nail2nail.report._parts`).
     """
 
     root: Path
@@ -69,15 +77,36 @@ class ReportInputs:
     distortion: Path | None = None
     comparison: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    summary_path: Path | None = None
+    problems: list = field(default_factory=list)
 
 
 def _dir_with(path: Path, marker: str) -> Path | None:
     return path if (path / marker).is_file() else None
 
 
-def _named(value, root: Path, marker: str, what: str, notes: list) -> Path | None:
+def _read_summary(path: Path, problems: list) -> dict:
+    """The summary file as a dict; ``{}`` (and the problem in `problems`) when it cannot be
+    read or is not a JSON object: the parts found by their place are still reported."""
+    try:
+        with reading(path):
+            summary = read_json(path)
+            if not isinstance(summary, dict):
+                raise ValueError(f"expected a JSON object, got {type(summary).__name__}")
+    except CorruptPart as exc:
+        problems.append((exc.path, exc.reason))
+        return {}
+    return summary
+
+
+def _named(summary: dict, key: str, root: Path, marker: str, what: str, notes: list,
+           problems: list, summary_path: Path) -> Path | None:
     """A path named in a summary, if it still exists (as given, or relative to `root`)."""
+    value = summary.get(key)
     if not value:
+        return None
+    if not isinstance(value, str):
+        problems.append((str(summary_path), f"{key}: expected a path, got {quoted(value)}"))
         return None
     for candidate in (Path(value), root / value, root.parent / value):
         target = candidate / marker if marker else candidate
@@ -103,22 +132,28 @@ def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
     Raises
     ------
     ValueError
-        `out_dir` is not a directory, or holds none of the summary files above.
+        `out_dir` is not a directory, or holds none of the summary files above. A summary
+        file that cannot be read is recorded in ``problems`` (and read as ``{}``).
     """
     root = Path(out_dir)
     if not root.is_dir():
         raise ValueError(f"{root}: not a directory")
     notes: list[str] = []
+    problems: list[tuple[str, str]] = []
     if (root / "process.json").is_file():
-        summary = read_json(root / "process.json")
+        path = root / "process.json"
+        summary = _read_summary(path, problems)
         inputs = ReportInputs(root, "process", summary,
                               scans=_dir_with(root / "scans", "scan.json"),
                               merge=_dir_with(root / "merge", "merge.json"),
                               print=_dir_with(root / "print", "print.json"))
-        inputs.capture = _named(summary.get("capture"), root, "capture.json", "capture", notes)
-        inputs.calibration = _named(summary.get("calibration"), root, "", "calibration", notes)
+        inputs.capture = _named(summary, "capture", root, "capture.json", "capture", notes,
+                                problems, path)
+        inputs.calibration = _named(summary, "calibration", root, "", "calibration", notes,
+                                    problems, path)
     elif (root / "summary.json").is_file():
-        summary = read_json(root / "summary.json")
+        path = root / "summary.json"
+        summary = _read_summary(path, problems)
         inputs = ReportInputs(root, "demo", summary,
                               scans=_dir_with(root / "scans" / "best" / "finger", "scan.json"),
                               merge=_dir_with(root / "merge" / "best" / "finger", "merge.json"),
@@ -133,19 +168,25 @@ def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
             for m in sorted((root / "merge").glob("*/*/merge.json"))
         }
     elif (root / "scan.json").is_file():
-        summary = read_json(root / "scan.json")
+        path = root / "scan.json"
+        summary = _read_summary(path, problems)
         inputs = ReportInputs(root, "scans", summary, scans=root,
                               merge=_dir_with(root / "merge", "merge.json"))
-        inputs.capture = _named(summary.get("capture"), root, "capture.json", "capture", notes)
-        inputs.calibration = _named(summary.get("calibration"), root, "", "calibration", notes)
+        inputs.capture = _named(summary, "capture", root, "capture.json", "capture", notes,
+                                problems, path)
+        inputs.calibration = _named(summary, "calibration", root, "", "calibration", notes,
+                                    problems, path)
     elif (root / "merge.json").is_file():
-        summary = read_json(root / "merge.json")
+        path = root / "merge.json"
+        summary = _read_summary(path, problems)
         inputs = ReportInputs(root, "merge", summary, merge=root)
     else:
         raise ValueError(
             f"{root}: not a nail2nail output directory (no process.json, summary.json, "
             "scan.json or merge.json in it)")
     inputs.notes = notes
+    inputs.summary_path = path
+    inputs.problems = problems
     return inputs
 
 

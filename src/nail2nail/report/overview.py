@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from nail2nail.io._json import read_json
 from nail2nail.report._html import Section, escape, note_html, table_html
+from nail2nail.report._parts import CorruptPart, number, numbers, quoted, reading
+from nail2nail.report._plot import fmt
 from nail2nail.report.inputs import ReportInputs
 from nail2nail.report.merge import above_threshold
 from nail2nail.report.prints import MIN_CLARITY
@@ -20,43 +22,83 @@ def _kpi(value: str, label: str) -> str:
     return f'<div class="kpi"><b>{escape(value)}</b><span>{escape(label)}</span></div>'
 
 
-def section(inputs: ReportInputs) -> Section:
-    """The overview section (``id="overview"``)."""
-    summary, kpis, warnings = inputs.summary, [], []
-    if inputs.scans is not None:
+def _scan_kpis(inputs: ReportInputs, kpis: list) -> None:
+    assert inputs.scans is not None
+    with reading(inputs.scans / "scan.json"):
         for cam in read_json(inputs.scans / "scan.json").get("cameras", []):
-            h, w = cam["shape"]
-            share = 100 * cam["valid_pixels"] / (h * w)
-            kpis.append(_kpi(f"{cam['valid_pixels']:,}",
-                             f"{cam['name']}: valid pixels ({share:.0f}% of the image)"))
-    if inputs.merge is not None:
+            h, w = numbers(cam["shape"], "cameras[].shape", 2, integer=True)
+            valid = number(cam["valid_pixels"], "cameras[].valid_pixels", integer=True)
+            share = 100 * valid / (h * w) if valid is not None and h and w else None
+            kpis.append(_kpi(fmt(int(valid)) if valid is not None else "—",
+                             f"{cam['name']}: valid pixels ({fmt(share, '.0f')}% of the image)"))
+
+
+def _merge_kpis(inputs: ReportInputs, kpis: list, warnings: list) -> None:
+    assert inputs.merge is not None
+    with reading(inputs.merge / "merge.json"):
         merged = read_json(inputs.merge / "merge.json")
         for key, m in merged.get("merge", {}).items():
-            median = m["distance_mm"].get("median")
+            median = number(m["distance_mm"].get("median"), f"merge.{key}.distance_mm.median")
             if median is None:  # no matched pixels: no statistics
                 kpis.append(_kpi("—", f"merge {key}: no matched pixels"))
                 warnings.append(f"merge {key}: no matched pixels")
                 continue
-            kpis.append(_kpi(f"{1e3 * median:.1f} µm", f"merge {key}: median error"))
+            kpis.append(_kpi(f"{fmt(1e3 * median, '.1f')} µm", f"merge {key}: median error"))
             if above_threshold(m["distance_mm"]):
                 warnings.append(f"merge {key}: median error {1e3 * median:.0f} µm")
         sup = merged.get("super_scan")
         if sup:
-            kpis.append(_kpi(f"{sup['vertices']:,}", "super scan vertices"))
-    if inputs.print is not None:
+            vertices = number(sup["vertices"], "super_scan.vertices", integer=True)
+            kpis.append(_kpi(fmt(None if vertices is None else int(vertices)),
+                             "super scan vertices"))
+
+
+def _print_kpis(inputs: ReportInputs, kpis: list, warnings: list) -> None:
+    assert inputs.print is not None
+    with reading(inputs.print / "print.json"):
         meta = read_json(inputs.print / "print.json")
-        kpis.append(_kpi(f"{meta['shape'][1]} × {meta['shape'][0]}",
-                         f"print px at {meta['ppi']:g} ppi"))
-        clarity = meta.get("quality", {}).get("clarity_median")
+        h, w = numbers(meta["shape"], "shape", 2, integer=True)
+        ppi = number(meta["ppi"], "ppi")
+        kpis.append(_kpi(f"{fmt(w, '.0f')} × {fmt(h, '.0f')}",
+                         f"print px at {fmt(ppi, 'g')} ppi"))
+        clarity = number(meta.get("quality", {}).get("clarity_median"), "quality.clarity_median")
         if clarity is not None:
-            kpis.append(_kpi(f"{clarity:.2f}", "print ridge clarity (median, 1 = clean)"))
+            kpis.append(_kpi(fmt(clarity, ".2f"), "print ridge clarity (median, 1 = clean)"))
             if clarity < MIN_CLARITY:
                 warnings.append(f"print ridge clarity {clarity:.2f}")
-    seconds = summary.get("seconds") if inputs.kind == "process" else None
-    if seconds:
-        kpis.append(_kpi(f"{seconds.get('total', sum(seconds.values())):.1f} s", "whole job"))
-    if summary.get("peak_rss_mb"):
-        kpis.append(_kpi(f"{summary['peak_rss_mb']:.0f} MB", "peak memory"))
+
+
+def section(inputs: ReportInputs) -> Section:
+    """The overview section (``id="overview"``); a part that cannot be read leaves out its
+    figures (the section's notes name it)."""
+    summary = inputs.summary
+    kpis: list[str] = []
+    warnings: list[str] = []
+    for part, kpi in ((inputs.scans, lambda: _scan_kpis(inputs, kpis)),
+                      (inputs.merge, lambda: _merge_kpis(inputs, kpis, warnings)),
+                      (inputs.print, lambda: _print_kpis(inputs, kpis, warnings))):
+        if part is not None:
+            try:
+                kpi()
+            except CorruptPart as exc:
+                inputs.problems.append((exc.path, exc.reason))
+    seconds, options = None, None
+    try:  # the summary's figures; without them when it holds values of the wrong kind
+        with reading(inputs.summary_path or inputs.root):
+            given = summary.get("seconds") if inputs.kind == "process" else None
+            if given:
+                seconds = {str(k): number(v, f"seconds.{k}") for k, v in given.items()}
+                total = seconds.get("total", sum(v for v in seconds.values() if v is not None))
+                kpis.append(_kpi(f"{fmt(total, '.1f')} s", "whole job"))
+            peak = number(summary.get("peak_rss_mb"), "peak_rss_mb")
+            if peak:
+                kpis.append(_kpi(f"{fmt(peak, '.0f')} MB", "peak memory"))
+            options = summary.get("options")
+            if options and not isinstance(options, dict):
+                raise ValueError(f"options: expected an object, got {quoted(options)}")
+    except CorruptPart as exc:
+        inputs.problems.append((exc.path, exc.reason))
+        seconds, options = None, None
     parts = ["<div>" + "".join(kpis) + "</div>"]
     if warnings:
         parts.append(note_html("Look at: " + "; ".join(warnings) + ".", "warn"))
@@ -65,9 +107,8 @@ def section(inputs: ReportInputs) -> Section:
                                ("print", inputs.print)) if v is not None]
     parts.append(table_html([[k, str(v)] for k, v in rows], ["part", "read from"]))
     if seconds:
-        parts.append(table_html([[k, f"{v:.2f}"] for k, v in seconds.items()],
+        parts.append(table_html([[k, fmt(v, ".2f")] for k, v in seconds.items()],
                                 ["stage", "seconds"], caption="Wall time per stage"))
-    options = summary.get("options")
     if options:
         parts.append(table_html([[k, str(v)] for k, v in options.items()], ["option", "value"],
                                 caption="Options of the job"))

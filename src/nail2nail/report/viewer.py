@@ -33,6 +33,7 @@ from nail2nail.io._json import read_json
 from nail2nail.io.ply import read_ply
 from nail2nail.io.scans import load_scans
 from nail2nail.report._html import Section, escape, json_for_script, note_html
+from nail2nail.report._parts import CorruptPart, reading
 from nail2nail.report.inputs import ReportInputs
 
 __all__ = ["MIN_VERTICES", "cluster_vertices", "libraries", "section", "viewer_data"]
@@ -43,6 +44,12 @@ MIN_VERTICES = 3
 #: Camera colours (index order of the scans), also in the legend.
 CAMERA_COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b")
 
+
+#: The page's JavaScript contract without a viewer (no super scan, or a corrupt one): `ready`
+#: resolves, the methods exist.
+STUB_JS = ("window.nail2nailReport = {ready: Promise.resolve(), rotate: () => "
+           "Promise.resolve(), colorBy: () => Promise.resolve(), show: () => "
+           "Promise.resolve()};")
 
 #: plotly.js's 3D-only bundle (``vendor/README.md``: package, version, licence, checksum).
 PLOTLY_JS = Path(__file__).parent / "vendor" / "plotly-gl3d.min.js"
@@ -134,6 +141,9 @@ def _world_points(inputs: ReportInputs, points: np.ndarray) -> np.ndarray:
 
     info = _merge_summary(inputs).get("super_scan", {})
     transform = np.asarray(info.get("T_frame_world", np.eye(4)), dtype=float)
+    if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
+        raise ValueError(f"super_scan.T_frame_world: expected a 4 × 4 matrix of finite "
+                         f"numbers, got shape {transform.shape}")
     if np.allclose(transform, np.eye(4)):
         return points
     back = invert_transform(transform)
@@ -170,10 +180,19 @@ def _vertex_errors(points: np.ndarray, inputs: ReportInputs, spacing: float) -> 
 
     xyz, error = [], []
     for pair in sorted(inputs.merge.glob("merge_*_mapping.npz")) if inputs.merge else []:
-        with np.load(pair) as data:
-            d = data["distance_mm"].astype(float) * 1e3
-            xyz += [data["xyz_parent"], data["xyz_child"]]
-            error += [d, d]
+        try:
+            with reading(pair), np.load(pair, allow_pickle=False) as data:
+                d = data["distance_mm"].astype(float) * 1e3
+                parent, child = (np.asarray(data[k], float).reshape(-1, 3)
+                                 for k in ("xyz_parent", "xyz_child"))
+                if not len(parent) == len(child) == len(d):
+                    raise ValueError("xyz_parent, xyz_child and distance_mm differ in length")
+        except CorruptPart as exc:  # the error colouring without this pair
+            inputs.problems.append((exc.path, exc.reason))
+            continue
+        keep = np.all(np.isfinite(parent), axis=1) & np.all(np.isfinite(child), axis=1)
+        xyz += [parent[keep], child[keep]]
+        error += [d[keep], d[keep]]
     if not xyz:
         return np.full(len(points), np.nan)
     d, index = cKDTree(np.concatenate(xyz)).query(points, workers=-1,
@@ -212,13 +231,22 @@ def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000,
 
     if inputs.merge is None or not (inputs.merge / "super.ply").is_file():
         return None
-    ply = read_ply(inputs.merge / "super.ply")
+    with reading(inputs.merge / "super.ply"):
+        ply = read_ply(inputs.merge / "super.ply")
+        if not np.all(np.isfinite(ply.points)):
+            raise ValueError("vertices with NaN or infinite coordinates")
     if len(ply.points) < MIN_VERTICES:  # nothing to look at (a failed fusion): no viewer
         return None
-    points = _world_points(inputs, ply.points.astype(float))
+    with reading(inputs.merge / "merge.json"):
+        points = _world_points(inputs, ply.points.astype(float))
     albedo = (ply.colors.astype(float).mean(axis=1) / 255 if ply.colors is not None
               else np.full(len(points), 0.7))
-    camera, names = _vertex_cameras(points, inputs)
+    try:  # corrupt scans: the viewer without the camera colouring
+        with reading(inputs.scans / "scan.json" if inputs.scans else inputs.root):
+            camera, names = _vertex_cameras(points, inputs)
+    except CorruptPart as exc:
+        inputs.problems.append((exc.path, exc.reason))
+        camera, names = np.full(len(points), -1), []
     one_hot = np.eye(max(len(names), 1))[np.maximum(camera, 0)] * (camera >= 0)[:, None]
     levels = {"base": _level(points, ply.faces, albedo, one_hot, inputs, max_points)}
     detail = 4 * max_points if detail_points is None else detail_points
@@ -270,11 +298,7 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
         where = inputs.merge / "super.ply" if inputs.merge else inputs.root / "merge/super.ply"
         body = note_html(f"No super scan: {where} not found or with fewer than {MIN_VERTICES} "
                          "vertices (merge writes it).", "missing")
-        # the contract holds on every page: `ready` resolves, the methods exist
-        stub = ("window.nail2nailReport = {ready: Promise.resolve(), rotate: () => "
-                "Promise.resolve(), colorBy: () => Promise.resolve(), show: () => "
-                "Promise.resolve()};")
-        return Section("view3d", "3D viewer", body, status="missing", scripts=[stub])
+        return Section("view3d", "3D viewer", body, status="missing", scripts=[STUB_JS])
     base, detail = data["levels"]["base"], data["levels"].get("detail")
     legend = " ".join(
         f'<span style="color:{CAMERA_COLOURS[i % len(CAMERA_COLOURS)]}">■ {escape(n)}</span>'

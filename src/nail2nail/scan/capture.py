@@ -27,6 +27,7 @@ from nail2nail.io.masks import check_mask_names, read_mask
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.inputs import (
     SATURATION,
+    _check_erode,
     _check_frames,
     frame_intensities,
 )
@@ -455,8 +456,8 @@ def scan_capture(
         mm; None: warn only.
     compensate_motion : bool
         Correct the phase offsets that motion puts between the steps of each phase-shift
-        group of 4 or more steps before decoding
-        (:func:`nail2nail.scan.motion.compensate_phase_steps`; recorded in
+        group of 4 or more steps, and register the coarser frequencies to the finest, before
+        decoding (:func:`nail2nail.scan.motion.compensate_phase_steps`; recorded in
         ``Scan.motion["compensation"]``). The motion check reads the frames as captured.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
@@ -475,6 +476,13 @@ def scan_capture(
     """
     if max_motion_mm is not None and not (np.isfinite(max_motion_mm) and max_motion_mm > 0):
         raise ValueError(f"max_motion_mm: expected a positive number of mm, got {max_motion_mm!r}")
+    # as given, before the per-camera scaling (gradient_limit): the user's value in the message
+    if max_gradient is not None and (isinstance(max_gradient, bool) or not (
+            isinstance(max_gradient, int | float | np.number) and max_gradient > 0)):
+        raise ValueError(f"max_gradient: expected a positive number of projector px per camera "
+                         f"px (or None), got {max_gradient!r}")
+    if "erode" in decode_options:  # before any frame is read
+        _check_erode(decode_options["erode"])
 
     _check_method(method)
     _check_use(use)

@@ -14,6 +14,7 @@ __all__ = [
     "CUE_MODULATION",
     "DECODE_DEFAULTS",
     "ERODE",
+    "MAX_ERODE",
     "MIN_ALBEDO",
     "MIN_MODULATION",
     "SATURATION",
@@ -29,6 +30,10 @@ MIN_ALBEDO = 0.02  #: mean intensity below which a pixel is in shadow
 SATURATION = 254.5 / 255.0  #: a frame value at or above this fraction of full scale saturates
 UNWRAP_TOLERANCE = float(np.pi / 2)  #: unwrapping residual above which a pixel is dropped, rad
 ERODE = 1  #: pixels within this distance of an invalid pixel are dropped (EDGE)
+#: The largest ``erode`` accepted, px: the smallest camera accepted is 64 px on a side
+#: (simulated cameras; docs/conventions.md), which any larger value empties; the decoder holds
+#: ``2 erode + 1`` rows of every map at once, so an unbounded value exhausts memory.
+MAX_ERODE = 64
 
 #: The options above by keyword, as ``process.json`` and the report name them.
 DECODE_DEFAULTS: dict[str, float | int | None] = {
@@ -89,8 +94,9 @@ def normalize_frames(frames) -> np.ndarray:
 
 
 def _check_erode(erode) -> int:
-    if isinstance(erode, bool) or not isinstance(erode, (int, np.integer)) or erode < 0:
-        raise ValueError(f"erode: expected an integer >= 0, got {erode!r}")
+    if (isinstance(erode, bool) or not isinstance(erode, (int, np.integer))
+            or not 0 <= erode <= MAX_ERODE):
+        raise ValueError(f"erode: expected an integer in 0..{MAX_ERODE} (pixels), got {erode!r}")
     return int(erode)
 
 

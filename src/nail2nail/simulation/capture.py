@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 from PIL import Image
 
 from nail2nail._progress import progress_bar
+from nail2nail._validation import one_line
 from nail2nail.calibration.distortion import (
     THESIS_CENTER,
     THESIS_RHO,
@@ -112,8 +114,9 @@ def read_pattern_dir(directory: str | os.PathLike):
     Raises
     ------
     ValueError
-        Not a directory, no PNG, images of different sizes, a ``patterns.json`` that is not
-        valid or lists missing files.
+        Not a directory, no PNG, an image that cannot be read (truncated, corrupt: naming
+        the file), images of different sizes, a ``patterns.json`` that is not valid or lists
+        missing files.
     """
 
     directory = Path(directory)
@@ -139,8 +142,13 @@ def read_pattern_dir(directory: str | os.PathLike):
         raise ValueError(f"{directory}: no .png pattern files")
     images = []
     for f in files:
-        with Image.open(f) as im:
-            images.append(np.asarray(im.convert("L")))
+        try:
+            with warnings.catch_warnings():  # a decompression bomb: an error, not a warning
+                warnings.simplefilter("error", Image.DecompressionBombWarning)
+                with Image.open(f) as im:
+                    images.append(np.asarray(im.convert("L")))
+        except Exception as exc:  # truncated, corrupt, not an image: the file and why
+            raise ValueError(f"{f}: cannot read pattern image ({one_line(exc)})") from exc
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise ValueError(f"{directory}: pattern images differ in size ({sorted(shapes)})")
