@@ -32,15 +32,7 @@ from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
 from nail2nail.io.scans import save_scans
 from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.scan.capture import MAX_GRADIENT, motion_summary, scan_capture
-from nail2nail.unroll import (
-    DEFAULT_METHOD,
-    MAX_LENGTH_MM,
-    MAX_PPI,
-    METHODS,
-    MIN_LENGTH_MM,
-    MIN_PPI,
-    unroll_scans,
-)
+from nail2nail.unroll import DEFAULT_METHOD, METHODS, check_print_size, unroll_scans
 
 __all__ = ["peak_rss_mb", "process_capture"]
 
@@ -156,13 +148,7 @@ def process_capture(
     method = DEFAULT_METHOD if method is None else method
     if unroll and method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    # the unroll's bounds, checked before the scan and the merge run
-    if not (isinstance(ppi, (int, float)) and MIN_PPI <= ppi <= MAX_PPI):
-        raise ValueError(f"ppi: expected {MIN_PPI:g}..{MAX_PPI:g} pixels per inch, got {ppi!r}")
-    if length_mm is not None and not (isinstance(length_mm, (int, float))
-                                      and MIN_LENGTH_MM <= length_mm <= MAX_LENGTH_MM):
-        raise ValueError(f"length_mm: expected {MIN_LENGTH_MM:g}..{MAX_LENGTH_MM:g} mm or None, "
-                         f"got {length_mm!r}")
+    check_print_size(ppi, length_mm)  # the unroll's bounds, before the scan and merge run
     out = check_output_directory(out, marker="process.json")
     times = StepClock()
 

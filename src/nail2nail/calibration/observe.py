@@ -37,7 +37,8 @@ from nail2nail.scan.capture import decode_cameras
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.patterns import frame_table
 
-__all__ = ["BoardCaptures", "agree_on_half_turn", "board_views", "projector_points"]
+__all__ = ["BoardCaptures", "agree_on_half_turn", "board_views", "check_poses",
+           "projector_points"]
 
 
 def projector_points(xy_camera, xp, yp, mask=None, *, window_px: float = 12.0,
@@ -177,6 +178,49 @@ def _white_frame(pattern_set) -> int | None:
     return None
 
 
+def check_poses(capture_dirs) -> tuple[dict[str, tuple[int, int]], tuple[int, ...]]:
+    """Check board pose captures from their manifests and first frames' headers (cheap), before
+    any is decoded: each with a pattern set coding both projector directions, one projector
+    panel, and one image size per camera across the poses.
+
+    Returns
+    -------
+    sizes : dict of str to (int, int)
+        Image ``(width, height)`` per camera name.
+    projector_size : tuple of int
+        The projector panel ``(width, height)``.
+
+    Raises
+    ------
+    ValueError
+        Naming the pose: no pattern set, one direction only, another panel or image size.
+    """
+    sizes: dict[str, tuple[int, int]] = {}
+    panel: tuple[int, ...] | None = None
+    for path in capture_dirs:
+        capture = read_capture(path, load=False)
+        ps = capture.pattern_set
+        if ps is None:
+            raise ValueError(f"{path}: the manifest names no pattern set")
+        if not (ps.x and ps.y):
+            raise ValueError(f"{path}: the pattern set codes one projector direction; board "
+                             "calibration needs both (xp and yp)")
+        projector = capture.manifest.get("projector")
+        size = tuple(int(v) for v in (projector.get("size", ps.panel_size)
+                                      if isinstance(projector, dict) else ps.panel_size))
+        if panel is not None and size != panel:
+            raise ValueError(f"{path}: projector panel {size}, the first pose's is {panel}")
+        panel = size
+        for name in capture.camera_names:  # the first frame's header only
+            h, w = capture.frame_shape(name)
+            if sizes.setdefault(name, (w, h)) != (w, h):
+                raise ValueError(f"{path}: camera {name} has {w}x{h} images, "
+                                 f"{sizes[name][0]}x{sizes[name][1]} in an earlier pose")
+    if panel is None:
+        raise ValueError("capture_dirs: need at least one pose capture")
+    return sizes, panel
+
+
 def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px: int = 3,
                 decode_options: dict | None = None, progress: bool = False) -> BoardCaptures:
     """Detect the board and measure its projector points in every camera of every pose.
@@ -214,37 +258,21 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
 
     if not capture_dirs:
         raise ValueError("capture_dirs: need at least one pose capture")
+    sizes, projector_size = check_poses(capture_dirs)  # before any pose is decoded
     object_xy = board.object_points()[:, :2]
     views: list[BoardView] = []
     refused: list = []
-    sizes: dict[str, tuple[int, int]] = {}
     poses: list = []
-    projector_size: tuple[int, ...] | None = None
     jobs = [(k, os.fspath(d)) for k, d in enumerate(capture_dirs)]
     for k, path in progress_bar(jobs, desc="poses", unit="pose", enabled=progress):
         capture = read_capture(path, load=False)
         ps = capture.pattern_set
-        if ps is None:
-            raise ValueError(f"{path}: the manifest names no pattern set")
-        if not (ps.x and ps.y):
-            raise ValueError(f"{path}: the pattern set codes one projector direction; board "
-                             "calibration needs both (xp and yp)")
-        panel = tuple(int(v) for v in capture.manifest.get("projector", {}).get(
-            "size", ps.panel_size))
-        if projector_size is None:
-            projector_size = panel
-        elif panel != projector_size:
-            raise ValueError(f"{path}: projector panel {panel}, the first pose's is "
-                             f"{projector_size}")
+        assert ps is not None  # check_poses
         white = _white_frame(ps)
         poses.append(path)
         pose_views = []
         for name in capture.camera_names:
             frames = capture.load_frames(name, raw=True)
-            size = (frames.shape[2], frames.shape[1])
-            if sizes.setdefault(name, size) != size:
-                raise ValueError(f"{path}: camera {name} has {size[0]}x{size[1]} images, "
-                                 f"{sizes[name][0]}x{sizes[name][1]} in an earlier pose")
             decoded = decode(frames, ps, full_scale=2**capture.bit_depth - 1,
                              **{"method": "numba", **(decode_options or {})})
             image = decoded.albedo if white is None else frames[white]
@@ -277,7 +305,6 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
                 warnings.warn(f"{path}: camera {v.camera}: {reason}; view skipped",
                               stacklevel=2)
         views.extend(pose_views)
-    assert projector_size is not None  # set by the first pose
     return BoardCaptures(views=views, camera_sizes=sizes, projector_size=projector_size,
                          poses=poses, refused=refused)
 

@@ -19,10 +19,9 @@ from nail2nail.calibration.board import (
 )
 from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
-from nail2nail.calibration.observe import board_views
+from nail2nail.calibration.observe import board_views, check_poses
 from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
-from nail2nail.io.capture import read_capture
 
 __all__ = ["add_parser", "run"]
 
@@ -117,28 +116,7 @@ def _check_poses(poses: list[Path], world: str | None) -> None:
             raise ValueError(f"POSE_DIR: {pose} given more than once{same}; each pose is "
                              "one capture directory")
         seen[key] = pose
-    sizes: dict[str, tuple[int, int]] = {}
-    panel = None
-    for pose in poses:
-        capture = read_capture(pose, load=False)
-        ps = capture.pattern_set
-        if ps is None:
-            raise ValueError(f"{pose}: the manifest names no pattern set")
-        if not (ps.x and ps.y):
-            raise ValueError(f"{pose}: the pattern set codes one projector direction; board "
-                             "calibration needs both (xp and yp)")
-        projector = capture.manifest.get("projector")
-        size = projector.get("size", ps.panel_size) if isinstance(projector, dict) \
-            else ps.panel_size
-        if panel is not None and tuple(size) != panel:
-            raise ValueError(f"{pose}: projector panel {tuple(size)}, the first pose's is "
-                             f"{panel}")
-        panel = tuple(size)
-        for name in capture.camera_names:  # the first frame's header only
-            h, w = capture.frame_shape(name)
-            if sizes.setdefault(name, (w, h)) != (w, h):
-                raise ValueError(f"{pose}: camera {name} has {w}x{h} images, "
-                                 f"{sizes[name][0]}x{sizes[name][1]} in an earlier pose")
+    sizes, _ = check_poses(poses)
     names = list(sizes)
     if len(poses) < MIN_VIEWS:
         raise ValueError(f"POSE_DIR: {len(poses)} pose(s) given; need at least {MIN_VIEWS} "

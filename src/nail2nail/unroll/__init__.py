@@ -28,6 +28,7 @@ from nail2nail.unroll.rolled import (
     MIN_LENGTH_MM,
     MIN_PPI,
     RolledPrint,
+    check_print_size,
     image_up_direction,
     unroll_scans,
 )
@@ -43,6 +44,7 @@ __all__ = [
     "MIN_LENGTH_MM",
     "MIN_PPI",
     "RolledPrint",
+    "check_print_size",
     "clarity_map",
     "fit_flattening",
     "image_up_direction",

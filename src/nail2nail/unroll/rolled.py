@@ -49,8 +49,8 @@ from nail2nail.unroll.render import (
 from nail2nail.unroll.ridges import camera_layer, masked_gaussian, pixel_spacing_mm, scan_valid
 
 __all__ = ["DEFAULT_LENGTH_MM", "DEFAULT_METHOD", "FLOOR_FRACTION", "MAX_LENGTH_MM", "MAX_PPI",
-           "MIN_CLARITY", "MIN_LENGTH_MM", "MIN_PPI", "RolledPrint", "image_up_direction",
-           "unroll_scans"]
+           "MIN_CLARITY", "MIN_LENGTH_MM", "MIN_PPI", "RolledPrint", "check_print_size",
+           "image_up_direction", "unroll_scans"]
 
 #: The default unrolling method: the one with the least length and area distortion (README).
 DEFAULT_METHOD = "rolled"
@@ -383,6 +383,18 @@ def image_up_direction(scans, *, step: int = 4, valid=None) -> np.ndarray:
     return total / norm
 
 
+def check_print_size(ppi, length_mm) -> None:
+    """Refuse a print resolution outside :data:`MIN_PPI` … :data:`MAX_PPI` pixels per inch or
+    a length outside :data:`MIN_LENGTH_MM` … :data:`MAX_LENGTH_MM` (``None``: all the skin),
+    with ``ValueError`` naming the argument and the value as given."""
+    if not (isinstance(ppi, (int, float)) and MIN_PPI <= ppi <= MAX_PPI):
+        raise ValueError(f"ppi: expected a number in {MIN_PPI:g}..{MAX_PPI:g}, got {ppi!r}")
+    if length_mm is not None and not (isinstance(length_mm, (int, float))
+                                      and MIN_LENGTH_MM <= length_mm <= MAX_LENGTH_MM):
+        raise ValueError(f"length_mm: expected {MIN_LENGTH_MM:g}..{MAX_LENGTH_MM:g} mm or None, "
+                         f"got {length_mm!r}")
+
+
 def unroll_scans(
     scans,
     *,
@@ -471,12 +483,7 @@ def unroll_scans(
             raise TypeError(f"scans[{i}]: expected a Scan, got {type(s).__name__}")
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
-    if not (isinstance(ppi, (int, float)) and MIN_PPI <= ppi <= MAX_PPI):
-        raise ValueError(f"ppi: expected a number in {MIN_PPI:g}..{MAX_PPI:g}, got {ppi!r}")
-    if length_mm is not None and not (isinstance(length_mm, (int, float))
-                                      and MIN_LENGTH_MM <= length_mm <= MAX_LENGTH_MM):
-        raise ValueError(f"length_mm: expected {MIN_LENGTH_MM:g}..{MAX_LENGTH_MM:g} mm or None, "
-                         f"got {length_mm!r}")
+    check_print_size(ppi, length_mm)
     if tip_direction is not None:
         tip_direction = _direction(tip_direction, "tip_direction")
     if pad_direction is not None:
