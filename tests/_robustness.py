@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+
 import numpy as np
 
 from nail2nail.calibration.files import CameraCalibration, RigCalibration, save_calibration
@@ -52,3 +56,28 @@ def _scan_dir(directory, *, npz=b"", name="cam0", npz_path=None):
         "cameras": [{"name": name, "npz": f"{name}.npz" if npz_path is None else npz_path},
                     {"name": "cam1", "npz": "cam1.npz"}]})
     return directory
+
+
+class Timeout(BaseException):
+    """Raised by :func:`time_limit` when its time is up (a BaseException: no ``except
+    Exception`` in the code under test swallows it)."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float):
+    """Raise :class:`Timeout` in the main thread after `seconds` (POSIX interval timer;
+    elsewhere no limit)."""
+    if not hasattr(signal, "setitimer") or os.name != "posix":
+        yield
+        return
+
+    def handler(signum, frame):
+        raise Timeout()
+
+    old = signal.signal(signal.SIGALRM, handler)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)

@@ -37,7 +37,6 @@ import os
 import random
 import resource
 import shutil
-import signal
 import string
 import sys
 import time
@@ -48,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _robustness import Timeout, time_limit
 from PIL import Image
 
 from nail2nail.cli._main import build_parser, main
@@ -73,10 +73,6 @@ _PARSER_OF = {"simulate-print": "simulate", "simulate-board": "simulate"}
 #: Their cases still run; such a message is counted as known, not as a failure. Each has a
 #: strict xfail test below, which fails once it is fixed: then remove the entry.
 KNOWN_UNNAMED = {
-    ("scan", "--frame"): "frame: expected 'world' or a camera of the calibration … "
-                         "(nail2nail.frames.frame_transform, called by cli/_scan.py)",
-    ("scan", "--mask"): "masks: masks given for unknown camera(s) … "
-                        "(io/masks.check_mask_names through scan_capture, cli/_scan.py)",
     ("calibrate-board", "--rows"): "rows, cols: a checkerboard board needs at least 3 of each "
                                    "(calibration/boards.py)",
     ("calibrate-board", "--cols"): "rows, cols: … (calibration/boards.py)",
@@ -346,22 +342,6 @@ class Outcome:
     known: str | None = None  # a failure of KNOWN_UNNAMED / KNOWN_HANGS
 
 
-class _Timeout(BaseException):
-    pass
-
-
-@contextlib.contextmanager
-def _time_limit(seconds: float):
-    def handler(signum, frame):
-        raise _Timeout()
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def _prepare_case_dir(case: Path) -> None:
@@ -399,13 +379,13 @@ def run_case(argv: list[str], case: Path) -> Outcome:
     try:
         with contextlib.chdir(case), contextlib.redirect_stdout(out), \
                 contextlib.redirect_stderr(err), warnings.catch_warnings(), \
-                _time_limit(CASE_SECONDS):
+                time_limit(CASE_SECONDS):
             warnings.simplefilter("default")  # as on the command line
             try:
                 rc = main(argv)
             except SystemExit as exc:  # argparse's usage errors
                 rc = exc.code if isinstance(exc.code, int) else 2
-    except _Timeout:
+    except Timeout:
         problem = f"no answer within {CASE_SECONDS:g} s"
     except BaseException as exc:  # an exception out of main: the contract is broken
         problem = f"{type(exc).__name__} escaped main: {' '.join(str(exc).split())[:300]}"

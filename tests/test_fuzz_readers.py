@@ -25,7 +25,6 @@ import json
 import math
 import os
 import shutil
-import signal
 import struct
 import sys
 import warnings
@@ -36,6 +35,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
+from _robustness import Timeout, time_limit
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
@@ -90,26 +90,6 @@ def _install_watch() -> None:
         _Watch.installed = True
 
 
-class _Timeout(BaseException):
-    pass
-
-
-@contextlib.contextmanager
-def _time_limit(seconds: float):
-    if not hasattr(signal, "setitimer") or os.name != "posix":
-        yield
-        return
-
-    def handler(signum, frame):
-        raise _Timeout()
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def check_reader(read, root: Path, validate, *, seconds: float = 10.0) -> str | None:
@@ -123,7 +103,7 @@ def check_reader(read, root: Path, validate, *, seconds: float = 10.0) -> str | 
     _Watch.allowed = (*saved_allowed, os.path.realpath(root) + os.sep)
     problem = None
     try:
-        with warnings.catch_warnings(record=True) as caught, _time_limit(seconds):
+        with warnings.catch_warnings(record=True) as caught, time_limit(seconds):
             warnings.simplefilter("always")
             try:
                 result = read()
@@ -134,7 +114,7 @@ def check_reader(read, root: Path, validate, *, seconds: float = 10.0) -> str | 
                 where = f"{exc} {exc.filename}"
                 if not any(n in where for n in names):
                     problem = f"OSError not naming the file: {exc!r}"
-            except _Timeout:
+            except Timeout:
                 problem = f"no answer within {seconds} s"
             except Exception as exc:
                 problem = f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"

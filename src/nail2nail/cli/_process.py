@@ -10,7 +10,13 @@ import argparse
 from pathlib import Path
 
 from nail2nail.cli._report import add_report_options, check_report_options
-from nail2nail.cli._scan import add_scan_options, decode_options, masks, max_gradient
+from nail2nail.cli._scan import (
+    add_scan_options,
+    as_option_error,
+    decode_options,
+    masks,
+    max_gradient,
+)
 from nail2nail.cli._unroll import add_unroll_options, check_unroll_options, unroll_options
 from nail2nail.io._json import dumps_json
 from nail2nail.merge.report import parse_pairs
@@ -81,21 +87,6 @@ def process_options(args: argparse.Namespace) -> dict:
 #: A camera count above any rig's, to check the syntax of --pairs before the capture is read.
 _ANY_COUNT = 2**31
 
-#: The library's words for the options :func:`nail2nail.process.process_capture` checks itself
-#: (``frame: expected …``, ``masks: masks given for unknown camera(s) …``), and the command
-#: line's (``--frame: expected …``).
-LIBRARY_NAMES = {"frame": "--frame", "masks": "--mask", "method": "--method", "ppi": "--ppi",
-                 "length_mm": "--length"}
-
-
-def as_option_error(exc: ValueError) -> ValueError:
-    """`exc` with the library's name of an option (:data:`LIBRARY_NAMES`) replaced by the
-    command line's, when its message starts with it (``frame: …``); else `exc`."""
-    text = str(exc)
-    for name, flag in LIBRARY_NAMES.items():
-        if text.startswith(f"{name}: "):
-            return ValueError(flag + text[len(name):])
-    return exc
 
 
 def run(args: argparse.Namespace) -> int:

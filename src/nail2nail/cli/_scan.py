@@ -102,20 +102,44 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: The library's words for the options :func:`nail2nail.process.process_capture` and
+#: :func:`nail2nail.scan.capture.scan_capture` check themselves
+#: (``frame: expected …``, ``masks: masks given for unknown camera(s) …``), and the command
+#: line's (``--frame: expected …``).
+LIBRARY_NAMES = {"frame": "--frame", "masks": "--mask", "method": "--method", "ppi": "--ppi",
+                 "length_mm": "--length"}
+
+
+def as_option_error(exc: ValueError) -> ValueError:
+    """`exc` with the library's name of an option (:data:`LIBRARY_NAMES`) replaced by the
+    command line's, when its message starts with it (``frame: …``); else `exc`."""
+    text = str(exc)
+    for name, flag in LIBRARY_NAMES.items():
+        if text.startswith(f"{name}: "):
+            return ValueError(flag + text[len(name):])
+    return exc
+
+
 def run(args: argparse.Namespace) -> int:
     options = decode_options(args)
     user_masks = masks(args)
     calibration = load_calibration(args.calib, allow_mirrored=args.allow_mirrored)
-    transform = frame_transform(calibration, args.frame)  # checked before the capture is read
+    try:
+        transform = frame_transform(calibration, args.frame)  # before the capture is read
+    except ValueError as exc:
+        raise as_option_error(exc) from None
     # frames are read (and checked) one camera at a time, while scanning: memory for one
     # camera's frames; the progress bar only on a terminal and without --quiet
     # (nail2nail._progress), so that an error read from a file or pipe is its one line.
     # Warnings (the kept fraction of a camera's lit pixels) become one line each in cli.main.
     capture = read_capture(args.capture, load=False)
-    scans = scan_capture(capture, calibration, use=args.use,
-                         progress=True,
-                         max_gradient=max_gradient(args), allow_mirrored=args.allow_mirrored,
-                         calibration_name=str(args.calib), masks=user_masks, **options)
+    try:
+        scans = scan_capture(capture, calibration, use=args.use,
+                             progress=True,
+                             max_gradient=max_gradient(args), allow_mirrored=args.allow_mirrored,
+                             calibration_name=str(args.calib), masks=user_masks, **options)
+    except ValueError as exc:
+        raise as_option_error(exc) from None
     manifest = save_scans(args.out, scans, mat5=not args.no_mat5, ply=not args.no_ply,
                           extra={"capture": str(args.capture), "calibration": str(args.calib)},
                           frame=args.frame, transform=transform)
