@@ -20,6 +20,7 @@ from nail2nail.calibration.board import (
 from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.observe import board_views, check_poses
+from nail2nail.cli._options import as_option_error
 from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
 
@@ -81,6 +82,11 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: The board's argument names in its messages, and the command line's options.
+BOARD_OPTIONS = {"rows, cols": "--rows, --cols", "marker": "--marker", "spacing": "--spacing",
+                 "dictionary": "--board charuco (its ArUco dictionary)"}
+
+
 def _check_options(args: argparse.Namespace) -> Board:
     """The options checked before any capture is read (bad input first, no warning before)."""
     for option, value in (("--spacing", args.spacing), ("--marker", args.marker)):
@@ -98,8 +104,11 @@ def _check_options(args: argparse.Namespace) -> Board:
         check_output_file(args.output)
     except ValueError as exc:
         raise type(exc)(f"-o/--output: {exc}") from exc
-    return Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
-                 marker=args.marker)
+    try:
+        return Board(args.board, rows=args.rows, cols=args.cols, spacing=args.spacing,
+                     marker=args.marker)
+    except ValueError as exc:  # the board's own checks name its arguments
+        raise as_option_error(exc, BOARD_OPTIONS) from None
 
 
 def _check_poses(poses: list[Path], world: str | None) -> None:

@@ -25,6 +25,7 @@ from nail2nail.calibration.opencv_files import (
     read_opencv_calibration,
     write_opencv_calibration,
 )
+from nail2nail.cli._options import as_option_error
 from nail2nail.io._atomic import check_output_file
 from nail2nail.io._json import dumps_json
 
@@ -152,14 +153,24 @@ def run_import(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The writer's argument names in its messages, and the command line's options (the
+#: calibration itself is named by its file).
+EXPORT_OPTIONS = {"camera": "--camera", "layout 'stereo' holds one camera":
+                  "--layout stereo holds one camera (give --camera)"}
+
+
 def run_export(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() not in (".xml", ".yml", ".yaml", ".json"):
         raise ValueError(f"--out: {args.out}: expected a .xml, .yml or .yaml file name (the "
                          "suffix picks the FileStorage format)")
     _check_out(args.out)
     calibration = load_calibration(args.calibration, allow_mirrored=args.allow_mirrored)
-    notes = write_opencv_calibration(args.out, calibration, layout=args.layout,
-                                     camera=args.camera, projector_size=args.projector_size)
+    try:
+        notes = write_opencv_calibration(args.out, calibration, layout=args.layout,
+                                         camera=args.camera, projector_size=args.projector_size)
+    except ValueError as exc:  # the writer's checks name its arguments
+        raise as_option_error(exc, {**EXPORT_OPTIONS,
+                                    "calibration": str(args.calibration)}) from None
     if args.json:
         print(dumps_json({"out": str(args.out), "layout": args.layout, "notes": notes,
                           "cameras": _summary(calibration)}))

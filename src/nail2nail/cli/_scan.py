@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from nail2nail.calibration.files import load_calibration
+from nail2nail.cli._options import as_option_error as _as_option_error
 from nail2nail.frames import frame_transform
 from nail2nail.io._json import dumps_json
 from nail2nail.io.capture import read_capture
@@ -111,13 +112,9 @@ LIBRARY_NAMES = {"frame": "--frame", "masks": "--mask", "method": "--method", "p
 
 
 def as_option_error(exc: ValueError) -> ValueError:
-    """`exc` with the library's name of an option (:data:`LIBRARY_NAMES`) replaced by the
-    command line's, when its message starts with it (``frame: …``); else `exc`."""
-    text = str(exc)
-    for name, flag in LIBRARY_NAMES.items():
-        if text.startswith(f"{name}: "):
-            return ValueError(flag + text[len(name):])
-    return exc
+    """`exc` naming the command line's option (:data:`LIBRARY_NAMES`) instead of the
+    library's argument."""
+    return _as_option_error(exc, LIBRARY_NAMES)
 
 
 def run(args: argparse.Namespace) -> int:
