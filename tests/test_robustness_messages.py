@@ -173,10 +173,11 @@ def test_null_pattern_set_names_the_file(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_calibration_of_other_cameras(tmp_path, capsys):
+@pytest.mark.parametrize("command", ["process", "scan"])
+def test_calibration_of_other_cameras(command, tmp_path, capsys):
     capture = _patterned_capture(tmp_path / "cap", 6)
     calib = _calibration(tmp_path / "calib.json", names=("left", "right"))
-    assert main(["process", str(capture), "--calib", str(calib), "--out",
+    assert main([command, str(capture), "--calib", str(calib), "--out",
                  str(tmp_path / "o")]) == 2
     _one_error_line(capsys, calib, capture / "capture.json", "['left', 'right']",
                     "['cam0', 'cam1']")

@@ -160,7 +160,6 @@ def process_capture(
     transform = frame_transform(calibration, frame)
     if isinstance(capture, (str, os.PathLike)):
         capture = read_capture(capture, load=False)
-    _check_camera_names(capture, calibration, calibration_name)
 
     say("scan")
     scan_parts: dict[str, float] = {}
@@ -231,15 +230,3 @@ def process_capture(
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
 
-
-def _check_camera_names(capture, calibration, calibration_name: str) -> None:
-    """Refuse, naming both files and both lists of names, a calibration that lacks one of the
-    capture's cameras (the scan would stop at that camera with the calibration's bare
-    "calibration has no camera 'cam0'")."""
-    calibrated = [cam.name for cam in calibration.cameras]
-    missing = [name for name in capture.camera_names if name not in calibrated]
-    if missing:
-        raise ValueError(
-            f"{calibration_name}: calibrates cameras {calibrated}, but "
-            f"{capture.path / 'capture.json'} has cameras {capture.camera_names} (none for "
-            f"{', '.join(map(repr, missing))}): use a calibration of this capture's cameras")

@@ -491,6 +491,13 @@ def scan_capture(
     names = capture.camera_names
     masks = dict(masks or {})
     check_mask_names(masks, names, "masks")
+    calibrated = [cam.name for cam in calibration.cameras]
+    missing = [name for name in names if name not in calibrated]
+    if missing:  # said here, naming both files and both lists, before any frame is read
+        raise ValueError(
+            f"{calibration_name}: calibrates cameras {calibrated}, but "
+            f"{capture.path / 'capture.json'} has cameras {names} (none for "
+            f"{', '.join(map(repr, missing))}): use a calibration of this capture's cameras")
     if not allow_mirrored:
         check_handedness(calibration, calibration_name)
     for name in names:
