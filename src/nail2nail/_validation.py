@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ __all__ = [
     "check_unique",
     "confined_path",
     "describe_error",
+    "file_kind",
     "one_line",
 ]
 
@@ -228,3 +230,15 @@ def describe_error(exc: BaseException) -> str:
         text = exc.strerror[:1].lower() + exc.strerror[1:]
         return f"{where}: {text}" if where else text
     return one_line(exc) or type(exc).__name__
+
+
+def file_kind(mode: int) -> str:
+    """What a ``st_mode`` that is not a regular file is, for messages: ``"a directory"``,
+    ``"a FIFO, a named pipe"``, ``"a character device"``, … (a FIFO or a device given as an input
+    file would block or stream: readers refuse them before opening, from ``os.stat``)."""
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO, a named pipe"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a plain file"

@@ -55,6 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nail2nail._validation import file_kind
 from nail2nail.calibration.camera_models import Pinhole, pinhole_from_dlt
 from nail2nail.calibration.files import (
     MAX_SIZE_PX,
@@ -143,15 +144,6 @@ def _quiet_opencv():
         logging.setLogLevel(level)
 
 
-def _file_kind(mode: int) -> str:
-    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO, a named pipe"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return kind
-    return "not a plain file"
-
-
 def _read_text(path: Path) -> str:
     """The text of the calibration file `path`: a regular file (checked before it is opened,
     so a FIFO or a device never blocks or streams), at most :data:`MAX_FILE_BYTES`, UTF-8
@@ -163,7 +155,7 @@ def _read_text(path: Path) -> str:
     too_big = (f"{path}: larger than {MAX_FILE_BYTES // 2**20} MiB, not a calibration file "
                "(one is a few kilobytes)")
     if not stat.S_ISREG(info.st_mode):
-        raise ValueError(f"{path}: not a regular file ({_file_kind(info.st_mode)}); give the "
+        raise ValueError(f"{path}: not a regular file ({file_kind(info.st_mode)}); give the "
                          "calibration file itself")
     if info.st_size > MAX_FILE_BYTES:
         raise ValueError(too_big)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from nail2nail._validation import file_kind
 from nail2nail.io._atomic import atomic_path
 
 __all__ = ["dumps_json", "json_ready", "read_json", "write_json"]
@@ -106,8 +107,8 @@ def read_json(path: str | os.PathLike) -> Any:
     path = Path(path)
     # a FIFO or a device would block or stream: refused before it is opened
     if path.exists() and not path.is_file():
-        kind = "a directory" if path.is_dir() else "not a regular file (a FIFO or a device?)"
-        raise ValueError(f"{path}: {kind}; expected a JSON file")
+        raise ValueError(f"{path}: not a regular file ({file_kind(path.stat().st_mode)}); "
+                         "expected a JSON file")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -396,7 +396,18 @@ def register_frequencies(frames, pattern_set: PatternSet, mask=None, *,
     beyond reach: it wraps and gives a whole period's error over its region.
 
     Only for ``"pmp"`` pattern sets whose consecutive frequencies of a direction have an
-    integer ratio (the default 1, 8, 64); other sets are returned as they are.
+    integer ratio (the default 1, 8, 64); other sets are returned as they are. Phases follow
+    :func:`_phase_design` (the sign convention of every group alike), pixels are ``[row, col]``
+    of the camera image, windows in camera pixels.
+
+    References
+    ----------
+    Hierarchical temporal unwrapping and its noise amplification by the frequency ratio: Zuo,
+    Huang, Tao, Feng, Chen and Chen, "Temporal phase unwrapping algorithms for fringe projection
+    profilometry: a comparative review", Opt. Lasers Eng. 85, 84–103 (2016),
+    doi:10.1016/j.optlaseng.2016.04.022; the fringe order's median-filter correction is the
+    practice reviewed there. The thesis unwraps a still finger (its eq. 3.12–3.14 take the
+    unwrapped phase as given).
 
     Parameters
     ----------
@@ -617,8 +628,7 @@ def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
         tiles = stack.reshape(n, ty, tile_px, tx, tile_px).transpose(1, 3, 0, 2, 4)
         tiles = tiles.reshape(ty * tx, n, tile_px * tile_px)
         # the phase and amplitude of each pixel under the nominal shifts
-        design = np.stack([np.ones(n), np.cos(nominal), -np.sin(nominal)], axis=-1)
-        coef = np.linalg.pinv(design) @ tiles
+        coef = np.linalg.pinv(_phase_design(nominal)) @ tiles
         if mask is None:
             weight = np.hypot(coef[:, 1], coef[:, 2]) >= 0.02 * full
         else:
