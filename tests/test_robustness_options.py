@@ -282,7 +282,7 @@ def _cylinder_views():
 
 
 def test_issue29_distortion_plane_check():
-    from nail2nail.cli._distortion import PLANE_RMS_LIMIT_PX, check_plane
+    from nail2nail.calibration.distortion import PLANE_RMS_LIMIT_PX, check_plane
 
     assert check_plane(_plane_views(), "plane")["cam0"] < PLANE_RMS_LIMIT_PX / 2
     with pytest.raises(ValueError, match=r"finger: not a capture of a flat plane: .* 'cam0'"):
