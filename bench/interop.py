@@ -64,6 +64,13 @@ SYNTHETIC_SEED0 = 100
 REAL_SEED0 = 200
 THRESHOLD = 40.0
 PROBE_VS_MATCHING = 235.6  # SourceAFIS 3.18.1, measured by the issue
+#: what the default options are compared with (``--before``): the fixed relief + albedo blend
+#: of earlier versions (no clarity mix, no mask, no phase-locked fit), or the default options
+#: without the phase-locked fit alone
+BEFORE = {
+    "fixed-blend": {"mix": False, "min_clarity": None, "ridge_options": {"fringe_harmonics": 0}},
+    "no-fringe-fit": {"ridge_options": {"fringe_harmonics": 0}},
+}
 
 
 def body_and_cap(rolled, scans, uv, y0: float, acc: dict) -> dict:
@@ -132,7 +139,7 @@ def run_finger(job: dict) -> dict:
     y0 = json.loads((cap / "capture.json").read_text())["scene"]["y0"]
     result = {"name": out.name, "seed": seed, "print": job["print"] or cond.finger["pattern"],
               "conditions": cond.to_dict(), "simulate_s": round(t_sim, 1), "ideal": crop_info}
-    for tag, options in (("default", {}), ("before", {"mix": False, "min_clarity": None})):
+    for tag, options in (("default", {}), ("before", BEFORE[job["before"]])):
         t1 = time.perf_counter()
         rolled = unroll_scans(scans, **options)
         t_unroll = time.perf_counter() - t1
@@ -333,6 +340,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=Path("bench-output/interop"))
     p.add_argument("--det", type=Path, help="write the DET plot here (PNG)")
     p.add_argument("--no-matcher", action="store_true")
+    p.add_argument("--before", choices=sorted(BEFORE), default="fixed-blend",
+                   help="what the default is compared with (default: fixed-blend)")
     args = p.parse_args(argv)
     from nail2nail.simulation.rig import default_rig
 
@@ -340,11 +349,12 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     _, calib_path = um.best_calibration(args.out, default_rig(args.scale), args.scale)
     jobs = [{"dir": str(args.out / f"syn{args.seed0 + i:04d}"), "seed": args.seed0 + i,
-             "print": None, "scale": args.scale, "calibration": calib_path}
-            for i in range(args.fingers)]
+             "print": None, "scale": args.scale, "calibration": calib_path,
+             "before": args.before} for i in range(args.fingers)]
     jobs += [{"dir": str(args.out / f"real{args.real_seed0 + i:04d}"),
               "seed": args.real_seed0 + i, "print": str(PRINTS / "probe.png"),
-              "scale": args.scale, "calibration": calib_path} for i in range(args.real)]
+              "scale": args.scale, "calibration": calib_path, "before": args.before}
+             for i in range(args.real)]
     results = []
     # spawn: the calibration above ran OpenMP threads, which a forked worker cannot use
     with ProcessPoolExecutor(max_workers=max(1, args.workers),

@@ -214,6 +214,18 @@ def test_issue29_simulate_print_file_resolution(tmp_path, capsys):
     _nothing_written(out)
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_issue29_simulate_print_fifo_is_named_as_such(tmp_path, capsys):
+    """A FIFO given as the print image is refused unopened, named for what it is (it said
+    "no such print image file")."""
+    fifo = tmp_path / "print.png"
+    os.mkfifo(fifo)
+    out = tmp_path / "sim"
+    assert main(["simulate", "--print", str(fifo), "--out", str(out)]) == 2
+    _one_error_line(capsys, "print.png", "a FIFO, a named pipe", "PNG or WSQ")
+    _nothing_written(out)
+
+
 def test_issue29_simulate_truncated_pattern_png(tmp_path, capsys):
     from PIL import Image
 

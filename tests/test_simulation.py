@@ -211,6 +211,32 @@ def test_render_noise_free_formula(rig_quarter):
     assert np.all(frame[~g.surface] == 0)
 
 
+def test_projector_flicker_scales_each_frame_alike_for_every_camera(rig_quarter):
+    """Frame k's projected light is (1 + flicker z_k) times the steady one, the ambient term
+    not; the same factors for every camera; no flicker, no factor (frames byte-identical)."""
+    from nail2nail.simulation.render import frame_flicker
+
+    assert frame_flicker(Photometry(), 4, seed=1) is None
+    steady = Photometry(noise=False, camera_blur_px=0.0, projector_blur_px=0.0, bit_depth=16)
+    flickering = Photometry(noise=False, camera_blur_px=0.0, projector_blur_px=0.0,
+                            bit_depth=16, projector_flicker=0.02)
+    factors = frame_flicker(flickering, 3, seed=5)
+    np.testing.assert_array_equal(factors, frame_flicker(flickering, 3, seed=5))
+    assert factors.shape == (3,) and 0.002 < np.std(factors - 1) < 0.1
+    pattern = np.full((3, 1040, 1280), 200, dtype=np.uint8)
+    for camera in (0, 2):
+        g = camera_geometry(rig_quarter, make_scene("sphere"), camera)
+        a = render_frames(g, pattern, steady, seed=5, camera_index=camera).astype(float)
+        b = render_frames(g, pattern, flickering, seed=5, camera_index=camera).astype(float)
+        top = 65535
+        ambient = (g.albedo * steady.projector_power * steady.ambient * top)[g.mask]
+        for k in range(3):
+            lit_a, lit_b = a[k][g.mask] - ambient, b[k][g.mask] - ambient
+            bright = lit_a > 1000
+            ratio = lit_b[bright] / lit_a[bright]
+            assert np.median(ratio) == pytest.approx(factors[k], abs=2e-3)
+
+
 def test_render_reproducible_and_bit_depth(rig_quarter):
     g = camera_geometry(rig_quarter, make_scene("sphere"), 2)
     a = render_frames(g, WHITE, rig_quarter.photometry, seed=3, camera_index=2)

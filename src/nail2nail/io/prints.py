@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import stat
 import subprocess
 import sys
 import warnings
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from nail2nail._validation import file_kind
 from nail2nail.io._atomic import atomic_path
 
 __all__ = [
@@ -115,8 +117,12 @@ def read_print_image(path: str | os.PathLike) -> tuple[np.ndarray, float | None]
     import wsq  # noqa: F401  (registers the WSQ plugin with Pillow)
 
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such print image file")
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        raise ValueError(f"{path}: no such print image file") from None
+    if not stat.S_ISREG(mode):  # a FIFO or a device would block or stream: refused unopened
+        raise ValueError(f"{path}: {file_kind(mode)}, expected a PNG or WSQ print image file")
     data = path.read_bytes()
     if not data:
         raise ValueError(f"{path}: empty file, expected a PNG or WSQ print image")

@@ -14,6 +14,7 @@ returns them in the world frame (or as stored, ``frame="stored"``).
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -266,12 +267,26 @@ def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
             entry["camera_center"] = np.asarray(scan.camera_center).tolist()
         if scan.motion is not None:
             entry["motion"] = scan.motion
+        if scan.fringe_periods:
+            entry["fringe_periods_px"] = dict(scan.fringe_periods)
         return entry
 
     cameras = _map_in_threads(write, scans)
     manifest = {"format": SCAN_FORMAT, "version": 1, "cameras": cameras, **(extra or {})}
     write_json(out / "scan.json", manifest)
     return manifest
+
+
+def _fringe_periods(value, where: str) -> dict | None:
+    """A manifest's ``fringe_periods_px`` (absent: None, as in scans written before it)."""
+    if value is None:
+        return None
+    if (not isinstance(value, dict) or not set(value) <= {"x", "y"}
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and math.isfinite(v) and v > 0 for v in value.values())):
+        raise ValueError(f"{where}.fringe_periods_px: expected {{'x': T, 'y': T}} with periods "
+                         f"> 0 in panel px, got {value!r}")
+    return {k: float(v) for k, v in value.items()}
 
 
 def _map_in_threads(task, items: list) -> list:
@@ -368,9 +383,11 @@ def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Sca
         files.append(confined_path(scan_dir, cam["npz"], f"{where}.npz"))
     check_unique([cam["name"] for cam in cams], str(manifest_path))
     scans = _map_in_threads(load_scan_npz, files)
-    for scan, cam in zip(scans, cams, strict=True):
+    for i, (scan, cam) in enumerate(zip(scans, cams, strict=True)):
         # what the frames said of motion, as written (a dict; anything else is not ours)
         scan.motion = cam.get("motion") if isinstance(cam.get("motion"), dict) else None
+        scan.fringe_periods = _fringe_periods(cam.get("fringe_periods_px"),
+                                              f"{manifest_path}: cameras[{i}]")
     if frame == "stored":
         return scans
     world_from_frame = invert_transform(T)

@@ -38,6 +38,7 @@ from nail2nail.scan.motion import (
     estimate_motion,
     mm_per_pixel,
 )
+from nail2nail.scan.patterns import fringe_periods
 from nail2nail.scan.results import (
     NO_POINT,
     Scan,
@@ -653,6 +654,7 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
         clock("motion")
     if compensation is not None:
         scan.motion = {**(scan.motion or {}), "compensation": compensation}
+    scan.fringe_periods = fringe_periods(capture.pattern_set)
     return scan
 
 

@@ -54,6 +54,7 @@ __all__ = [
     "default_pattern_set",
     "frame_labels",
     "frame_table",
+    "fringe_periods",
     "gray_code_pattern_set",
     "gray_line_pattern_set",
     "gray_phase_pattern_set",
@@ -474,6 +475,24 @@ def stripe_width(pattern_set: PatternSet, direction: str) -> float:
     _check_pattern_set(pattern_set)
     finest = max(f.periods for f in pattern_set.frequencies(direction))
     return pattern_set.axis_size(direction) / finest
+
+
+def fringe_periods(pattern_set: PatternSet) -> dict[str, float]:
+    """The period (panel px) of each direction's finest fringes: what the decoded coordinate's
+    systematic error repeats with (:mod:`nail2nail.unroll.fringes`).
+
+    :func:`stripe_width` of every direction of a phase scheme (``"pmp"``, ``"gray-phase"``,
+    ``"gray"``'s line shift); empty for ``"gray-code"``, which has no phase.
+
+    Examples
+    --------
+    >>> fringe_periods(default_pattern_set())
+    {'x': 20.0, 'y': 16.25}
+    """
+    _check_pattern_set(pattern_set)
+    if pattern_set.scheme == "gray-code":
+        return {}
+    return {d: stripe_width(pattern_set, d) for d in pattern_set.directions}
 
 
 def gray_phase_pattern_set(*, periods: float = 64, steps: int = 4, complementary: bool = True,

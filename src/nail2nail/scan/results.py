@@ -226,6 +226,12 @@ class Scan:
     motion : dict or None
         What the frames say of the finger's motion during the capture
         (:meth:`nail2nail.scan.motion.MotionEstimate.to_dict`); None when not measured.
+    fringe_periods : dict or None
+        The finest fringe period of each decoded direction, panel px (``{"x": 20.0, "y":
+        16.25}`` for the default patterns, :func:`nail2nail.scan.patterns.fringe_periods`):
+        the period of the decoder's systematic error, which the unroll takes out of the
+        ridge signal (:mod:`nail2nail.unroll.fringes`); None when not known (a mat5 set, an
+        older scan file).
     """
 
     name: str
@@ -239,6 +245,7 @@ class Scan:
     camera_center: np.ndarray | None = field(default=None)
     reason: np.ndarray | None = field(default=None)
     motion: dict | None = field(default=None)
+    fringe_periods: dict | None = field(default=None)
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -34,6 +34,7 @@ from nail2nail.simulation.render import (
     _LightPlan,
     camera_geometry,
     expose,
+    frame_flicker,
     projector_radiance,
     render_frames,
 )
@@ -234,6 +235,9 @@ def simulate(
                          f"the rig's projector is {pw}x{ph}")
     indices = list(range(len(rig.cameras))) if cameras is None else list(cameras)
     radiance = [projector_radiance(p, rig.photometry) for p in patterns]
+    flicker = frame_flicker(rig.photometry, len(patterns), seed)
+    if flicker is not None:  # the projector's frames, the same for every camera
+        radiance = [r * f for r, f in zip(radiance, flicker, strict=True)]
     known, geometry = geometry, {}
     frames = {}
     missing = [] if known is None else [rig.camera_names[i] for i in indices

@@ -3,10 +3,10 @@
 Every figure tuned on one simulator flatters the code that was tuned on it. A seed here draws
 one *condition*, every optical and physical parameter of the virtual scanner from a stated
 range: the projector (a soft or a sharp pixel grid, its fill factor and defocus, its gamma
-against the patterns' pre-compensation), the cameras (defocus, noise), the light (ambient,
-specular highlights, subsurface spread), the skin (albedo, the ridges' albedo contrast and
-relief) and the finger (section, cap, taper, tilt, roll, yaw, position), and the print
-(a synthetic class, or an image given by the caller).
+against the patterns' pre-compensation, its frame-to-frame flicker), the cameras (defocus,
+noise), the light (ambient, specular highlights, subsurface spread), the skin (albedo, the
+ridges' albedo contrast and relief) and the finger (section, cap, taper, tilt, roll, yaw,
+position), and the print (a synthetic class, or an image given by the caller).
 
 :data:`RANGES` lists the ranges; :func:`draw_conditions` draws from them reproducibly
 (``numpy.random.default_rng(["conditions", seed])``); :meth:`Conditions.rig` and
@@ -37,6 +37,7 @@ RANGES: dict[str, tuple] = {
     "projector_blur_px": (0.0, 1.2),         # defocus σ, panel px: sharp to defocused
     "projector_gamma": (1.8, 2.6),           # against the patterns' 2.2 pre-compensation
     "projector_power": (0.6, 1.0),
+    "projector_flicker": (0.0, 0.015),       # frame-to-frame brightness RMS (drawn last)
     # camera and light
     "camera_blur_px": (0.2, 1.0),            # defocus σ, camera px
     "ambient": (0.0, 0.15),
@@ -172,5 +173,8 @@ def draw_conditions(seed: int, ranges: dict | None = None) -> Conditions:
         "relief_height": round(u("relief_height"), 4),
         "pattern": PATTERNS[int(rng.integers(len(PATTERNS)))],
     }
+    # drawn after everything else, so that the conditions drawn before it was added keep their
+    # values
+    photometry["projector_flicker"] = round(u("projector_flicker"), 5)
     Photometry(**photometry)  # checks the overrides' values
     return Conditions(seed=int(seed), photometry=photometry, finger=finger)

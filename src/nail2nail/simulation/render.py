@@ -35,7 +35,8 @@ from nail2nail.scan.motion import mm_per_pixel
 from nail2nail.simulation.rig import Photometry, Rig
 from nail2nail.simulation.scenes import Scene
 
-__all__ = ["CameraGeometry", "camera_geometry", "projector_radiance", "render_frames"]
+__all__ = ["CameraGeometry", "camera_geometry", "frame_flicker", "projector_radiance",
+           "render_frames"]
 
 #: hit points closer than this to the projector's own first hit count as lit (mm)
 SHADOW_TOLERANCE_MM = 1e-3
@@ -356,6 +357,18 @@ def projector_radiance(pattern, photometry: Photometry) -> np.ndarray:
     return value
 
 
+def frame_flicker(photometry: Photometry, n_frames: int, seed: int | None) -> np.ndarray | None:
+    """Each frame's projector brightness factor ``1 + projector_flicker · z_k``
+    (:class:`~nail2nail.simulation.rig.Photometry`), ``(n_frames,) float32``; None without
+    flicker (nothing to multiply: the frames stay byte-identical)."""
+    if not photometry.projector_flicker:
+        return None
+    rng = [np.random.default_rng([0 if seed is None else int(seed), 0x666C, k])
+           for k in range(n_frames)]
+    z = np.array([r.standard_normal() for r in rng])
+    return np.maximum(1 + photometry.projector_flicker * z, 0).astype(np.float32)
+
+
 def render_frames(
     geometry: CameraGeometry,
     patterns,
@@ -383,7 +396,8 @@ def render_frames(
     scale : float
         Camera resolution scale: the camera blur (full-resolution px) is scaled by it.
     radiance : list of (Hp + 2, Wp + 2) float32, optional
-        Precomputed :func:`projector_radiance` of `patterns` (shared between cameras).
+        Precomputed :func:`projector_radiance` of `patterns` (shared between cameras), each
+        times its :func:`frame_flicker` factor.
 
     Returns
     -------
@@ -396,8 +410,14 @@ def render_frames(
     height, width = geometry.shape
     dtype = np.uint8 if photometry.bit_depth == 8 else np.uint16
     frames = np.empty((len(patterns), height, width), dtype=dtype)
+    flicker = frame_flicker(photometry, len(patterns), seed) if radiance is None else None
     for k, pattern in enumerate(patterns):
-        rad = radiance[k] if radiance is not None else projector_radiance(pattern, photometry)
+        if radiance is not None:  # computed by the caller, flicker included
+            rad = radiance[k]
+        else:
+            rad = projector_radiance(pattern, photometry)
+            if flicker is not None:
+                rad = rad * flicker[k]
         frames[k] = expose(light.signal(rad), photometry, seed=seed, camera_index=camera_index,
                            frame=k, scale=scale)
     return frames

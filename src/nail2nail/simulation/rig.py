@@ -114,6 +114,13 @@ class Photometry:
         σ of the subsurface spread of the projected light in the skin, mm (0: none): light
         enters at one point and leaves nearby, which lowers the fringes' contrast at fine
         periods and blurs the ridges' shading.
+    projector_flicker : float
+        RMS of the projector's frame-to-frame brightness variation, relative (0: none; DLP and
+        LCD projectors and unsynchronised camera exposures vary by 0.2–2 %): frame ``k``'s
+        projected light is scaled by ``1 + projector_flicker · z_k``, ``z_k`` standard normal
+        from ``default_rng([seed, 0x666C, k])`` of the capture's noise seed (0 without one),
+        the same for every camera. Unequal steps put a phase-locked error into the decoded
+        phase (:mod:`nail2nail.unroll.fringes`); the ambient light does not flicker.
     """
 
     projector_gamma: float = 2.2
@@ -130,6 +137,7 @@ class Photometry:
     specular: float = 0.0
     specular_exponent: float = 40.0
     subsurface_mm: float = 0.0
+    projector_flicker: float = 0.0
 
     def __post_init__(self) -> None:
         if self.bit_depth not in (8, 10, 12, 16):
@@ -144,7 +152,7 @@ class Photometry:
             raise ValueError(f"specular_exponent: expected a positive number, got "
                              f"{self.specular_exponent!r}")
         for name in ("projector_power", "ambient", "camera_blur_px", "projector_blur_px",
-                     "read_noise", "specular", "subsurface_mm"):
+                     "read_noise", "specular", "subsurface_mm", "projector_flicker"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: expected a number >= 0, got {getattr(self, name)!r}")
 

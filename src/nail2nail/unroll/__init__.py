@@ -7,8 +7,9 @@ of the scan), blends the cameras across their overlaps and renders a 500-ppi pri
 convention (mirror of the pad view, fingertip up, ridges dark), with its binarised version,
 mask, quality and distortion figures.
 
-Modules, in data order: :mod:`~nail2nail.unroll.ridges` (ridge signal per camera: relief and
-albedo), :mod:`~nail2nail.unroll.flatten` (flattening maps and their distortion),
+Modules, in data order: :mod:`~nail2nail.unroll.fringes` (the scanner's phase-locked error,
+taken out of each camera's signals), :mod:`~nail2nail.unroll.ridges` (ridge signal per camera:
+relief and albedo), :mod:`~nail2nail.unroll.flatten` (flattening maps and their distortion),
 :mod:`~nail2nail.unroll.render` (print grid, blending, grey and binary prints),
 :mod:`~nail2nail.unroll.mixing` (relief and albedo weighed by their clarity, the clarity mask),
 :mod:`~nail2nail.unroll.quality` (ridge period and clarity),

@@ -26,6 +26,7 @@ from nail2nail.unroll._kernels import (
     upsample,
     valid_points,
 )
+from nail2nail.unroll.fringes import DEFAULT_HARMONICS, remove_phase_locked
 
 __all__ = [
     "camera_layer",
@@ -36,6 +37,10 @@ __all__ = [
     "ridge_signal",
     "scan_valid",
 ]
+
+
+#: σ of the albedo's smooth part (shading) left out of the phase-locked fit, mm
+FRINGE_ALBEDO_SMOOTH_MM = 0.35
 
 
 def _norm3(a) -> np.ndarray:
@@ -283,6 +288,32 @@ def _feather(valid, width_px: float, reduce: int) -> np.ndarray:
     return np.clip(dist.astype(np.float32) / width_px, 0, 1)
 
 
+def _without_fringes(relief, albedo, m, cos, spacing, scan, box, periods, harmonics):
+    """Relief and albedo less their phase-locked error (:mod:`nail2nail.unroll.fringes`).
+
+    The albedo is fitted less its smooth part (shading, σ :data:`FRINGE_ALBEDO_SMOOTH_MM`),
+    and that part added back; the fit leaves out grazing views (cos < 0.5), where the relief
+    is smeared."""
+    coords = {"x": np.asarray(scan.xp[box], np.float32), "y": np.asarray(scan.yp[box], np.float32)}
+    parts = [relief]
+    smooth = None
+    if albedo is not None:
+        smooth = masked_gaussian(albedo, m, FRINGE_ALBEDO_SMOOTH_MM / spacing,
+                                 reduce=max(1, int(FRINGE_ALBEDO_SMOOTH_MM / spacing // 4)))
+        parts.append(albedo - smooth)
+    ok = m & np.all(np.isfinite(np.stack(parts, -1)), axis=-1)
+    cleaned, fit = remove_phase_locked(np.stack(parts, -1), ok, coords, periods,
+                                       harmonics=harmonics, fit_mask=cos > 0.5)
+    removed = {"terms": fit["terms"], "samples": fit["samples"],
+               "relief_um": round(1e3 * fit["removed_rms"][0], 3),
+               "gains": fit.get("gains", {})}
+    relief = np.where(ok, cleaned[..., 0], relief)
+    if albedo is not None:
+        albedo = np.where(ok, cleaned[..., 1] + smooth, albedo)
+        removed["albedo"] = round(fit["removed_rms"][1], 5)
+    return relief, albedo, removed
+
+
 def camera_layer(
     scan: Scan,
     *,
@@ -298,6 +329,9 @@ def camera_layer(
     curvature: bool = False,
     highpass_mm: float = 0.0,
     separate: bool = False,
+    fringe_harmonics: int = DEFAULT_HARMONICS,
+    fringe_periods: dict | None = None,
+    info: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Ridge signal and blending weight of one camera's scan on its pixel grid.
 
@@ -348,6 +382,17 @@ def camera_layer(
         Return the relief and albedo signals apart (``relief, albedo, weight``; ``albedo``
         None when `albedo_weight` is 0), for a blend that weighs them by their measured
         clarity (:func:`nail2nail.unroll.mixing.mix_layers`).
+    fringe_harmonics : int
+        Harmonics of the fringe period whose phase-locked error is taken out of the relief
+        and the albedo before anything else (:func:`~nail2nail.unroll.fringes.
+        remove_phase_locked`); 0: none.
+    fringe_periods : dict, optional
+        The finest fringe period per direction, panel px; default the scan's own
+        (:attr:`Scan.fringe_periods`, recorded by the scan stage). Without either, nothing
+        is taken out.
+    info : dict, optional
+        Filled with what was taken out (``info["fringes"]``: the fit's terms and the RMS
+        removed from the relief, µm, and the albedo).
 
     Returns
     -------
@@ -384,6 +429,12 @@ def camera_layer(
     albedo = None
     if albedo_weight > 0:
         albedo = np.asarray(scan.albedo[box], dtype=np.float32)
+    periods = scan.fringe_periods if fringe_periods is None else fringe_periods
+    if fringe_harmonics and periods:
+        relief, albedo, removed = _without_fringes(
+            relief, albedo, m, cos, spacing, scan, box, periods, fringe_harmonics)
+        if info is not None:
+            info["fringes"] = removed
     if noise_sigma_mm > 0:
         if albedo is None:
             relief = masked_gaussian(relief, m, noise_sigma_mm / spacing)

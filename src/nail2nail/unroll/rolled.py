@@ -200,6 +200,7 @@ class RolledPrint:
                 "regions": _region_quality(q, self.share, self.cameras),
                 "mixing": q.get("mixing"),
                 "gate": q.get("gate"),
+                "fringes": q.get("fringes"),
             },
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
         }
@@ -531,9 +532,10 @@ def unroll_scans(
     if mix:
         options = {"floor_fraction": FLOOR_FRACTION, "curvature": True,
                    "highpass_mm": HIGHPASS_MM, **options}
+    infos: list[dict] = [{} for _ in scans]
     layers = [camera_layer(s, feather_px=feather_px, valid=v, feather_mask=f, separate=mix,
-                           **options)
-              for s, v, f in zip(scans, valids, feathers, strict=True)]
+                           info=i, **options)
+              for s, v, f, i in zip(scans, valids, feathers, infos, strict=True)]
     lap("ridges")
     samples, albedo_samples = [], []
     for s, layer in zip(scans, layers, strict=True):
@@ -591,6 +593,9 @@ def unroll_scans(
     quality["mixing"] = None if mixing is None else {
         "albedo_share": round(mixing["albedo_share"], 4)}
     quality["gate"] = gated
+    # the phase-locked error taken out of each camera's relief and albedo (fringes.py)
+    quality["fringes"] = {s.name: i["fringes"] for s, i in zip(scans, infos, strict=True)
+                          if "fringes" in i} or None
     distortion = map_distortion(flat, mesh)
     lap("quality")
     return RolledPrint(image=image, mask=mask, binary=binary, ridge=value, share=share,

@@ -1,0 +1,187 @@
+"""The scanner's phase-locked error: what in a camera's signals follows the projector's fringes.
+
+A phase-shifting scanner's decoded phase carries a systematic error that is a periodic function
+of the phase itself: a projector whose response is not the one the patterns were
+pre-compensated for, fringes that are not pure sinusoids (a sharp pixel grid, 8-bit levels),
+phase steps that are not the nominal ones. Zhang & Yau (2007) and Pan et al. (2009) correct it
+with a look-up table of the error against the wrapped phase. On a finger it turns into relief
+(and, with a visible pixel grid, albedo) of the fringes' own period on the skin, 0.6–0.9 mm,
+right in the band of the ridges, and a print made of it shows stripes where the skin has no
+ridges and a grating mixed into the ridges where it has.
+
+Here the error is modelled per camera, on its pixel grid, as a Fourier series of the decoded
+projector coordinate in each direction: harmonics ``k = 1 … K`` of the finest fringe period
+``T`` (``cos, sin 2πk u / T``) and the first harmonic of the panel's pixel pitch
+(``cos, sin 2π u``), each with an amplitude that varies linearly over the image (the error in
+mm along the normal scales with the triangulation's sensitivity, which changes slowly across the
+finger). The series is fitted by least squares to the signal (relief, or the albedo less its
+smooth part) over the camera's valid pixels. The skin's ridges are not locked to the
+projector's phase, but a fit of 60 terms picks some of them up by chance (a few % of their RMS
+where they run at the fringes' second harmonic, as on skin), and taking that out would print a
+faint grating. So the image is cut in two halves (a checkerboard of blocks), each fitted apart,
+and each harmonic is taken out times the agreement of the two halves' fits (a Wiener gain:
+about 1 for a real error, about 0 for what one half found by chance).
+
+References
+----------
+S. Zhang and S.-T. Yau, "Generic nonsinusoidal phase error correction for three-dimensional
+shape measurement using a digital video projector," Appl. Opt. 46(1), 36–43 (2007).
+B. Pan, Q. Kemao, L. Huang and A. Asundi, "Phase error analysis and compensation for
+nonsinusoidal waveforms in phase-shifting digital fringe projection profilometry," Opt. Lett.
+34(4), 416–418 (2009).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+__all__ = ["DEFAULT_HARMONICS", "MAX_FIT_SAMPLES", "fringe_basis", "remove_phase_locked"]
+
+#: harmonics of the finest fringe period modelled (4: down to a quarter period, 0.15–0.2 mm on
+#: the skin; higher ones are below the ridges' band and smoothed away)
+DEFAULT_HARMONICS = 4
+#: at most this many of a camera's valid pixels (evenly strided) enter the fit: the
+#: coefficients are then fixed to well below the noise, at a fraction of the cost
+MAX_FIT_SAMPLES = 200_000
+
+
+def fringe_basis(coords: Mapping[str, np.ndarray], periods: Mapping[str, float],
+                 harmonics: int = DEFAULT_HARMONICS) -> list[tuple[str, np.ndarray]]:
+    """The periodic functions of the projector coordinates the error is expanded in.
+
+    Parameters
+    ----------
+    coords : mapping of {"x", "y"} to (...) float
+        Decoded projector (panel) coordinates of the same pixels, px; NaN where not decoded.
+    periods : mapping of {"x", "y"} to float
+        The finest fringe period of each direction, panel px (``size / periods`` of the
+        pattern set's finest frequency; :func:`nail2nail.scan.patterns.fringe_periods`).
+        Directions missing here, or whose coordinates are all NaN, are skipped.
+    harmonics : int
+        Harmonics of the fringe period, ``k = 1 … harmonics``.
+
+    Returns
+    -------
+    list of (label, (...) float32)
+        ``cos`` and ``sin`` of ``2πk u / T`` for each direction and harmonic, then of ``2π u``
+        (the pixel pitch); 0 where the coordinate is NaN.
+    """
+    out: list[tuple[str, np.ndarray]] = []
+    for axis in ("x", "y"):
+        if axis not in periods or axis not in coords:
+            continue
+        u = np.asarray(coords[axis], np.float64)
+        finite = np.isfinite(u)
+        if not finite.any():
+            continue
+        u = np.where(finite, u, 0.0)
+        cycles = [(f"{axis}/{k}", k * u / float(periods[axis])) for k in range(1, harmonics + 1)]
+        cycles.append((f"{axis}/pixel", u))
+        for label, c in cycles:
+            angle = 2 * np.pi * (c - np.floor(c))  # reduced first: float32 keeps its digits
+            out.append((f"cos {label}", np.where(finite, np.cos(angle), 0).astype(np.float32)))
+            out.append((f"sin {label}", np.where(finite, np.sin(angle), 0).astype(np.float32)))
+    return out
+
+
+def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
+                        coords: Mapping[str, np.ndarray], periods: Mapping[str, float], *,
+                        harmonics: int = DEFAULT_HARMONICS,
+                        fit_mask: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Take the phase-locked error out of one camera's signals.
+
+    Parameters
+    ----------
+    signals : (H, W, m) float
+        ``m`` signals on the camera's pixel grid (relief in mm, albedo less its smooth part),
+        each with a local mean of about 0.
+    valid : (H, W) bool
+        Pixels whose values count (all signals finite there).
+    coords : mapping of {"x", "y"} to (H, W) float
+        Decoded projector coordinates, panel px.
+    periods : mapping of {"x", "y"} to float
+        Finest fringe period per direction, panel px.
+    harmonics : int
+        Harmonics of the fringe period (:func:`fringe_basis`); 0 leaves the signals as they are.
+    fit_mask : (H, W) bool, optional
+        The pixels the fit is made on (default `valid`; e.g. leave out grazing views).
+
+    Returns
+    -------
+    signals : (H, W, m) float32
+        The signals less the fitted series on the valid pixels (unchanged elsewhere).
+    info : dict
+        ``{"terms": n_basis, "samples": n, "removed_rms": [per signal], "gains": {harmonic:
+        [per signal]}}``: the RMS of what was taken out over the fit's pixels, in the signals'
+        units, and each harmonic's gain (``terms`` 0 and nothing removed when there is no
+        coordinate, period or pixel to fit).
+    """
+    out = np.array(signals, dtype=np.float32, copy=True)
+    m = out.shape[-1]
+    info: dict = {"terms": 0, "samples": 0, "removed_rms": [0.0] * m}
+    valid = np.asarray(valid, bool)
+    fit_on = valid if fit_mask is None else valid & np.asarray(fit_mask, bool)
+    if harmonics < 0:
+        raise ValueError(f"harmonics: expected >= 0, got {harmonics}")
+    if harmonics == 0 or not periods:
+        return out, info
+    index = np.flatnonzero(fit_on)
+    basis = fringe_basis(coords, periods, harmonics)
+    h, w = valid.shape
+    n_terms = 3 * len(basis)
+    if not basis or index.size < 20 * n_terms:
+        return out, info
+    index = index[:: max(1, index.size // MAX_FIT_SAMPLES)]
+    rows, cols = np.divmod(index, w)
+    # the amplitudes vary linearly over the image: rows and columns scaled to [−1, 1]
+    r = (2 * rows / max(h - 1, 1) - 1).astype(np.float32)
+    c = (2 * cols / max(w - 1, 1) - 1).astype(np.float32)
+    design = np.empty((index.size, n_terms), np.float32)
+    for j, (_, b) in enumerate(basis):
+        v = b.reshape(-1)[index]
+        design[:, 3 * j], design[:, 3 * j + 1], design[:, 3 * j + 2] = v, v * r, v * c
+    target = out.reshape(-1, m)[index].astype(np.float64)
+    # two halves of the image, a checkerboard of blocks a sixteenth of its size (several mm:
+    # the ridges of one block are independent of the other half's, the scanner's error is not)
+    block = max(16, max(h, w) // 16)
+    half = ((rows // block + cols // block) % 2).astype(bool)
+    a = design.astype(np.float64)
+    # normal equations of each half (n ≫ terms; 20× faster than an SVD of the design), solved
+    # by least squares so that a term without support (a direction hardly varying) is harmless
+    grams = [a[sel].T @ a[sel] for sel in (~half, half)]
+    rhs = [a[sel].T @ target[sel] for sel in (~half, half)]
+    coef, *_ = np.linalg.lstsq(grams[0] + grams[1], rhs[0] + rhs[1], rcond=1e-10)
+    halves = [np.linalg.lstsq(g, b, rcond=1e-10)[0] for g, b in zip(grams, rhs, strict=True)]
+    # each harmonic (its cos and sin, 6 coefficients) kept by the agreement of the halves'
+    # fits, ⟨m₁, m₂⟩ / ½(|m₁|² + |m₂|²) over the fit's pixels, clipped to [0, 1]: for an error
+    # E and a chance fit L in each half that estimates |E|² / (|E|² + 2|L|²), a (conservative)
+    # Wiener gain; ~1 for a real error, ~0 for ridges and noise the fit picked up by chance
+    gains = np.zeros((len(basis) // 2, m))
+    for g in range(len(basis) // 2):
+        cols6 = slice(6 * g, 6 * g + 6)
+        m1 = design[:, cols6] @ halves[0][cols6].astype(np.float32)
+        m2 = design[:, cols6] @ halves[1][cols6].astype(np.float32)
+        cross = np.einsum("ik,ik->k", m1, m2, dtype=np.float64)
+        power = 0.5 * (np.einsum("ik,ik->k", m1, m1, dtype=np.float64)
+                       + np.einsum("ik,ik->k", m2, m2, dtype=np.float64))
+        gains[g] = np.clip(np.divide(cross, power, out=np.zeros(m), where=power > 0), 0, 1)
+    coef = coef * np.repeat(gains, 6, axis=0)
+    model_at_fit = design @ coef.astype(np.float32)
+    info = {"terms": len(basis), "samples": int(index.size),
+            "removed_rms": [float(np.sqrt(np.mean(model_at_fit[:, k] ** 2))) for k in range(m)],
+            "gains": {basis[2 * g][0].split(" ", 1)[1]: [round(float(x), 3) for x in gains[g]]
+                      for g in range(len(basis) // 2)}}
+    rr = np.linspace(-1, 1, h, dtype=np.float32)[:, None] if h > 1 \
+        else np.zeros((1, 1), np.float32)
+    cc = np.linspace(-1, 1, w, dtype=np.float32)[None, :] if w > 1 \
+        else np.zeros((1, 1), np.float32)
+    coef = coef.astype(np.float32)
+    for k in range(m):
+        model = np.zeros((h, w), np.float32)
+        for j, (_, b) in enumerate(basis):
+            a0, ar, ac = coef[3 * j: 3 * j + 3, k]
+            model += b * (a0 + ar * rr + ac * cc)
+        out[..., k] = np.where(valid, out[..., k] - model, out[..., k])
+    return out, info
