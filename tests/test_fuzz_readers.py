@@ -811,8 +811,9 @@ _CALIBRATION_CASES = {
                          [[1.0, 0.0, 1e308, 1.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]],
                          "rank-deficient"),
     "dlt_1e308_scaled": ("cameras.0.camera.matrix", (np.array(_P) * 1e308).tolist(), None),
+    # said "rank-deficient" (the rank is checked after the intrinsics' magnitudes now)
     "pinhole_K_1e308": ("cameras.1.camera.K", [[1e308, 0, 31.5], [0, 1e308, 39.5], [0, 0, 1]],
-                        "rank-deficient"),
+                        r"K: fx = 1e\+308 px"),
     "pinhole_t_1e308": ("cameras.1.camera.t", [1e308, -1e308, 1e308], None),
     # returned a pinhole model with t = -inf; LinAlgError "Singular matrix" (t[2] = -inf)
     "pinhole_t_inf": ("cameras.1.camera.t", [-math.inf, 3.175, 150.0], "t: contains NaN"),

