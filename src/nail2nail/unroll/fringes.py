@@ -42,9 +42,10 @@ __all__ = ["DEFAULT_HARMONICS", "MAX_FIT_SAMPLES", "fringe_basis", "remove_phase
 #: harmonics of the finest fringe period modelled (4: down to a quarter period, 0.15–0.2 mm on
 #: the skin; higher ones are below the ridges' band and smoothed away)
 DEFAULT_HARMONICS = 4
-#: at most this many of a camera's valid pixels (evenly strided) enter the fit: the
-#: coefficients are then fixed to well below the noise, at a fraction of the cost
-MAX_FIT_SAMPLES = 200_000
+#: at most this many of a camera's valid pixels (evenly strided) enter the fit: neighbouring
+#: pixels see the same ridges, so more would not lower the ridges' chance share of the fit,
+#: only cost (a full-resolution camera has 300,000–450,000)
+MAX_FIT_SAMPLES = 60_000
 
 
 def fringe_basis(coords: Mapping[str, np.ndarray], periods: Mapping[str, float],
@@ -127,20 +128,21 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
         raise ValueError(f"harmonics: expected >= 0, got {harmonics}")
     if harmonics == 0 or not periods:
         return out, info
-    index = np.flatnonzero(fit_on)
-    basis = fringe_basis(coords, periods, harmonics)
     h, w = valid.shape
+    index = np.flatnonzero(fit_on)
+    index = index[:: max(1, index.size // MAX_FIT_SAMPLES)]
+    # the series at the fit's pixels only (the whole grid's basis would cost seconds)
+    basis = fringe_basis({k: np.asarray(v).reshape(-1)[index] for k, v in coords.items()},
+                         periods, harmonics)
     n_terms = 3 * len(basis)
     if not basis or index.size < 20 * n_terms:
         return out, info
-    index = index[:: max(1, index.size // MAX_FIT_SAMPLES)]
     rows, cols = np.divmod(index, w)
     # the amplitudes vary linearly over the image: rows and columns scaled to [−1, 1]
     r = (2 * rows / max(h - 1, 1) - 1).astype(np.float32)
     c = (2 * cols / max(w - 1, 1) - 1).astype(np.float32)
     design = np.empty((index.size, n_terms), np.float32)
-    for j, (_, b) in enumerate(basis):
-        v = b.reshape(-1)[index]
+    for j, (_, v) in enumerate(basis):
         design[:, 3 * j], design[:, 3 * j + 1], design[:, 3 * j + 2] = v, v * r, v * c
     target = out.reshape(-1, m)[index].astype(np.float64)
     # two halves of the image, a checkerboard of blocks a sixteenth of its size (several mm:
@@ -173,15 +175,20 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
             "removed_rms": [float(np.sqrt(np.mean(model_at_fit[:, k] ** 2))) for k in range(m)],
             "gains": {basis[2 * g][0].split(" ", 1)[1]: [round(float(x), 3) for x in gains[g]]
                       for g in range(len(basis) // 2)}}
-    rr = np.linspace(-1, 1, h, dtype=np.float32)[:, None] if h > 1 \
-        else np.zeros((1, 1), np.float32)
-    cc = np.linspace(-1, 1, w, dtype=np.float32)[None, :] if w > 1 \
-        else np.zeros((1, 1), np.float32)
+    # subtract on the valid pixels, the harmonics kept only
+    kept = np.flatnonzero(valid)
+    kr, kc = np.divmod(kept, w)
+    r = (2 * kr / max(h - 1, 1) - 1).astype(np.float32)
+    c = (2 * kc / max(w - 1, 1) - 1).astype(np.float32)
+    full = fringe_basis({k: np.asarray(v).reshape(-1)[kept] for k, v in coords.items()},
+                        periods, harmonics)
     coef = coef.astype(np.float32)
+    flat = out.reshape(-1, m)
     for k in range(m):
-        model = np.zeros((h, w), np.float32)
-        for j, (_, b) in enumerate(basis):
+        model = np.zeros(kept.size, np.float32)
+        for j, (_, b) in enumerate(full):
             a0, ar, ac = coef[3 * j: 3 * j + 3, k]
-            model += b * (a0 + ar * rr + ac * cc)
-        out[..., k] = np.where(valid, out[..., k] - model, out[..., k])
+            if a0 or ar or ac:
+                model += b * (a0 + ar * r + ac * c)
+        flat[kept, k] -= model
     return out, info
