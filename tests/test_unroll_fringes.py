@@ -145,3 +145,28 @@ def test_scan_files_carry_the_fringe_periods(tmp_path):
     del manifest["cameras"][0]["fringe_periods_px"]  # a scan written before: None
     (tmp_path / "s" / "scan.json").write_text(json.dumps(manifest))
     assert load_scans(tmp_path / "s")[0].fringe_periods is None
+
+
+def test_cli_unroll_records_the_fit_and_turns_it_off(tmp_path, capsys):
+    """``unroll`` records what the fit took out per camera (``print.json`` →
+    ``quality.fringes``); ``--no-fringe-fit`` leaves it out."""
+    from nail2nail.calibration.files import RigCalibration, save_calibration
+    from nail2nail.cli import main
+    from nail2nail.simulation.capture import simulate_capture
+    from nail2nail.simulation.rig import default_rig, ideal_calibration
+
+    rig = default_rig(0.25, projector_distortion="none")
+    simulate_capture(tmp_path / "finger", "finger", rig=rig, seed=4, write_truth=False)
+    save_calibration(tmp_path / "rig.json", RigCalibration.from_dict(ideal_calibration(rig)))
+    assert main(["-q", "scan", str(tmp_path / "finger"), "--calib", str(tmp_path / "rig.json"),
+                 "--out", str(tmp_path / "scan"), "--no-mat5", "--no-ply"]) == 0
+    manifest = json.loads((tmp_path / "scan" / "scan.json").read_text())
+    assert all(c["fringe_periods_px"] == {"x": 20.0, "y": 16.25} for c in manifest["cameras"])
+    for name, extra in (("fit", []), ("off", ["--no-fringe-fit"])):
+        assert main(["-q", "unroll", str(tmp_path / "scan"), "--out", str(tmp_path / name),
+                     *extra]) == 0
+    capsys.readouterr()
+    fit = json.loads((tmp_path / "fit" / "print.json").read_text())["quality"]["fringes"]
+    off = json.loads((tmp_path / "off" / "print.json").read_text())["quality"]["fringes"]
+    assert sorted(fit) == ["cam0", "cam1", "cam2"] and off is None
+    assert all(v["terms"] == 20 and v["relief_um"] >= 0 for v in fit.values())

@@ -96,6 +96,10 @@ def add_unroll_options(p) -> None:
     p.add_argument("--fixed-blend", action="store_true",
                    help="the ridge signal of earlier versions: relief + 0.3 x albedo, no RMS "
                    "floor (default: relief and albedo weighed by their measured clarity)")
+    p.add_argument("--no-fringe-fit", action="store_true",
+                   help="keep the scanner's phase-locked error (a periodic function of the "
+                   "decoded fringe phase) in the ridge signal (default: fitted per camera and "
+                   "taken out, docs/unroll.md)")
 
 
 def check_unroll_options(args: argparse.Namespace) -> None:
@@ -117,8 +121,11 @@ def check_unroll_options(args: argparse.Namespace) -> None:
 
 def unroll_options(args: argparse.Namespace) -> dict:
     """The ridge-signal keyword arguments of :func:`nail2nail.unroll.unroll_scans`."""
-    return {"mix": not args.fixed_blend,
-            "min_clarity": args.min_clarity if args.min_clarity > 0 else None}
+    options = {"mix": not args.fixed_blend,
+               "min_clarity": args.min_clarity if args.min_clarity > 0 else None}
+    if args.no_fringe_fit:
+        options["ridge_options"] = {"fringe_harmonics": 0}
+    return options
 
 
 def add_parser(sub) -> None:
