@@ -42,9 +42,9 @@ __all__ = ["DEFAULT_HARMONICS", "MAX_FIT_SAMPLES", "fringe_basis", "remove_phase
 #: harmonics of the finest fringe period modelled (4: down to a quarter period, 0.15–0.2 mm on
 #: the skin; higher ones are below the ridges' band and smoothed away)
 DEFAULT_HARMONICS = 4
-#: at most this many of a camera's valid pixels (evenly strided) enter the fit: neighbouring
-#: pixels see the same ridges, so more would not lower the ridges' chance share of the fit,
-#: only cost (a full-resolution camera has 300,000–450,000)
+#: at most this many of a camera's valid pixels (evenly strided) enter the fit (a
+#: full-resolution camera has 300,000–450,000): 200,000 cost 4.5 s more per finger and moved
+#: the held-out matcher figures only within their noise (bench/interop.py, conditions 800–807)
 MAX_FIT_SAMPLES = 60_000
 
 
@@ -85,6 +85,15 @@ def fringe_basis(coords: Mapping[str, np.ndarray], periods: Mapping[str, float],
             out.append((f"cos {label}", np.where(finite, np.cos(angle), 0).astype(np.float32)))
             out.append((f"sin {label}", np.where(finite, np.sin(angle), 0).astype(np.float32)))
     return out
+
+
+def _unit_coordinates(index: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of flat pixel indices, each scaled to [−1, 1] over the image (float32):
+    the variables the series' amplitudes are linear in."""
+    h, w = shape
+    rows, cols = np.divmod(index, w)
+    return ((2 * rows / max(h - 1, 1) - 1).astype(np.float32),
+            (2 * cols / max(w - 1, 1) - 1).astype(np.float32))
 
 
 def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
@@ -138,9 +147,7 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
     if not basis or index.size < 20 * n_terms:
         return out, info
     rows, cols = np.divmod(index, w)
-    # the amplitudes vary linearly over the image: rows and columns scaled to [−1, 1]
-    r = (2 * rows / max(h - 1, 1) - 1).astype(np.float32)
-    c = (2 * cols / max(w - 1, 1) - 1).astype(np.float32)
+    r, c = _unit_coordinates(index, (h, w))
     design = np.empty((index.size, n_terms), np.float32)
     for j, (_, v) in enumerate(basis):
         design[:, 3 * j], design[:, 3 * j + 1], design[:, 3 * j + 2] = v, v * r, v * c
@@ -177,9 +184,7 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
                       for g in range(len(basis) // 2)}}
     # subtract on the valid pixels, the harmonics kept only
     kept = np.flatnonzero(valid)
-    kr, kc = np.divmod(kept, w)
-    r = (2 * kr / max(h - 1, 1) - 1).astype(np.float32)
-    c = (2 * kc / max(w - 1, 1) - 1).astype(np.float32)
+    r, c = _unit_coordinates(kept, (h, w))
     full = fringe_basis({k: np.asarray(v).reshape(-1)[kept] for k, v in coords.items()},
                         periods, harmonics)
     coef = coef.astype(np.float32)
