@@ -567,6 +567,28 @@ def test_once_unnamed_options_are_named(command, option, fixtures, tmp_path):
     assert line is not None and any(flag in line for flag in flags), outcome.stderr
 
 
+def _layouts():
+    from nail2nail.calibration.opencv_files import LAYOUTS
+
+    return list(LAYOUTS)
+
+
+@pytest.mark.parametrize("layout", _layouts())
+def test_every_one_camera_layout_names_its_options(layout, fixtures, tmp_path):
+    """Found by ``bench/fuzz_cli.py`` (127 of 4,166 cases): ``--layout slstudio`` without
+    ``--camera`` said "layout 'slstudio' holds one camera", naming no option (only ``stereo``
+    was translated)."""
+    options = {o.name: o for o in command_options("export-calibration")}
+    cmd = fuzzed_command("export-calibration", fixtures, list(options.values()),
+                         random.Random(0), [options["--layout"]], [[layout]])
+    cmd.options.pop("--camera", None)
+    outcome = run_case(argv_of(cmd), tmp_path / "case")
+    assert outcome.rc in (0, 2), outcome.stderr
+    if outcome.rc == 2:
+        line, _ = _error_line(cmd.name, outcome.stderr)
+        assert line is not None and f"--layout {layout}" in line and "--camera" in line, line
+
+
 @pytest.mark.parametrize(("command", "option"), [("process", "--calib"),
                                                  ("export-calibration", "calibration")])
 def test_a_fifo_given_as_a_json_file_is_refused(command, option, fixtures, tmp_path, monkeypatch):

@@ -194,6 +194,9 @@ def test_seed_minus_one(tmp_path, capsys):
 @pytest.mark.parametrize(("option", "needles"), [
     (["--frame", "cam9"], ["--frame:", "'cam9'"]),
     (["--pairs", "0-0"], ["--pairs:", "'0-0'"]),
+    # found by bench/fuzz_cli.py: an empty --pairs ran the whole job with the default pairs
+    (["--pairs="], ["--pairs:", "got ''"]),
+    (["--pairs", " "], ["--pairs:", "got ' '"]),
     (["--frame=--"], ["--frame: expected a value, got '--'"]),
     (["--mask", "cam9=calib.json"], ["--mask:", "cam9"]),
 ])

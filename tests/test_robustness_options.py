@@ -47,6 +47,7 @@ def batch_inputs(tmp_path, monkeypatch):
     (["--workers", "1", "--scheduler", "tcp://127.0.0.1:1"], ["--workers", "--scheduler"]),
     (["--frame", "cam9"], ["--frame", "'cam9'", "cam0"]),
     (["--pairs", "0-5"], ["--pairs 0-5", "1 camera(s)"]),
+    (["--pairs="], ["--pairs", "got ''"]),
 ])
 def test_issue29_batch_options_checked_before_the_cluster(batch_inputs, capsys, extra, needles):
     captures, calib, out = batch_inputs
@@ -195,6 +196,9 @@ def print_png(tmp_path):
     (["--scene", "board", "--board", "charuco", "--marker", "-1"], ["--marker -1", "marker"]),
     (["--scene", "board", "--rows", "3000"], ["--rows", "got 3000"]),
     (["--scene", "board", "--spacing", "1e300"], ["--spacing 1e+300", "A0"]),
+    # bench/fuzz_cli.py: the library's check named "pose", not the option
+    (["--scene", "board", "--pose", "nan", "0", "0", "0", "0", "0"], ["--pose", "got nan 0"]),
+    (["--scene", "board", "--pose", "0", "0", "0", "0", "inf", "0"], ["--pose", "inf"]),
 ])
 def test_issue29_simulate_options(tmp_path, capsys, print_png, extra, needles):
     out = tmp_path / "sim"

@@ -148,7 +148,7 @@ def check_cameras(captures, calibration, *, frame: str = "world", masks=None,
             if name not in cameras:
                 raise ValueError(f"{names['masks']}: a mask for camera {name!r}, which capture "
                                  f"{c} lacks (its cameras: {', '.join(cameras)})")
-        if pairs:
+        if pairs is not None:
             try:
                 parse_pairs(pairs, len(cameras))
             except ValueError as exc:

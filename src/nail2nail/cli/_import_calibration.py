@@ -154,9 +154,9 @@ def run_import(args: argparse.Namespace) -> int:
 
 
 #: The writer's argument names in its messages, and the command line's options (the
-#: calibration itself is named by its file).
-EXPORT_OPTIONS = {"camera": "--camera", "layout 'stereo' holds one camera":
-                  "--layout stereo holds one camera (give --camera)"}
+#: calibration itself is named by its file); a one-camera layout without ``--camera`` is named
+#: as given (:func:`run_export`)
+EXPORT_OPTIONS = {"camera": "--camera"}
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -169,8 +169,10 @@ def run_export(args: argparse.Namespace) -> int:
         notes = write_opencv_calibration(args.out, calibration, layout=args.layout,
                                          camera=args.camera, projector_size=args.projector_size)
     except ValueError as exc:  # the writer's checks name its arguments
-        raise as_option_error(exc, {**EXPORT_OPTIONS,
-                                    "calibration": str(args.calibration)}) from None
+        one_camera = f"layout {args.layout!r} holds one camera"
+        raise as_option_error(exc, {**EXPORT_OPTIONS, "calibration": str(args.calibration),
+                                    one_camera: f"--layout {args.layout} holds one camera "
+                                                "(give --camera)"}) from None
     if args.json:
         print(dumps_json({"out": str(args.out), "layout": args.layout, "notes": notes,
                           "cameras": _summary(calibration)}))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -207,6 +208,9 @@ def _board_from_args(args):
         raise ValueError("--pose: not with --poses (which draws the poses)")
     if args.poses is not None and not 1 <= args.poses <= 99:
         raise ValueError(f"--poses: expected a number of poses in 1..99, got {args.poses}")
+    if args.pose is not None and not all(math.isfinite(v) for v in args.pose):
+        raise ValueError("--pose: expected 6 finite numbers (rx ry rz in degrees, tx ty tz in "
+                         f"mm), got {' '.join(f'{v:g}' for v in args.pose)}")
     # the bounds of print-target: a simulated board is one to print
     return board_from_options(args.board or "checkerboard", rows=args.rows, cols=args.cols,
                               spacing=args.spacing, marker=args.marker,

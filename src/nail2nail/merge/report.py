@@ -33,7 +33,8 @@ RENDER_VIEWS = {"front": (10.0, 0.0), "side": (15.0, 70.0)}
 def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
     """Camera pairs from ``"0-1,1-2"`` (parent-child indices in scan order).
 
-    ``None`` or ``""`` gives the neighbouring pairs ``0-1, 1-2, …``.
+    ``None`` gives the neighbouring pairs ``0-1, 1-2, …``; an empty or blank string is refused
+    (an empty shell variable, say, is not a request for the default).
 
     Examples
     --------
@@ -42,8 +43,11 @@ def parse_pairs(text: str | None, n_cameras: int) -> list[tuple[int, int]]:
     >>> parse_pairs(None, 3)
     [(0, 1), (1, 2)]
     """
-    if not text:
+    if text is None:
         return [(i, i + 1) for i in range(n_cameras - 1)]
+    if not text.strip():
+        raise ValueError(f"--pairs: expected PARENT-CHILD camera indices like 0-1,1-2, got "
+                         f"{text!r}")
     pairs = []
     for item in text.split(","):
         parts = item.strip().split("-")
