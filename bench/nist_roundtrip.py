@@ -15,6 +15,12 @@ bytes), RMS grey error, and the SourceAFIS score of the decoded print against th
 over the original's score against itself (target ≥ 0.95). SourceAFIS: ``bench/sourceafis.py``
 (Java 17 and Maven; skipped with a line when missing).
 
+**The same codec on real impressions** (``--real-prints``, default
+``../shared/data/prints``: ``probe.png``, ``matching.png``, ``nonmatching.png``, Apache-2.0):
+each real print encoded and decoded at every rate (:func:`nail2nail.io.prints.encode_wsq`),
+with the same ratio, RMS and score against itself, so that the demo print's figures can be read
+against what NBIS's encoder does to a real print (``--real-prints ''`` skips it).
+
 **Ten fingers from a batch** (unless ``--no-batch``): ten virtual captures (seeds 1–10, scale
 ``--scale``, the rig's true calibration) through ``nail2nail batch … --subjects TABLE`` (two
 workers): one transaction of ten Type-14 records, read back by both readers; its size and each
@@ -94,6 +100,42 @@ def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
     return result
 
 
+def real_print_rates(prints: Path, rates, tmp: Path) -> dict:
+    """WSQ ratio, RMS and SourceAFIS score against itself of each real print at each rate."""
+    import sourceafis
+
+    from nail2nail.io.prints import decode_wsq, encode_wsq, read_print_image
+
+    rows, pairs = [], []
+    for path in sorted(prints.glob("*.png")):
+        image, _ = read_print_image(path)
+        original = sourceafis.save_png(tmp / f"real_{path.stem}.png", image)
+        pairs.append((original, original))
+        for rate in rates:
+            data = encode_wsq(image, bitrate=rate)
+            decoded = decode_wsq(data, name=path.name)
+            rms = float(np.sqrt(np.mean((decoded.astype(float) - image) ** 2)))
+            pairs.append((sourceafis.save_png(tmp / f"real_{path.stem}_{rate:g}.png", decoded),
+                          original))
+            rows.append({"print": path.name, "shape": list(image.shape), "bitrate_bpp": rate,
+                         "achieved_bpp": round(8 * len(data) / image.size, 3),
+                         "ratio": round(image.size / len(data), 2), "rms_grey": round(rms, 2)})
+    result = {"prints": str(prints), "rates": rows, "sourceafis": None}
+    if not rows or not sourceafis.available():
+        return result
+    scores = sourceafis.score_pairs(pairs, dpi=500)
+    per_print = len(rates) + 1
+    for k, row in enumerate(rows):
+        block, offset = divmod(k, len(rates))
+        self_score = float(scores[block * per_print])
+        score = float(scores[block * per_print + 1 + offset])
+        row["self_score"] = round(self_score, 1)
+        row["score_vs_original"] = round(score, 1)
+        row["score_ratio"] = round(score / self_score, 3)
+    result["sourceafis"] = True
+    return result
+
+
 def ten_fingers(scale: float, tmp: Path) -> dict:
     from test_interchange import _independent_read
 
@@ -140,12 +182,17 @@ def main(argv=None) -> dict:
     parser.add_argument("--demo-scale", type=float, default=1.0)
     parser.add_argument("--rates", type=float, nargs="+", default=[0.75, 0.6, 0.55])
     parser.add_argument("--scale", type=float, default=0.25)
+    parser.add_argument("--real-prints", default=str(ROOT.parent / "shared" / "data" / "prints"),
+                        help="directory of real 500 ppi prints (PNG) to measure the codec on; "
+                             "'' skips them")
     parser.add_argument("--no-batch", action="store_true")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="nist_roundtrip_") as tmp_name:
         tmp = Path(tmp_name)
         results = {"wsq": wsq_rates(demo_print_dir(args, tmp), args.rates, tmp)}
+        if args.real_prints and Path(args.real_prints).is_dir():
+            results["real_prints"] = real_print_rates(Path(args.real_prints), args.rates, tmp)
         if not args.no_batch:
             (tmp / "batch").mkdir()
             results["ten_fingers"] = ten_fingers(args.scale, tmp / "batch")
@@ -161,6 +208,12 @@ def main(argv=None) -> dict:
                  f"({'pass' if r['passes_0.95'] else 'FAIL'} >= 0.95)"
                  if "score_ratio" in r else "")
         print(f"  WSQ {r['bitrate_bpp']:g} bpp: achieved {r['achieved_bpp']:.3f} bpp, "
+              f"{r['ratio']:.2f}:1, RMS grey error {r['rms_grey']:.2f}{score}")
+    for r in results.get("real_prints", {}).get("rates", []):
+        score = (f", SourceAFIS {r['score_vs_original']} = {r['score_ratio']:.3f} x self"
+                 if "score_ratio" in r else "")
+        print(f"  real {r['print']} ({r['shape'][1]} x {r['shape'][0]} px), WSQ "
+              f"{r['bitrate_bpp']:g} bpp: achieved {r['achieved_bpp']:.3f} bpp, "
               f"{r['ratio']:.2f}:1, RMS grey error {r['rms_grey']:.2f}{score}")
     if "ten_fingers" in results:
         t = results["ten_fingers"]
