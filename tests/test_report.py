@@ -130,6 +130,55 @@ def test_viewer_data_colourings(processed_finger):
     assert 0.5 * min(medians) < np.median(found) < 2 * max(medians)
 
 
+def test_viewer_mesh_is_one_seamless_surface(processed_finger):
+    """Issue 27: the viewer's mesh joins the cameras (the super scan's grids stop a pixel apart
+    at every seam): no edge of three triangles, one winding, the boundary only on the outline
+    (every boundary edge within 3 vertex spacings of the decimated cloud's outline in the
+    rolled print plane), and fewer boundary edges than the clustered grids had."""
+    import base64
+
+    from nail2nail.merge.mesh import mesh_topology
+    from nail2nail.report.viewer import seamless_faces
+
+    inputs = find_inputs(processed_finger)
+    data = viewer_data(inputs, max_points=5_000, detail_points=0)["levels"]["base"]
+    assert data["mesh"]["seamless"] and data["mesh"]["non_manifold_edges"] == 0
+    xyz = np.frombuffer(base64.b64decode(data["xyz"]), np.float32).reshape(-1, 3)
+    faces = np.frombuffer(base64.b64decode(data["faces"]), np.int32).reshape(-1, 3)
+    topology = mesh_topology(faces, len(xyz))
+    assert topology["non_manifold_edges"] == 0 and topology["inconsistent_edges"] == 0
+    assert topology["isolated_vertices"] <= 0.01 * len(xyz)
+    # against the super scan's own triangles, clustered the same way
+    from nail2nail.io.ply import read_ply
+
+    ply = read_ply(processed_finger / "merge" / "super.ply")
+    small, clustered, _, _ = cluster_vertices(ply.points, ply.faces, max_vertices=5_000)
+    before = mesh_topology(clustered, len(small))
+    after = mesh_topology(seamless_faces(small, clustered)[0], len(small))
+    print("\nclustered grids:", before, "\nseamless:", after)
+    assert after["boundary_edges"] < 0.5 * before["boundary_edges"]
+    assert after["non_manifold_edges"] == 0 and after["non_manifold_vertices"] <= 0.002 * len(
+        small)
+
+
+def test_seamless_faces_fall_back_on_a_flat_cloud():
+    """A surface the rolled map cannot unroll (a plane: no axis to roll around) keeps the given
+    triangles, or is meshed no worse."""
+    from nail2nail.merge.mesh import mesh_topology
+    from nail2nail.report.viewer import seamless_faces
+
+    x, y = np.meshgrid(np.linspace(0, 10, 30), np.linspace(0, 8, 25))
+    points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], -1)
+    from nail2nail.merge.fusion import grid_mesh
+
+    _, grid = grid_mesh(points.reshape(25, 30, 3), np.ones((25, 30), bool), max_edge_mm=1.0,
+                        normals=np.broadcast_to([0.0, 0.0, 1.0], (25, 30, 3)))
+    faces, info = seamless_faces(points, grid)
+    assert mesh_topology(faces, len(points))["boundary_edges"] <= mesh_topology(
+        grid, len(points))["boundary_edges"]
+    assert info["non_manifold_edges"] == 0
+
+
 # -- the command -------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,8 @@ Modules, in the order the data flows through them:
 - :mod:`~nail2nail.merge.statistics`: the summary figures of the merge error, and local outliers;
 - :mod:`~nail2nail.merge.fusion`: the super scan, one nail-to-nail point cloud and mesh, and the
   super mat5;
+- :mod:`~nail2nail.merge.mesh`: one seamless mesh over the super scan's vertices (a Delaunay
+  triangulation in a plane that images the surface one-to-one), and a mesh's topology figures;
 - :mod:`~nail2nail.merge.report`: the whole merge step written to a directory
   (:func:`~nail2nail.merge.report.write_merge`, behind ``nail2nail merge``);
 - :mod:`~nail2nail.merge.figures`: its figures (matplotlib, imported only when drawn);
@@ -29,6 +31,7 @@ from nail2nail.merge.correspondence import (
     view_cosine,
 )
 from nail2nail.merge.fusion import SuperScan, fuse_scans, write_super_mat5, write_super_ply
+from nail2nail.merge.mesh import mesh_topology, param_mesh
 from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.merge.statistics import local_outliers, merge_statistics
 
@@ -42,8 +45,10 @@ __all__ = [
     "grid_normals",
     "local_outliers",
     "merge_statistics",
+    "mesh_topology",
     "nearest_bruteforce",
     "nearest_kdtree",
+    "param_mesh",
     "parse_pairs",
     "refine_subpixel",
     "sample_pixels",

@@ -1,9 +1,14 @@
 """The report's interactive 3D viewer of the super scan (plotly.js, WebGL).
 
 The super scan (``merge/super.ply``) is decimated for the browser by vertex clustering
-(:func:`cluster_vertices`: one vertex per occupied cube of a regular grid, the triangles
-re-indexed, degenerate ones dropped; Rossignac & Borrel 1993), to at most ``max_points``
-vertices. Each vertex carries three colourings:
+(:func:`cluster_vertices`: one vertex per occupied cube of a regular grid; Rossignac & Borrel
+1993), to at most ``max_points`` vertices, and meshed again as one surface
+(:func:`seamless_faces`): the decimated vertices are unrolled by the rolled map of
+:mod:`nail2nail.unroll.flatten` and triangulated in its print plane
+(:func:`nail2nail.merge.mesh.param_mesh`), so the seams between the cameras' grids, which the
+super scan's own mesh keeps (a line of light dots down the finger), are closed; where that
+mesh is not better (a surface the map cannot unroll, such as a flat board), the super scan's
+triangles re-indexed by the clustering are shown. Each vertex carries three colourings:
 
 - ``albedo``: the PLY's vertex colour (the decoded albedo, grey);
 - ``camera``: which camera's scan the vertex comes from (nearest scan point of every camera,
@@ -36,7 +41,8 @@ from nail2nail.report._html import Section, escape, json_for_script, note_html
 from nail2nail.report._parts import CorruptPart, reading
 from nail2nail.report.inputs import ReportInputs
 
-__all__ = ["MIN_VERTICES", "cluster_vertices", "libraries", "section", "viewer_data"]
+__all__ = ["MIN_VERTICES", "cluster_vertices", "libraries", "seamless_faces", "section",
+           "viewer_data"]
 
 #: Fewest super-scan vertices the viewer shows (fewer: the section says the scan is missing).
 MIN_VERTICES = 3
@@ -122,6 +128,62 @@ def cluster_vertices(points, faces=None, *, max_vertices: int, attributes=()):
         _, first = np.unique(rolled, axis=0, return_index=True)
         out_faces = f[np.sort(first)]
     return out_points, out_faces, out_attributes, labels
+
+
+def seamless_faces(points, faces=None) -> tuple[np.ndarray | None, dict]:
+    """One seamless mesh over `points`, or `faces` where it is not better.
+
+    The points are unrolled by the rolled map (:func:`nail2nail.unroll.flatten.
+    fit_flattening`; the finger's axis: the points' first principal direction, the pad's:
+    their third, on the side where most points lie) and triangulated in its print plane
+    (:func:`nail2nail.merge.mesh.param_mesh`), wound to face away from the cylinder's centre.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Vertices, mm.
+    faces : (M, 3) int, optional
+        The mesh to fall back on (the clustered super scan's).
+
+    Returns
+    -------
+    faces : (F, 3) int64 or None
+        The seamless triangles when they leave no more boundary edges than `faces` (or
+        `faces` is None) and no edge shared by three triangles; else `faces`.
+    topology : dict
+        ``{"seamless": bool, "boundary_edges": int, "non_manifold_edges": int}`` of the
+        faces returned, for the page's note.
+    """
+    from scipy.spatial import cKDTree
+
+    from nail2nail.merge.mesh import mesh_topology, param_mesh
+    from nail2nail.unroll.flatten import fit_flattening
+
+    points = np.asarray(points, dtype=float)
+    old = None if faces is None else mesh_topology(faces, len(points))
+    try:
+        centre = points.mean(axis=0)
+        axes = np.linalg.svd(points - centre, full_matrices=False)[2]
+        # the shell of a scanned finger (its front half) is thinnest towards the pad, and most
+        # of its points lie on the pad's side of their centroid
+        pad = axes[2] * (1.0 if np.median((points - centre) @ axes[2]) >= 0 else -1.0)
+        # the map's coarse mesh needs a few points per cell: cells of 4 spacings at least
+        spacing = float(np.median(cKDTree(points).query(points[:: max(1, len(points) // 5000)],
+                                                        k=2)[0][:, 1]))
+        flat, _ = fit_flattening(points, "rolled", tip_direction=axes[0], pad_direction=pad,
+                                 grid_mm=max(0.5, 4 * spacing))
+        outward = points - flat.cylinder.center if hasattr(flat, "cylinder") else pad
+        new_faces = param_mesh(points, flat(points), normals=outward)
+    except ValueError:  # too few points, or a surface the map does not unroll
+        new_faces = None
+    new = None if new_faces is None else mesh_topology(new_faces, len(points))
+    if new is not None and new["non_manifold_edges"] == 0 and (
+            old is None or new["boundary_edges"] <= old["boundary_edges"]):
+        return new_faces, {"seamless": True, "boundary_edges": new["boundary_edges"],
+                           "non_manifold_edges": 0}
+    return faces, {"seamless": False,
+                   "boundary_edges": None if old is None else old["boundary_edges"],
+                   "non_manifold_edges": None if old is None else old["non_manifold_edges"]}
 
 
 def _cluster_mean(labels: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
@@ -222,7 +284,8 @@ def viewer_data(inputs: ReportInputs, *, max_points: int = 60_000,
     -------
     dict or None
         ``{"source_vertices", "source_faces", "cameras", "levels": {"base": level,
-        ["detail": level]}}``, each level ``{"n_vertices", "n_faces", "spacing_mm", "xyz"
+        ["detail": level]}}``, each level ``{"n_vertices", "n_faces", "mesh" (the base
+        level: :func:`seamless_faces`'s topology, else None), "spacing_mm", "xyz"
         (base64 float32 (K, 3), mm, world frame), "faces" (base64 int32 (L, 3)), "albedo"
         (base64 float32, 0..1), "camera" (base64 float32 index, -1 none), "error" (base64
         float32 µm, NaN where no pair), "albedo_range", "error_range", "error_coverage"}``;
@@ -266,6 +329,9 @@ def _level(points, faces, albedo, one_hot, inputs: ReportInputs, max_vertices: i
 
     small, small_faces, (albedo_k, camera_hist), _ = cluster_vertices(
         points, faces, max_vertices=max_vertices, attributes=(albedo, one_hot))
+    mesh = None
+    if faces is not None:
+        small_faces, mesh = seamless_faces(small, small_faces)
     camera_k = np.where(camera_hist.max(axis=1) > 0, camera_hist.argmax(axis=1), -1)
     # vertex spacing of the decimated cloud: the pairing radius of the merge errors
     spacing = float(np.median(cKDTree(small).query(small[:20_000], k=2)[0][:, 1]))
@@ -274,6 +340,7 @@ def _level(points, faces, albedo, one_hot, inputs: ReportInputs, max_vertices: i
     return {
         "n_vertices": len(small),
         "n_faces": 0 if small_faces is None else len(small_faces),
+        "mesh": mesh,
         "spacing_mm": spacing,
         "xyz": _b64(small, np.float32),
         "faces": _b64(np.zeros((0, 3)) if small_faces is None else small_faces, np.int32),
@@ -303,10 +370,18 @@ def section(inputs: ReportInputs, *, max_points: int = 60_000) -> Section:
     legend = " ".join(
         f'<span style="color:{CAMERA_COLOURS[i % len(CAMERA_COLOURS)]}">■ {escape(n)}</span>'
         for i, n in enumerate(data["cameras"]))
-    decimated = (f"The mesh shows {base['n_vertices']:,} of the scan's "
-                 f"{data['source_vertices']:,} vertices and {base['n_faces']:,} of its "
-                 f"{data['source_faces']:,} triangles (vertex clustering, "
-                 f"{1e3 * base['spacing_mm']:.0f} µm apart)")
+    mesh = base.get("mesh") or {}
+    if mesh.get("seamless"):
+        decimated = (f"The mesh shows {base['n_vertices']:,} of the scan's "
+                     f"{data['source_vertices']:,} vertices (vertex clustering, "
+                     f"{1e3 * base['spacing_mm']:.0f} µm apart) as one seamless surface of "
+                     f"{base['n_faces']:,} triangles ({mesh['boundary_edges']:,} boundary "
+                     "edges)")
+    else:
+        decimated = (f"The mesh shows {base['n_vertices']:,} of the scan's "
+                     f"{data['source_vertices']:,} vertices and {base['n_faces']:,} of its "
+                     f"{data['source_faces']:,} triangles (vertex clustering, "
+                     f"{1e3 * base['spacing_mm']:.0f} µm apart)")
     if detail is not None:
         decimated += (f"; 'detail' (or zooming in) shows {detail['n_vertices']:,} points, "
                       f"{1e3 * detail['spacing_mm']:.0f} µm apart")

@@ -1,0 +1,163 @@
+"""One seamless triangle mesh over the super scan's vertices, and its topology's figures.
+
+The super scan's own mesh (:func:`nail2nail.merge.fusion.grid_mesh`) joins neighbouring pixels
+of one camera's grid: where the ownership passes from one camera to the next the grids stop a
+pixel apart, and the mesh is in pieces along every seam (issue 27: 67,827 boundary edges on the
+demo finger, most of them seams). :func:`param_mesh` triangulates all the cameras' vertices
+together in a plane that is a one-to-one image of the surface (Delaunay), and keeps the
+triangles whose edges are short in 3D for their neighbourhood: the seams are closed, the
+outline and the holes stay open, and the result is edge-manifold by construction (a subset of
+a planar triangulation: no edge has more than two triangles), wound one way.
+
+Such planes: the projector's (every vertex has projector coordinates, and the projector sees
+each lit surface point once; the thesis merges the cameras in projector space for that reason,
+chapter four), and the unrolling's print plane (``nail2nail.unroll.flatten``). The projector's
+is far from isometric where the finger turns away from it (its sides, the tip): the Delaunay
+triangles there are thin in 3D, and some are dropped as too long. On the demo finger's
+60,000-vertex copy (the report's) that leaves 644 boundary edges and 10 bow-tie vertices in
+projector coordinates, against 196 and none in the rolled map's print plane, all on the
+outline; so the report triangulates in the print plane.
+
+:func:`mesh_topology` counts what a mesh tool checks: boundary edges, non-manifold edges and
+vertices (bow-ties: more than two boundary edges at a vertex), windings that disagree.
+
+Cost: a Delaunay triangulation of all the vertices (``scipy.spatial.Delaunay``, Qhull): about
+10 s for the 676,000 vertices of the full-resolution demo finger on two busy cores, 0.4 s for
+the report's 60,000-vertex copy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["EDGE_FACTOR", "NEIGHBOURS", "mesh_topology", "param_mesh"]
+
+#: A triangle's longest edge may be this many local spacings (:func:`param_mesh`): on the
+#: demo finger's 60,000-vertex copy (the report's) unrolled by ``unroll.flatten``'s rolled map,
+#: 3 spacings of the 6th neighbour leave 196 boundary edges, all on the outline, and no
+#: bow-tie vertex; 2 spacings leave 875 (stripes of holes where a camera sees the skin at a
+#: grazing angle)
+EDGE_FACTOR = 3.0
+#: The neighbour whose distance is a vertex's local spacing (:func:`param_mesh`)
+NEIGHBOURS = 6
+
+
+def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int = NEIGHBOURS,
+               normals=None) -> np.ndarray:
+    """Triangles over `points` from a Delaunay triangulation of their 2-D parameters `uv`.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Vertices, world mm.
+    uv : (N, 2) float
+        A one-to-one (fold-free) image of the surface in a plane: the projector coordinates
+        of the decoded phase (panel px), or an unrolling's print plane (mm). The nearer it is
+        to isometric, the fewer thin triangles (see the module's note).
+    edge_factor, neighbours : float, int
+        A triangle is kept when its longest 3-D edge is at most `edge_factor` × the distance
+        from one of its corners to that corner's `neighbours`-th nearest vertex: the local
+        spacing, which grows where a camera sees the skin at a grazing angle and samples it
+        sparsely. The triangulation's hull spans the outline's concave parts and the holes;
+        the long triangles there go.
+    normals : (N, 3) float, optional
+        Vertex normals: the surface is wound counter-clockwise seen from the side most of them
+        point to (one flip of every triangle, so the winding stays consistent). Default:
+        counter-clockwise in the plane of `uv` (``u`` right, ``v`` up).
+
+    Returns
+    -------
+    faces : (F, 3) int64
+        Vertex indices.
+
+    Raises
+    ------
+    ValueError
+        Shapes that disagree, non-finite values, fewer than ``neighbours + 1`` points, or a
+        non-positive `edge_factor`.
+
+    Examples
+    --------
+    >>> x, y = np.meshgrid(np.arange(4.0), np.arange(3.0))
+    >>> pts = np.stack([x.ravel(), y.ravel(), 0 * x.ravel()], -1)
+    >>> param_mesh(pts, pts[:, :2], neighbours=2).shape
+    (12, 3)
+    """
+    from scipy.spatial import Delaunay, cKDTree
+
+    points = np.asarray(points, dtype=np.float64)
+    uv = np.asarray(uv, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or uv.shape != (len(points), 2):
+        raise ValueError(f"points (N, 3) and uv (N, 2) expected, got {points.shape} and "
+                         f"{uv.shape}")
+    if not (np.isfinite(points).all() and np.isfinite(uv).all()):
+        raise ValueError("points, uv: expected finite values")
+    if len(points) <= neighbours:
+        raise ValueError(f"points: more than neighbours={neighbours} needed, got {len(points)}")
+    if not edge_factor > 0:
+        raise ValueError(f"edge_factor: expected a positive factor, got {edge_factor}")
+    faces = Delaunay(uv).simplices.astype(np.int64)
+    spacing = cKDTree(points).query(points, k=neighbours + 1)[0][:, neighbours]
+    a, b, c = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    longest = np.sqrt(np.maximum.reduce([((a - b) ** 2).sum(1), ((b - c) ** 2).sum(1),
+                                         ((c - a) ** 2).sum(1)]))
+    keep = longest <= edge_factor * spacing[faces].max(axis=1)
+    faces, a, b, c = faces[keep], a[keep], b[keep], c[keep]
+    p, q, r = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
+    clockwise = ((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
+                 - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])) < 0
+    faces[clockwise] = faces[clockwise][:, [0, 2, 1]]
+    if normals is not None and len(faces):
+        n = np.nan_to_num(np.asarray(normals, dtype=np.float64))
+        a, b, c = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+        facing = (np.cross(b - a, c - a) * (n[faces[:, 0]] + n[faces[:, 1]] + n[faces[:, 2]]))
+        if np.count_nonzero(facing.sum(1) < 0) > len(faces) / 2:
+            faces = faces[:, [0, 2, 1]]
+    return faces
+
+
+def mesh_topology(faces, n_vertices: int) -> dict:
+    """Counts of a triangle mesh's topology.
+
+    Parameters
+    ----------
+    faces : (F, 3) int
+        Triangles.
+    n_vertices : int
+        Vertices of the mesh (those of no triangle count as isolated).
+
+    Returns
+    -------
+    dict
+        ``faces``, ``edges``, ``boundary_edges`` (one triangle), ``non_manifold_edges`` (more
+        than two), ``non_manifold_vertices`` (more than two boundary edges meet: two fans
+        touching at a vertex), ``isolated_vertices``, ``inconsistent_edges`` (an interior
+        edge its two triangles run the same way: they are wound against each other).
+
+    Examples
+    --------
+    >>> mesh_topology([[0, 1, 2], [0, 2, 3]], 4)["boundary_edges"]
+    4
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    lo, hi = directed.min(axis=1), directed.max(axis=1)
+    key = lo * n_vertices + hi
+    unique, inverse, count = np.unique(key, return_inverse=True, return_counts=True)
+    # a consistent orientation runs an interior edge once each way
+    forward = np.bincount(inverse, weights=directed[:, 0] < directed[:, 1],
+                          minlength=len(unique))
+    boundary = unique[count == 1]
+    ends = np.concatenate([boundary // n_vertices, boundary % n_vertices])
+    at_vertex = np.bincount(ends, minlength=n_vertices)
+    used = np.zeros(n_vertices, bool)
+    used[faces.ravel()] = True
+    return {
+        "faces": len(faces),
+        "edges": len(unique),
+        "boundary_edges": len(boundary),
+        "non_manifold_edges": int(np.count_nonzero(count > 2)),
+        "non_manifold_vertices": int(np.count_nonzero(at_vertex > 2)),
+        "isolated_vertices": int(n_vertices - np.count_nonzero(used)),
+        "inconsistent_edges": int(np.count_nonzero((count == 2) & (forward != 1))),
+    }

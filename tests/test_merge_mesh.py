@@ -1,0 +1,107 @@
+"""The seamless mesh (issue 27): ``nail2nail.merge.mesh``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from nail2nail.merge.fusion import grid_mesh
+from nail2nail.merge.mesh import mesh_topology, param_mesh
+
+
+def _cylinder_grids(seed: int, gap_px: int = 1):
+    """Two grids of a cylinder's front (radius 8 mm), meeting along a seam `gap_px` pixels
+    apart (1: neighbours, as two cameras' owned pixels are on the surface), the normals, and a
+    one-to-one plane (arc length × height)."""
+    rng = np.random.default_rng(seed)
+    theta = np.linspace(-1.2, 1.2, 80)
+    height = np.linspace(-6.0, 6.0, 60)
+    t, h = np.meshgrid(theta, height)
+    xyz = np.stack([8 * np.sin(t), h, 8 * np.cos(t)], -1)
+    xyz += rng.normal(0, 0.002, xyz.shape)  # µm-level noise, as a scan's
+    left = np.zeros(t.shape, bool)
+    right = np.zeros(t.shape, bool)
+    left[:, :40] = True
+    right[:, 40 + gap_px - 1:] = True  # gap_px − 1 columns owned by neither
+    normals = xyz * np.array([1.0, 0.0, 1.0])
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    return xyz, left, right, normals, np.stack([8 * t, h], -1)
+
+
+def test_topology_of_a_square():
+    topo = mesh_topology([[0, 1, 2], [0, 2, 3]], 5)
+    assert topo == {"faces": 2, "edges": 5, "boundary_edges": 4, "non_manifold_edges": 0,
+                    "non_manifold_vertices": 0, "isolated_vertices": 1,
+                    "inconsistent_edges": 0}
+    # the same square with one triangle flipped: its diagonal runs twice the same way
+    assert mesh_topology([[0, 1, 2], [0, 3, 2]], 4)["inconsistent_edges"] == 1
+    # a fan of three triangles on one edge; a bow-tie at vertex 0
+    assert mesh_topology([[0, 1, 2], [1, 0, 3], [0, 1, 4]], 5)["non_manifold_edges"] == 1
+    assert mesh_topology([[0, 1, 2], [0, 3, 4]], 5)["non_manifold_vertices"] == 1
+
+
+def test_two_grids_meet_in_one_surface():
+    """The seam between two grids a pixel apart is closed; the boundary is the outline."""
+    xyz, left, right, normals, uv = _cylinder_grids(0, gap_px=2)
+    keep = left | right
+    _, faces = grid_mesh(xyz, keep, max_edge_mm=1.0, normals=normals)
+    grids = mesh_topology(faces, int(keep.sum()))
+    points, n = xyz[keep], normals[keep]
+    seamless = param_mesh(points, uv[keep], normals=n)
+    topo = mesh_topology(seamless, len(points))
+    assert grids["boundary_edges"] > topo["boundary_edges"]
+    # the outline of the 60 x 79 kept block: 2 (59 + 78) edges (the gap column is dropped)
+    assert topo["boundary_edges"] == 2 * (59 + 78)
+    assert topo["non_manifold_edges"] == topo["non_manifold_vertices"] == 0
+    assert topo["inconsistent_edges"] == 0 and topo["isolated_vertices"] == 0
+    # wound counter-clockwise seen from outside (the normals' side)
+    a, b, c = (points[seamless[:, k]] for k in range(3))
+    facing = (np.cross(b - a, c - a) * (n[seamless[:, 0]])).sum(1)
+    assert np.all(facing > 0)
+
+
+def test_holes_and_concave_outline_stay_open():
+    xyz, left, right, _, uv = _cylinder_grids(1, gap_px=1)
+    keep = left | right
+    keep[20:30, 20:30] = False  # a hole of 10 x 10 px (2.4 mm across)
+    keep[:25, 60:] = False  # a notch in the outline
+    faces = param_mesh(xyz[keep], uv[keep])
+    topo = mesh_topology(faces, int(keep.sum()))
+    assert topo["non_manifold_edges"] == topo["non_manifold_vertices"] == 0
+    # where each triangle lies, in (row, col) of the grid
+    rows, cols = np.nonzero(keep)
+    r, c = rows[faces].mean(axis=1), cols[faces].mean(axis=1)
+    # concave corners (the hole's, the notch's) are bevelled by triangles of at most 3 local
+    # spacings; farther in, nothing is bridged
+    assert not np.any((r > 22) & (r < 27) & (c > 22) & (c < 27))
+    assert not np.any((r < 21) & (c > 63))
+    # so the boundary runs round the hole too: more than the block's outline, 2 (59 + 79)
+    # grid edges (the notch's L keeps the outline's length; bevels shorten both)
+    assert 2 * (59 + 79) < topo["boundary_edges"] < 2 * (59 + 79) + 44
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.5, 3.0))
+def test_param_mesh_is_edge_manifold_and_consistently_wound(seed, spread):
+    """Any cloud and any plane: a subset of a planar triangulation."""
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(0, 10, (300, 2))
+    points = np.column_stack([uv, spread * np.sin(uv[:, 0])])
+    faces = param_mesh(points, uv)
+    topo = mesh_topology(faces, len(points))
+    assert topo["non_manifold_edges"] == 0 and topo["inconsistent_edges"] == 0
+    assert faces.min() >= 0 and faces.max() < len(points)
+
+
+@pytest.mark.parametrize(("points", "uv", "kwargs", "match"), [
+    (np.zeros((10, 3)), np.zeros((9, 2)), {}, "uv"),
+    (np.full((10, 3), np.nan), np.zeros((10, 2)), {}, "finite"),
+    (np.zeros((5, 3)), np.zeros((5, 2)), {}, "more than neighbours"),
+    (np.random.default_rng(0).random((20, 3)), np.random.default_rng(1).random((20, 2)),
+     {"edge_factor": 0.0}, "edge_factor"),
+])
+def test_param_mesh_bad_input(points, uv, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        param_mesh(points, uv, **kwargs)
