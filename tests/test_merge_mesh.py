@@ -105,3 +105,55 @@ def test_param_mesh_is_edge_manifold_and_consistently_wound(seed, spread):
 def test_param_mesh_bad_input(points, uv, kwargs, match):
     with pytest.raises(ValueError, match=match):
         param_mesh(points, uv, **kwargs)
+
+
+# -- the super scan's PLY, on request -----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def ring_scans():
+    from _synthetic import synthetic_scans
+
+    return synthetic_scans(size=(64, 80), noise_px=0.05, seed=5)
+
+
+def test_write_merge_seamless_mesh(ring_scans, tmp_path):
+    """merge's super.ply: the cameras' grids side by side by default (seams open), one
+    seamless surface with seamless_mesh=True, on the same vertices; merge.json gives its
+    topology. Against the true cylinder, no vertex moves (the faces alone change)."""
+    from nail2nail.io.ply import read_ply
+    from nail2nail.merge.report import write_merge
+
+    grids = write_merge(ring_scans, tmp_path / "grids", figures=False, mat5=False)
+    one = write_merge(ring_scans, tmp_path / "one", figures=False, mat5=False,
+                      seamless_mesh=True)
+    assert grids["super_scan"]["mesh"] is None
+    mesh = one["super_scan"]["mesh"]
+    a, b = read_ply(tmp_path / "grids" / "super.ply"), read_ply(tmp_path / "one" / "super.ply")
+    np.testing.assert_array_equal(a.points, b.points)
+    before, after = mesh_topology(a.faces, len(a.points)), mesh_topology(b.faces, len(b.points))
+    print("\ngrids:", before, "\nseamless:", after)
+    assert after == {k: mesh[k] for k in after}
+    assert one["super_scan"]["faces"] == after["faces"] == len(b.faces)
+    assert after["non_manifold_edges"] == after["inconsistent_edges"] == 0
+    assert after["boundary_edges"] < 0.5 * before["boundary_edges"]
+    assert after["non_manifold_vertices"] <= before["non_manifold_vertices"]
+    # wound as the vertex normals (towards the cameras)
+    p, n = b.points.astype(float), b.normals.astype(float)
+    f = b.faces
+    facing = (np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]) * n[f[:, 0]]).sum(1)
+    assert np.mean(facing > 0) > 0.99
+    json_text = (tmp_path / "one" / "merge.json").read_text()
+    assert '"seamless": true' in json_text
+
+
+def test_cli_merge_seamless_mesh(ring_scans, tmp_path, capsys):
+    from nail2nail.cli import main
+    from nail2nail.io.ply import read_ply
+    from nail2nail.io.scans import save_scans
+
+    save_scans(tmp_path / "scans", ring_scans, mat5=False, ply=False)
+    assert main(["-q", "merge", str(tmp_path / "scans"), "--out", str(tmp_path / "m"),
+                 "--no-figures", "--seamless-mesh"]) == 0
+    ply = read_ply(tmp_path / "m" / "super.ply")
+    assert mesh_topology(ply.faces, len(ply.points))["non_manifold_edges"] == 0
+    assert any("seamless" in c for c in ply.comments)

@@ -63,6 +63,7 @@ def process_capture(
     figures: bool = False,
     mat5: bool = False,
     ply: bool = False,
+    seamless_mesh: bool = False,
     unroll: bool = True,
     method: str | None = None,
     ppi: float = 500.0,
@@ -101,6 +102,10 @@ def process_capture(
     ply : bool
         Also write each camera's PLY point cloud into ``OUT/scans`` (the super scan's
         ``OUT/merge/super.ply`` is always written).
+    seamless_mesh : bool
+        Mesh ``OUT/merge/super.ply`` as one seamless surface
+        (:func:`nail2nail.merge.write_merge`'s `seamless_mesh`; about 10 s more for a
+        full-resolution finger).
     unroll : bool
         Unroll the finger into the rolled-equivalent print (``OUT/print``).
     method, ppi, tip_direction, length_mm, wsq
@@ -199,6 +204,7 @@ def process_capture(
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
+                                 seamless_mesh=seamless_mesh,
                                  transform=transform, progress=progress,
                                  final_dir=out / "merge")  # the job directory once renamed
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}

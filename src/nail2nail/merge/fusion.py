@@ -1484,8 +1484,11 @@ def write_super_mat5(
     return write_mat5(prefix, super_mat5_scan(superscan, gap_px=gap_px))
 
 
-def write_super_ply(path: str | os.PathLike, superscan: SuperScan) -> Path:
+def write_super_ply(path: str | os.PathLike, superscan: SuperScan, *, faces=None) -> Path:
     """Write the super scan as binary PLY: vertices, normals, grey colours, triangles.
+
+    `faces` replaces the super scan's own triangles (the cameras' grids): the seamless mesh of
+    :func:`nail2nail.merge.mesh.seamless_mesh`, say.
 
     Returns
     -------
@@ -1494,6 +1497,9 @@ def write_super_ply(path: str | os.PathLike, superscan: SuperScan) -> Path:
     """
 
     names = ", ".join(s.name for s in superscan.scans)
+    seamless = faces is not None
     return write_ply(path, superscan.vertices, colors=superscan.colors,
-                     normals=superscan.vertex_normals, faces=superscan.faces,
-                     comments=[f"nail2nail super scan fused from {names}"])
+                     normals=superscan.vertex_normals,
+                     faces=superscan.faces if faces is None else faces,
+                     comments=[f"nail2nail super scan fused from {names}"
+                               + ("; one seamless mesh" if seamless else "")])

@@ -10,33 +10,39 @@ outline and the holes stay open, and the result is edge-manifold by construction
 a planar triangulation: no edge has more than two triangles), wound one way.
 
 Such planes: the projector's (every vertex has projector coordinates, and the projector sees
-each lit surface point once; the thesis merges the cameras in projector space for that reason,
-chapter four), and the unrolling's print plane (``nail2nail.unroll.flatten``). The projector's
-is far from isometric where the finger turns away from it (its sides, the tip): the Delaunay
-triangles there are thin in 3D, and some are dropped as too long. On the demo finger's
-60,000-vertex copy (the report's) that leaves 644 boundary edges and 10 bow-tie vertices in
-projector coordinates, against 196 and none in the rolled map's print plane, all on the
-outline; so the report triangulates in the print plane.
+each lit surface point once; the thesis merges the cameras in projector space for that
+reason, chapter four), an unrolling's print plane (``nail2nail.unroll.flatten``), or
+:func:`finger_plane`, a cylinder about the points' principal axis, unrolled (arc length ×
+height). The projector's is far from isometric where the finger turns away from it (its
+sides, the tip): the Delaunay triangles there are thin in 3D, and some are dropped as too
+long. On the demo finger's 60,000-vertex copy (the report's): 644 boundary edges and 10
+bow-tie vertices in projector coordinates, 196 and none in the rolled map's print plane, 241
+and 6 in :func:`finger_plane`'s, the last two all on the outline. :func:`seamless_mesh` uses
+:func:`finger_plane`, which needs nothing but the points.
 
 :func:`mesh_topology` counts what a mesh tool checks: boundary edges, non-manifold edges and
 vertices (bow-ties: more than two boundary edges at a vertex), windings that disagree.
 
 Cost: a Delaunay triangulation of all the vertices (``scipy.spatial.Delaunay``, Qhull): about
-10 s for the 676,000 vertices of the full-resolution demo finger on two busy cores, 0.4 s for
-the report's 60,000-vertex copy.
+10 s for the 676,000 vertices of the full-resolution demo finger (its boundary edges 67,828 →
+7,161: the outline, at full resolution ragged, and the holes the fusion leaves), 0.5 s for
+the report's 60,000-vertex copy. So the super scan's PLY is meshed this way on request
+(``merge --seamless-mesh``), the report's viewer always.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EDGE_FACTOR", "NEIGHBOURS", "mesh_topology", "param_mesh"]
+__all__ = ["EDGE_FACTOR", "NEIGHBOURS", "finger_plane", "mesh_topology", "param_mesh",
+           "seamless_mesh"]
 
 #: A triangle's longest edge may be this many local spacings (:func:`param_mesh`): on the
-#: demo finger's 60,000-vertex copy (the report's) unrolled by ``unroll.flatten``'s rolled map,
-#: 3 spacings of the 6th neighbour leave 196 boundary edges, all on the outline, and no
-#: bow-tie vertex; 2 spacings leave 875 (stripes of holes where a camera sees the skin at a
-#: grazing angle)
+#: demo finger's 60,000-vertex copy (the report's) in :func:`finger_plane`, 2, 3 and 4
+#: spacings of the 6th neighbour leave 896, 241 and 130 boundary edges (40, 6, 0 bow-tie
+#: vertices): at 2, stripes of holes where a camera sees the skin at a grazing angle and
+#: samples it sparsely; at 3 the outline alone; 4 bevels the outline's notches further
+#: (a triangle may bridge 4 spacings of a real gap)
 EDGE_FACTOR = 3.0
 #: The neighbour whose distance is a vertex's local spacing (:func:`param_mesh`)
 NEIGHBOURS = 6
@@ -114,6 +120,71 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         if np.count_nonzero(facing.sum(1) < 0) > len(faces) / 2:
             faces = faces[:, [0, 2, 1]]
     return faces
+
+
+def finger_plane(points) -> np.ndarray:
+    """A one-to-one plane of a finger's scanned surface: a cylinder about it, unrolled.
+
+    The axis is the points' first principal direction (through their centroid); the section's
+    circle is fitted by least squares (Kåsa 1976) to the points projected along it; a point's
+    plane coordinates are ``(R θ, h)``: its angle about the circle's centre from the pad's
+    side (the third principal direction, towards most points), times the radius, and its
+    height along the axis, mm. One-to-one wherever each ray from the axis meets the surface
+    once, as on a finger's front half and its tip seen by the cameras.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Surface points, mm (N ≥ 3).
+
+    Returns
+    -------
+    uv : (N, 2) float64
+        Plane coordinates, mm.
+
+    Examples
+    --------
+    A cylinder of radius 5 mm, ±1 rad about its axis and 20 mm long, unrolls to 10 × 20 mm:
+
+    >>> t, h = np.meshgrid(np.linspace(-1, 1, 9), np.linspace(0, 20, 12))
+    >>> pts = np.stack([5 * np.sin(t.ravel()), h.ravel(), 5 * np.cos(t.ravel())], -1)
+    >>> np.round(np.ptp(finger_plane(pts), axis=0), 6).tolist()
+    [10.0, 20.0]
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 3:
+        raise ValueError(f"points: expected (N, 3) with N >= 3, got {points.shape}")
+    centre = points.mean(axis=0)
+    d = points - centre
+    axes = np.linalg.svd(d, full_matrices=False)[2]
+    axis = axes[0]
+    pad = axes[2] * (1.0 if np.median(d @ axes[2]) >= 0 else -1.0)
+    side = np.cross(axis, pad)
+    x, y = d @ side, d @ pad
+    a = np.column_stack([x, y, np.ones_like(x)])
+    (bx, by, c), *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+    cx, cy = bx / 2, by / 2
+    radius = float(np.sqrt(max(c + cx * cx + cy * cy, 0.0)))
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError("points: no cylinder fits them (a plane or a line)")
+    return np.column_stack([radius * np.arctan2(x - cx, y - cy), d @ axis])
+
+
+def seamless_mesh(points, *, normals=None) -> np.ndarray:
+    """:func:`param_mesh` of `points` in :func:`finger_plane`: one mesh of a finger's scan.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Vertices, mm.
+    normals : (N, 3) float, optional
+        Vertex normals, for the winding (:func:`param_mesh`).
+
+    Returns
+    -------
+    faces : (F, 3) int64
+    """
+    return param_mesh(points, finger_plane(points), normals=normals)
 
 
 def mesh_topology(faces, n_vertices: int) -> dict:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import time
 import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -23,6 +24,8 @@ from nail2nail.io._atomic import atomic_directory, relocate_paths, write_npz
 from nail2nail.io._json import write_json
 from nail2nail.merge.correspondence import CorrespondenceCache, correspond
 from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
+from nail2nail.merge.mesh import mesh_topology
+from nail2nail.merge.mesh import seamless_mesh as seamless
 
 __all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
 
@@ -103,6 +106,7 @@ def write_merge(
     frame: str = "world",
     transform=None,
     final_dir: str | os.PathLike | None = None,
+    seamless_mesh: bool = False,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
@@ -149,6 +153,12 @@ def write_merge(
         Where `out` will be once a caller renames the directory that holds it (``process``
         writes into a temporary job directory): the paths in ``merge.json`` and in the returned
         summary name the files there. Default: `out`.
+    seamless_mesh : bool
+        Mesh ``super.ply`` as one surface (:func:`nail2nail.merge.mesh.seamless_mesh`: the
+        seams between the cameras' grids closed; about 10 s for a full-resolution finger)
+        instead of the cameras' grids side by side; ``super_scan.mesh`` in ``merge.json``
+        gives its topology (:func:`~nail2nail.merge.mesh.mesh_topology`). The super mat5 is
+        the cameras' grids either way.
 
     Returns
     -------
@@ -161,7 +171,8 @@ def write_merge(
         over the kept pairs; ``rejected`` counts the pairs rejected per reason
         (:data:`nail2nail.merge.REJECT_REASONS`) and ``before_rejection`` gives the
         statistics of all pairs found. The super scan's
-        ``rejected_pairs`` and ``points_rejected`` count what fusion left out.
+        ``rejected_pairs`` and ``points_rejected`` count what fusion left out; its ``mesh``
+        is the seamless mesh's topology and seconds with `seamless_mesh`, else None.
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
@@ -181,7 +192,8 @@ def write_merge(
         summary = _write_merge(scans, tmp, pairs=pairs, stride=stride,
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
-                               mat5=mat5, progress=progress, frame=frame, transform=transform)
+                               mat5=mat5, progress=progress, frame=frame, transform=transform,
+                               seamless_mesh=seamless_mesh)
         summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
@@ -208,7 +220,8 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
-                 super_scan, data, mat5, progress, frame="world", transform=None) -> dict:
+                 super_scan, data, mat5, progress, frame="world", transform=None,
+                 seamless_mesh=False) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -223,7 +236,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                max_residual_px=max_residual_px, border_px=border_px,
                                super_scan=super_scan, data=data, mat5=mat5,
                                progress=progress, drawing=drawing, frame=frame,
-                               transform=transform)
+                               transform=transform, seamless_mesh=seamless_mesh)
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -234,7 +247,8 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
-                 data, mat5, progress, drawing, frame="world", transform=None) -> dict:
+                 data, mat5, progress, drawing, frame="world", transform=None,
+                 seamless_mesh=False) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
     lap = StepClock()
@@ -277,15 +291,24 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                     _render, sup.vertices, out / f"super_{view}.png", sup.vertex_normals,
                     sup.colors, elev, azim, f"super scan ({view}): {sup.n_vertices} points")
         files = {}
+        mesh = None
+        faces = None
+        if seamless_mesh:  # its time is part of "write", and its own in the summary
+            start = time.perf_counter()
+            faces = seamless(sup.vertices, normals=sup.vertex_normals)
+            mesh = {"seamless": True, **mesh_topology(faces, sup.n_vertices),
+                    "seconds": round(time.perf_counter() - start, 3)}
         if data:
 
             written = sup if transform is None else superscan_in_frame(sup, transform)
-            files["ply"] = str(write_super_ply(out / "super.ply", written))
+            files["ply"] = str(write_super_ply(out / "super.ply", written, faces=faces))
             if mat5:
                 mat5_files = write_super_mat5(out / "super", written)
                 files["mat5"] = str(out / "super")
             del written
-        summary["super_scan"] = {**sup.summary(), "files": files, "frame": frame,
+        # "faces": those written to super.ply (the seamless mesh's, when asked for)
+        summary["super_scan"] = {**sup.summary(), **({"faces": mesh["faces"]} if mesh else {}),
+                                 "mesh": mesh, "files": files, "frame": frame,
                                  "T_frame_world": (np.eye(4) if transform is None
                                                    else transform).tolist()}
         if drawing is not None:

@@ -3,12 +3,12 @@
 The super scan (``merge/super.ply``) is decimated for the browser by vertex clustering
 (:func:`cluster_vertices`: one vertex per occupied cube of a regular grid; Rossignac & Borrel
 1993), to at most ``max_points`` vertices, and meshed again as one surface
-(:func:`seamless_faces`): the decimated vertices are unrolled by the rolled map of
-:mod:`nail2nail.unroll.flatten` and triangulated in its print plane
-(:func:`nail2nail.merge.mesh.param_mesh`), so the seams between the cameras' grids, which the
-super scan's own mesh keeps (a line of light dots down the finger), are closed; where that
-mesh is not better (a surface the map cannot unroll, such as a flat board), the super scan's
-triangles re-indexed by the clustering are shown. Each vertex carries three colourings:
+(:func:`seamless_faces`, :func:`nail2nail.merge.mesh.seamless_mesh`: a Delaunay triangulation
+in the plane of a cylinder fitted about the points, unrolled), so the seams between the
+cameras' grids, which the super scan's own mesh keeps (a line of light dots down the finger),
+are closed; where that mesh is not better (a surface no cylinder unrolls, such as a flat
+board), the super scan's triangles re-indexed by the clustering are shown. Each vertex carries
+three colourings:
 
 - ``albedo``: the PLY's vertex colour (the decoded albedo, grey);
 - ``camera``: which camera's scan the vertex comes from (nearest scan point of every camera,
@@ -133,10 +133,8 @@ def cluster_vertices(points, faces=None, *, max_vertices: int, attributes=()):
 def seamless_faces(points, faces=None) -> tuple[np.ndarray | None, dict]:
     """One seamless mesh over `points`, or `faces` where it is not better.
 
-    The points are unrolled by the rolled map (:func:`nail2nail.unroll.flatten.
-    fit_flattening`; the finger's axis: the points' first principal direction, the pad's:
-    their third, on the side where most points lie) and triangulated in its print plane
-    (:func:`nail2nail.merge.mesh.param_mesh`), wound to face away from the cylinder's centre.
+    :func:`nail2nail.merge.mesh.seamless_mesh`: the points triangulated in the plane of a
+    cylinder fitted about them, unrolled; wound to face away from the cloud's middle.
 
     Parameters
     ----------
@@ -154,27 +152,17 @@ def seamless_faces(points, faces=None) -> tuple[np.ndarray | None, dict]:
         ``{"seamless": bool, "boundary_edges": int, "non_manifold_edges": int}`` of the
         faces returned, for the page's note.
     """
-    from scipy.spatial import cKDTree
-
-    from nail2nail.merge.mesh import mesh_topology, param_mesh
-    from nail2nail.unroll.flatten import fit_flattening
+    from nail2nail.merge.mesh import mesh_topology, seamless_mesh
 
     points = np.asarray(points, dtype=float)
     old = None if faces is None else mesh_topology(faces, len(points))
     try:
-        centre = points.mean(axis=0)
-        axes = np.linalg.svd(points - centre, full_matrices=False)[2]
-        # the shell of a scanned finger (its front half) is thinnest towards the pad, and most
-        # of its points lie on the pad's side of their centroid
-        pad = axes[2] * (1.0 if np.median((points - centre) @ axes[2]) >= 0 else -1.0)
-        # the map's coarse mesh needs a few points per cell: cells of 4 spacings at least
-        spacing = float(np.median(cKDTree(points).query(points[:: max(1, len(points) // 5000)],
-                                                        k=2)[0][:, 1]))
-        flat, _ = fit_flattening(points, "rolled", tip_direction=axes[0], pad_direction=pad,
-                                 grid_mm=max(0.5, 4 * spacing))
-        outward = points - flat.cylinder.center if hasattr(flat, "cylinder") else pad
-        new_faces = param_mesh(points, flat(points), normals=outward)
-    except ValueError:  # too few points, or a surface the map does not unroll
+        new_faces = seamless_mesh(points)
+        # wound to face away from the cloud's middle (the finger's inside)
+        a, b, c = (points[new_faces[:, k]] for k in range(3))
+        if np.median((np.cross(b - a, c - a) * (a - points.mean(axis=0))).sum(1)) < 0:
+            new_faces = new_faces[:, [0, 2, 1]]
+    except ValueError:  # too few points, or a surface no cylinder fits
         new_faces = None
     new = None if new_faces is None else mesh_topology(new_faces, len(points))
     if new is not None and new["non_manifold_edges"] == 0 and (
