@@ -53,6 +53,7 @@ from PIL import Image
 from nail2nail.cli._main import build_parser, main
 from nail2nail.io._json import write_json
 from nail2nail.io.capture import write_frame, write_manifest
+from nail2nail.io.ply import write_ply
 from nail2nail.scan.patterns import Frequency, PatternSet
 from nail2nail.simulation.rig import default_rig, ideal_calibration
 
@@ -65,7 +66,7 @@ CASE_MEBIBYTES = 1024
 #: switches and flags that only select what is printed.
 COMMANDS = ("unroll", "process", "report", "batch", "import-calibration", "export-calibration",
             "calibrate-board", "print-target", "simulate", "simulate-print", "simulate-board",
-            "scan")
+            "scan", "export-mesh")
 _PARSER_OF = {"simulate-print": "simulate", "simulate-board": "simulate"}
 
 #: Failures this fuzz found in files of other parts of issue 29, reported and not fixed here:
@@ -209,6 +210,7 @@ class Fixtures:
     poses: Path  # a pose directory without capture.json
     print_png: Path  # an 8-bit grayscale print, 500 ppi (simulate --print: read for real)
     patterns: Path  # a missing --patterns directory (simulate's stop)
+    mesh: Path  # a directory with a small super.ply mesh (export-mesh: real)
 
 
 def make_fixtures(root: Path) -> Fixtures:
@@ -243,9 +245,16 @@ def make_fixtures(root: Path) -> Fixtures:
     (root / "poses" / "pose00").mkdir(parents=True)
     Image.fromarray(rng.integers(0, 256, (96, 96), np.uint8)).save(root / "print.png",
                                                                     dpi=(500, 500))
+    t, h = np.meshgrid(np.linspace(-1, 1, 8), np.linspace(0, 6, 10))
+    points = np.stack([5 * np.sin(t), h, 5 * np.cos(t)], -1).reshape(-1, 3)
+    idx = np.arange(80).reshape(10, 8)
+    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:]], -1),
+                            np.stack([idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]], -1)])
+    write_ply(root / "mesh" / "super.ply", points, faces=faces.reshape(-1, 3),
+              colors=np.full((80, 3), 128, np.uint8))
     return Fixtures(root, root / "calibration.json", root / "capture", corrupt, root / "scans",
                     root / "merge", opencv, root / "poses" / "pose00", root / "print.png",
-                    root / "no_patterns")
+                    root / "no_patterns", root / "mesh")
 
 
 @dataclass
@@ -290,6 +299,7 @@ def _base_commands(fx: Fixtures) -> dict[str, Command]:
                                     "--cols": ["5"], "--spacing": ["2"], "--output": ["cb.json"]},
                                    (f["poses"],)),
         "print-target": Command("print-target", ["board"], {"--output": ["t.svg"]}),
+        "export-mesh": Command("export-mesh", [f["mesh"]], {"--out": ["m.glb"]}),
         "simulate": Command("simulate", [], {"--out": ["sim"], "--scale": ["0.0625"],
                                              "--patterns": [f["patterns"]]}, (f["patterns"],)),
         "simulate-print": Command("simulate", [], {"--out": ["sim"], "--scale": ["0.0625"],

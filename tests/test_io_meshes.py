@@ -79,3 +79,17 @@ def test_cli_export_mesh(tmp_path, capsys):
         assert len(err) == 1 and needle in err[0], err
     assert not any(tmp_path.glob("x.*"))
     assert read_ply(merge / "super.ply").faces is not None  # the source untouched
+
+
+def test_a_fifo_given_as_the_mesh_is_refused_unopened(tmp_path, capsys):
+    """Found by ``bench/fuzz_cli.py``: ``export-mesh FIFO`` waited for a writer forever
+    (read_ply opened it); a PLY reader now refuses anything but a regular file first."""
+    import os
+
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match=r"not a regular file \(a FIFO"):
+        read_ply(fifo)
+    assert main(["export-mesh", str(fifo), "-o", str(tmp_path / "m.glb")]) == 2
+    assert "FIFO" in capsys.readouterr().err
+    assert not (tmp_path / "m.glb").exists()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nail2nail._validation import as_points
+from nail2nail._validation import as_points, file_kind
 from nail2nail.io._atomic import atomic_path
 
 __all__ = ["PlyData", "read_ply", "write_ply", "write_scan_ply"]
@@ -308,11 +308,15 @@ def read_ply(path: str | os.PathLike) -> PlyData:
     Raises
     ------
     ValueError
-        Naming the file: not PLY, an unsupported format, a malformed header line (unknown
-        type, bad count, a count beyond the file's size), no ``x y z`` vertex properties,
-        non-triangle faces, face indices out of range, or truncated.
+        Naming the file: not a regular file (a FIFO would block: refused before it is
+        opened), not PLY, an unsupported format, a malformed header line (unknown type, bad
+        count, a count beyond the file's size), no ``x y z`` vertex properties, non-triangle
+        faces, face indices out of range, or truncated.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise ValueError(f"{path}: not a regular file ({file_kind(path.stat().st_mode)}); "
+                         "expected a PLY file")
     with open(path, "rb") as fh:
         size = os.fstat(fh.fileno()).st_size
         try:
