@@ -118,8 +118,8 @@ def ring_scans():
 
 def test_write_merge_seamless_mesh(ring_scans, tmp_path):
     """merge's super.ply: the cameras' grids side by side by default (seams open), one
-    seamless surface with seamless_mesh=True, on the same vertices; merge.json gives its
-    topology. Against the true cylinder, no vertex moves (the faces alone change)."""
+    seamless surface with seamless_mesh=True on the very same vertices (the faces alone
+    change); merge.json gives its topology."""
     from nail2nail.io.ply import read_ply
     from nail2nail.merge.report import write_merge
 

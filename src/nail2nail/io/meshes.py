@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from nail2nail.io._atomic import atomic_path, check_output_file
-from nail2nail.io.ply import write_ply
+from nail2nail.io.ply import mesh_arrays, write_ply
 
 __all__ = ["MESH_FORMATS", "write_mesh"]
 
@@ -61,8 +61,9 @@ def write_mesh(path: str | os.PathLike, points, faces, *, colors=None, normals=N
     Raises
     ------
     ValueError
-        An unknown suffix, no triangles, shapes that disagree, non-finite points or face
-        indices out of range; `path` a directory.
+        An unknown suffix, no triangles, or what :func:`nail2nail.io.ply.mesh_arrays` refuses
+        (the checks of every mesh writer: shapes, non-finite points, colours, face indices);
+        `path` a directory.
 
     Examples
     --------
@@ -77,16 +78,10 @@ def write_mesh(path: str | os.PathLike, points, faces, *, colors=None, normals=N
     if suffix not in MESH_FORMATS:
         raise ValueError(f"{path}: unknown mesh format {path.suffix!r}; expected one of "
                          f"{', '.join(MESH_FORMATS)}")
-    points = np.asarray(points, dtype=np.float64)
-    faces = np.asarray(faces)
-    if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
-        raise ValueError(f"points: expected finite (N, 3) coordinates, got {points.shape}")
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-        raise ValueError(f"{path}: a mesh needs triangles; got {faces.shape} (a point cloud "
-                         "is written as PLY by merge)")
-    faces = faces.astype(np.int64)
-    if faces.min() < 0 or faces.max() >= len(points):
-        raise ValueError(f"faces: indices outside 0..{len(points) - 1}")
+    points, colors, normals, faces = mesh_arrays(points, colors, normals, faces)
+    if faces is None or len(faces) == 0:
+        raise ValueError(f"{path}: a mesh needs triangles (a point cloud is written as PLY by "
+                         "merge)")
     check_output_file(path)
     if suffix == ".ply":
         return write_ply(path, points, colors=colors, normals=normals, faces=faces,
@@ -95,12 +90,11 @@ def write_mesh(path: str | os.PathLike, points, faces, *, colors=None, normals=N
 
     visual = None
     if colors is not None:
-        rgb = np.asarray(colors, dtype=np.uint8).reshape(len(points), 3)
         visual = trimesh.visual.ColorVisuals(vertex_colors=np.column_stack(
-            [rgb, np.full(len(rgb), 255, np.uint8)]))
-    mesh = trimesh.Trimesh(vertices=points, faces=faces, visual=visual, process=False,
-                           vertex_normals=None if normals is None else np.asarray(
-                               normals, dtype=np.float64))
+            [colors, np.full(len(colors), 255, np.uint8)]))
+    mesh = trimesh.Trimesh(vertices=points.astype(np.float64), faces=faces.astype(np.int64),
+                           visual=visual, process=False,
+                           vertex_normals=None if normals is None else normals.astype(np.float64))
     kind = {".obj": "obj", ".stl": "stl", ".glb": "glb"}[suffix]
     if kind == "obj":
         from trimesh.exchange.obj import export_obj

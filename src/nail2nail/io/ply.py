@@ -21,7 +21,7 @@ import numpy as np
 from nail2nail._validation import as_points, file_kind
 from nail2nail.io._atomic import atomic_path
 
-__all__ = ["PlyData", "read_ply", "write_ply", "write_scan_ply"]
+__all__ = ["PlyData", "mesh_arrays", "read_ply", "write_ply", "write_scan_ply"]
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -57,6 +57,54 @@ class PlyData:
     faces: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     comments: list[str] = field(default_factory=list)
+
+
+def mesh_arrays(points, colors=None, normals=None, faces=None) -> tuple:
+    """A mesh's arrays checked and converted, as every mesh writer takes them.
+
+    Returns
+    -------
+    points : (N, 3) float32
+        Finite positions.
+    colors : (N, 3) uint8 or None
+        Integers 0..255 (any numeric dtype accepted).
+    normals : (N, 3) float32 or None
+    faces : (M, 3) integer array or None
+        Indices in ``[0, N)``; an empty array becomes ``(0, 3)``.
+
+    Raises
+    ------
+    ValueError
+        Naming the array: a wrong shape, non-finite points, colours outside 0..255, face
+        indices out of range.
+    """
+    points = as_points(points, "points", 3).astype(np.float32)
+    n = points.shape[0]
+    if colors is not None:
+        colors = np.asarray(colors)
+        if colors.shape != (n, 3):
+            raise ValueError(f"colors: expected shape ({n}, 3), got {colors.shape}")
+        if colors.dtype != np.uint8:
+            if not np.issubdtype(colors.dtype, np.number) or np.any(
+                (colors < 0) | (colors > 255) | (colors != np.round(colors))
+            ):
+                raise ValueError("colors: expected integers 0..255 (or a uint8 array)")
+            colors = colors.astype(np.uint8)
+    if normals is not None:
+        normals = as_points(normals, "normals", 3, finite=False).astype(np.float32)
+        if normals.shape[0] != n:
+            raise ValueError(f"normals: expected shape ({n}, 3), got {normals.shape}")
+    if faces is not None:
+        faces = np.asarray(faces)
+        if faces.size == 0:
+            faces = faces.reshape(0, 3)
+        if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"faces: expected an (M, 3) integer array, got {faces.dtype} "
+                             f"{faces.shape}")
+        if faces.size and (faces.min() < 0 or faces.max() >= n):
+            raise ValueError(f"faces: vertex indices must lie in [0, {n}), got "
+                             f"[{faces.min()}, {faces.max()}]")
+    return points, colors, normals, faces
 
 
 def write_ply(
@@ -104,35 +152,13 @@ def write_ply(
     >>> read_ply(p).faces.tolist()
     [[0, 1, 2]]
     """
-    points = as_points(points, "points", 3).astype(np.float32)
+    points, colors, normals, faces = mesh_arrays(points, colors, normals, faces)
     n = points.shape[0]
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if colors is not None:
-        colors = np.asarray(colors)
-        if colors.shape != (n, 3):
-            raise ValueError(f"colors: expected shape ({n}, 3), got {colors.shape}")
-        if colors.dtype != np.uint8:
-            if not np.issubdtype(colors.dtype, np.number) or np.any(
-                (colors < 0) | (colors > 255) | (colors != np.round(colors))
-            ):
-                raise ValueError("colors: expected integers 0..255 (or a uint8 array)")
-            colors = colors.astype(np.uint8)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     if normals is not None:
-        normals = as_points(normals, "normals", 3, finite=False).astype(np.float32)
-        if normals.shape[0] != n:
-            raise ValueError(f"normals: expected shape ({n}, 3), got {normals.shape}")
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
-    if faces is not None:
-        faces = np.asarray(faces)
-        if faces.size == 0:
-            faces = faces.reshape(0, 3)
-        if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
-            raise ValueError(f"faces: expected an (M, 3) integer array, got {faces.dtype} "
-                             f"{faces.shape}")
-        if faces.size and (faces.min() < 0 or faces.max() >= n):
-            raise ValueError(f"faces: vertex indices must lie in [0, {n}), got "
-                             f"[{faces.min()}, {faces.max()}]")
     for comment in comments:
         if "\n" in comment or "\r" in comment:
             raise ValueError("comments: a comment must be a single line")

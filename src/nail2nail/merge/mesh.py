@@ -130,7 +130,9 @@ def finger_plane(points) -> np.ndarray:
     plane coordinates are ``(R θ, h)``: its angle about the circle's centre from the pad's
     side (the third principal direction, towards most points), times the radius, and its
     height along the axis, mm. One-to-one wherever each ray from the axis meets the surface
-    once, as on a finger's front half and its tip seen by the cameras.
+    once, as on a finger's front half and its tip seen by the cameras. (The unroll's
+    :func:`nail2nail.unroll.flatten.fit_cylinder` fits an elliptic cone for the print's
+    geometry; the merge stage may not import it, and a mesh needs only a fold-free plane.)
 
     Parameters
     ----------

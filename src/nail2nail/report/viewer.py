@@ -157,11 +157,8 @@ def seamless_faces(points, faces=None) -> tuple[np.ndarray | None, dict]:
     points = np.asarray(points, dtype=float)
     old = None if faces is None else mesh_topology(faces, len(points))
     try:
-        new_faces = seamless_mesh(points)
         # wound to face away from the cloud's middle (the finger's inside)
-        a, b, c = (points[new_faces[:, k]] for k in range(3))
-        if np.median((np.cross(b - a, c - a) * (a - points.mean(axis=0))).sum(1)) < 0:
-            new_faces = new_faces[:, [0, 2, 1]]
+        new_faces = seamless_mesh(points, normals=points - points.mean(axis=0))
     except ValueError:  # too few points, or a surface no cylinder fits
         new_faces = None
     new = None if new_faces is None else mesh_topology(new_faces, len(points))
