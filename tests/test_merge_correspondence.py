@@ -22,6 +22,7 @@ from nail2nail.merge import (
     nearest_bruteforce,
     nearest_kdtree,
     refine_subpixel,
+    restrict_pairs,
     sample_pixels,
     valid_mask,
 )
@@ -357,6 +358,72 @@ def test_write_merge_without_data_files(noisy, tmp_path):
         assert lean["merge"][key]["distance_mm"] == stats["distance_mm"]
     assert lean["super_scan"]["vertices"] == full["super_scan"]["vertices"]
     assert lean["super_scan"]["files"] == {}
+
+
+# -- one search, several readers (issue 27) ---------------------------------------------------
+def _same_pairs(a, b):
+    for key in ("parent_rc", "child_nearest", "child_rc", "xyz_parent", "xyz_child",
+                "residual_px"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+
+
+@settings(max_examples=25, deadline=None)
+@given(border=st.integers(1, 4), stride=st.integers(1, 4), hole=st.integers(0, 30),
+       outlier=st.booleans())
+def test_restrict_pairs_is_the_narrower_search(noisy, border, stride, hole, outlier):
+    """Narrowing a 1-px-border, stride-1 search gives what the narrower search finds: the same
+    pairs, the same drops per reason, the same view-angle and modulation rejections (the local
+    outlier test, run on a different set of pairs, is left out of the exact comparison)."""
+    parent, child = noisy[0], noisy[1]
+    if hole:  # a hole in the child's valid region: pixels lost to the child's border
+        mask = child.mask.copy()
+        mask[40:40 + hole // 2, 30:30 + hole] = False
+        child = replace(child, mask=mask)
+    options = {"outlier_mm": 0.025 if outlier else None}
+    wide = correspond(parent, child, border_px=1, **options)
+    narrow = restrict_pairs(wide, parent, child, border_px=border, stride=stride)
+    direct = correspond(parent, child, border_px=border, stride=stride, **options)
+    assert narrow.n_sampled == direct.n_sampled and narrow.stride == stride
+    if not outlier:
+        assert narrow.dropped == direct.dropped
+        _same_pairs(narrow, direct)
+        _same_pairs(narrow.rejected, direct.rejected)
+        np.testing.assert_array_equal(narrow.rejected.reason, direct.rejected.reason)
+    else:  # only the outlier verdicts may differ
+        for key in ("parent_border", "child_border", "residual", "view_angle", "modulation"):
+            assert narrow.dropped[key] == direct.dropped[key], key
+        a, b = narrow.all_pairs(), direct.all_pairs()
+        assert {tuple(x) for x in a.parent_rc} == {tuple(x) for x in b.parent_rc}
+    assert sum(narrow.dropped.values()) + narrow.n_pairs == narrow.n_sampled
+
+
+def test_restrict_pairs_refuses_what_it_cannot_narrow(noisy):
+    wide = correspond(noisy[0], noisy[1], border_px=1, stride=2)
+    with pytest.raises(ValueError, match="stride 1"):
+        restrict_pairs(wide, noisy[0], noisy[1], border_px=2)
+    wide = correspond(noisy[0], noisy[1], border_px=1)
+    small = replace(noisy[1], **{k: getattr(noisy[1], k)[:-1] for k in (
+        "xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")})
+    with pytest.raises(ValueError, match="child: shape"):
+        restrict_pairs(wide, noisy[0], small, border_px=2)
+
+
+def test_write_merge_reads_the_fusions_pairs(noisy, tmp_path):
+    """With the super scan, the merge statistics come from the fusion's single search; they
+    equal a search of their own up to the outlier test's verdicts on a handful of pairs."""
+    from nail2nail.merge.report import write_merge
+
+    one = write_merge(noisy, tmp_path / "one", figures=False, data=False)
+    own = write_merge(noisy, tmp_path / "own", figures=False, data=False, super_scan=False)
+    for key, stats in own["merge"].items():
+        got = one["merge"][key]
+        for reason in ("parent_border", "child_border", "residual", "view_angle",
+                       "modulation"):
+            assert got["dropped"][reason] == stats["dropped"][reason], (key, reason)
+        assert got["before_rejection"]["pairs"] == stats["before_rejection"]["pairs"]
+        assert abs(got["pairs"] - stats["pairs"]) <= 0.002 * stats["pairs"] + 2
+        assert got["distance_mm"]["median"] == pytest.approx(stats["distance_mm"]["median"],
+                                                             rel=0.01)
 
 
 # -- issue 9: rejection of unreliable pairs --------------------------------------------------

@@ -35,6 +35,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numba
 import numpy as np
@@ -1141,7 +1142,7 @@ def _bilinear_xyz(xyz, r, c, out):
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxyz, iterations,
                   max_shift, max_residual, parent_rc, child_nearest, child_rc, xyz_parent,
-                  xyz_child, residual, distance):
+                  xyz_child, residual, distance, code):
     """The pairs of :func:`correspond` after the nearest-neighbour search, in one pass.
 
     For each parent pixel ``(rows, cols)`` and its nearest child pixel ``(nr, nc)``: dropped
@@ -1150,7 +1151,8 @@ def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxy
     finite, dropped (``residual``) when the residual is not within `max_residual`; else a pair.
     The pairs go, in input order, to the first rows of the outputs (parent and child pixels,
     sub-pixel child position, the two world points, residual, world distance, all as the
-    NumPy formulation computes them); returns their number and the two drop counts.
+    NumPy formulation computes them); returns their number and the two drop counts. `code`
+    (one per input pixel) gets 0 for a pair, 1 for ``child_border``, 2 for ``residual``.
     """
     f8 = np.float64
     border = far = 0
@@ -1158,6 +1160,7 @@ def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxy
     k = 0
     for i in range(rows.size):
         r0, c0 = nr[i], nc[i]
+        code[i] = 1
         if not child_inner[r0, c0]:
             border += 1
             continue
@@ -1172,8 +1175,10 @@ def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxy
             border += 1
             continue
         if not res <= max_residual:
+            code[i] = 2
             far += 1
             continue
+        code[i] = 0
         parent_rc[k, 0], parent_rc[k, 1] = pr, pc
         child_nearest[k, 0], child_nearest[k, 1] = r0, c0
         child_rc[k, 0], child_rc[k, 1] = r, c
@@ -1248,6 +1253,13 @@ class Correspondence:
         None when no rejection test ran.
     reason : (N,) str or None
         For the pairs of a `rejected` correspondence, why each was rejected.
+    unpaired_rc, unpaired_nearest : (M, 2) intp or None
+        The parent pixels searched but left without a pair (dropped as ``"child_border"`` or
+        ``"residual"``) and their nearest child pixel; what :func:`restrict_pairs` needs to
+        count the drops of a narrower border. None on a `rejected` correspondence and on one
+        that is itself restricted.
+    unpaired_reason : (M,) int8 or None
+        1 for ``"child_border"``, 2 for ``"residual"``.
     """
 
     parent_name: str
@@ -1265,6 +1277,9 @@ class Correspondence:
     stride: int = 1
     rejected: Correspondence | None = None
     reason: np.ndarray | None = None
+    unpaired_rc: np.ndarray | None = None
+    unpaired_nearest: np.ndarray | None = None
+    unpaired_reason: np.ndarray | None = None
 
     @property
     def n_pairs(self) -> int:
@@ -1447,6 +1462,119 @@ def correspond(
     )
 
 
+def restrict_pairs(
+    corr: Correspondence,
+    parent: Scan,
+    child: Scan,
+    *,
+    border_px: int,
+    stride: int = 1,
+    parent_valid: np.ndarray | None = None,
+    child_valid: np.ndarray | None = None,
+    max_jump_px: float = 2.0,
+) -> Correspondence:
+    """The pairs of a correspondence that a search with a wider border and a stride would find.
+
+    One search serves several readers: the fusion matches every pixel with a 1-pixel border
+    (:func:`~nail2nail.merge.fusion.fuse_scans`), and the merge error statistics take the same
+    pairs away from the edges of the valid regions (``border_px=2``) instead of searching again.
+    The result holds exactly the pairs, the drop counts (``parent_border``, ``child_border``,
+    ``residual``) and the view-angle and modulation rejections of
+    ``correspond(parent, child, border_px=border_px, stride=stride)`` on the same scans; a
+    pair's outlier verdict is the one of `corr`'s search, whose local medians saw the few pairs
+    near the edges too.
+
+    Parameters
+    ----------
+    corr : Correspondence
+        From :func:`correspond` of `parent` and `child` with stride 1, a `border_px` no wider
+        than this one, and `max_jump_px`.
+    parent, child : Scan
+        The scans `corr` matched (their ``xp``, ``yp`` give the jumps).
+    border_px : int
+        Erosion of both valid regions, px (as :func:`correspond`).
+    stride : int
+        Keep the parent pixels on every `stride`-th row and column.
+    parent_valid, child_valid : (H, W) bool, optional
+        The valid masks `corr`'s search used, when they are not :func:`valid_mask` of the
+        scans (the fusion takes spikes out first).
+    max_jump_px : float
+        As in :func:`correspond`.
+
+    Returns
+    -------
+    Correspondence
+        With `stride`, its own ``dropped`` counts and its ``rejected`` pairs.
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:20, 0:20].astype(np.float32)
+    >>> one = np.ones((20, 20), np.float32)
+    >>> a = Scan("a", np.stack([cc, rr, 0 * rr], -1), cc, rr, one, one, one, one > 0)
+    >>> b = Scan("b", np.stack([cc, rr, 0 * rr + 0.01], -1), cc + 0.25, rr, one, one, one,
+    ...          one > 0)
+    >>> wide = correspond(a, b, border_px=1)
+    >>> narrow = restrict_pairs(wide, a, b, border_px=3, stride=2)
+    >>> narrow.n_pairs == correspond(a, b, border_px=3, stride=2).n_pairs
+    True
+    """
+    border_px = as_int(border_px, "border_px", minimum=1)
+    stride = as_int(stride, "stride", minimum=1)
+    if corr.stride != 1 or corr.unpaired_rc is None:
+        raise ValueError("corr: expected the result of a search with stride 1 (not restricted)")
+    for name, scan, shape in (("parent", parent, corr.parent_shape),
+                              ("child", child, corr.child_shape)):
+        _check_scan(scan, name)
+        if tuple(np.shape(scan.mask)) != tuple(shape):
+            raise ValueError(f"{name}: shape {np.shape(scan.mask)} is not the correspondence's "
+                             f"{tuple(shape)}")
+    pv = valid_mask(parent) if parent_valid is None else np.asarray(parent_valid, dtype=bool)
+    cv = valid_mask(child) if child_valid is None else np.asarray(child_valid, dtype=bool)
+    parent_inner = _eroded(_without_jumps(parent, pv, max_jump_px), border_px)
+    child_inner = _eroded(_without_jumps(child, cv, max_jump_px), border_px)
+    if stride > 1:
+        on_grid = np.zeros_like(parent_inner)
+        on_grid[::stride, ::stride] = True
+        parent_inner &= on_grid
+        n_sampled = int(np.count_nonzero(pv[::stride, ::stride]))
+    else:
+        n_sampled = int(np.count_nonzero(pv))
+
+    def at(image, rc):
+        return image[rc[:, 0], rc[:, 1]] if rc.size else np.zeros(0, dtype=bool)
+
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+    dropped["parent_border"] = n_sampled - int(np.count_nonzero(parent_inner))
+    searched = at(parent_inner, corr.unpaired_rc)
+    child_ok = at(child_inner, corr.unpaired_nearest)
+    far = corr.unpaired_reason == 2
+    dropped["child_border"] = int(np.count_nonzero(searched & ~(far & child_ok)))
+    dropped["residual"] = int(np.count_nonzero(searched & far & child_ok))
+
+    def narrowed(m: Correspondence, **extra) -> Correspondence:
+        in_parent = at(parent_inner, m.parent_rc)
+        keep = in_parent & at(child_inner, m.child_nearest)
+        dropped["child_border"] += int(np.count_nonzero(in_parent & ~keep))
+        index = np.flatnonzero(keep)
+        arrays: dict[str, Any] = {
+            k: _take_rows(np.ascontiguousarray(getattr(m, k)), index) for k in (
+                "parent_rc", "child_nearest", "child_rc", "xyz_parent", "xyz_child",
+                "residual_px")}
+        if m.reason is not None:
+            extra["reason"] = m.reason[index]
+        return Correspondence(
+            parent_name=m.parent_name, child_name=m.child_name, parent_shape=m.parent_shape,
+            child_shape=m.child_shape, **arrays, n_sampled=n_sampled, stride=stride, **extra)
+
+    rejected = None
+    if corr.rejected is not None:
+        rejected = narrowed(corr.rejected)
+        for name in REJECT_REASONS:
+            dropped[name] = int(np.count_nonzero(rejected.reason == name))
+        rejected.dropped = {k: dropped[k] for k in REJECT_REASONS}
+    return narrowed(corr, dropped=dropped, rejected=rejected)
+
+
 def _relative_modulation(scan: Scan, valid: np.ndarray | None = None) -> np.ndarray:
     """Modulation over its median on the valid pixels, 0 where invalid (the quality image)."""
     valid = valid_mask(scan) if valid is None else valid
@@ -1547,10 +1675,11 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
                "xyz_child": np.empty((n, 3)), "residual_px": np.empty(n),
                "distance": np.empty(n)}
         buffers = tuple(out.values())
+        drop_code = np.empty(n, dtype=np.int8)
         counts = _in_chunks(
             lambda a, b: _pairs_kernel(rows[a:b], cols[a:b], nr[a:b], nc[a:b], *kernel_images,
                                        _NEWTON_STEPS, _MAX_SHIFT_PX, float(max_residual_px),
-                                       *(v[a:b] for v in buffers)), n, workers)
+                                       *(v[a:b] for v in (*buffers, drop_code))), n, workers)
         # the chunks' pairs, moved down to follow each other (copies only when threaded)
         bounds = np.linspace(0, n, len(counts) + 1).astype(np.int64)
         k = 0
@@ -1564,12 +1693,12 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         dropped["child_border"] = sum(c[1] for c in counts)
         dropped["residual"] = sum(c[2] for c in counts)
     else:
-        keep = child_inner[nr, nc]
-        rows, cols, nr, nc, dist2 = rows[keep], cols[keep], nr[keep], nc[keep], dist2[keep]
         residual = np.sqrt(dist2)
-        dropped["child_border"] = int(np.count_nonzero(~keep))
-        good = residual <= max_residual_px
-        dropped["residual"] = int(np.count_nonzero(~good))
+        drop_code = np.where(child_inner[nr, nc], np.where(residual <= max_residual_px, 0, 2),
+                        1).astype(np.int8)
+        good = drop_code == 0
+        dropped["child_border"] = int(np.count_nonzero(drop_code == 1))
+        dropped["residual"] = int(np.count_nonzero(drop_code == 2))
         xyz_parent = np.asarray(parent.xyz)[rows[good], cols[good]].astype(np.float64)
         xyz_child = np.asarray(child.xyz)[nr[good], nc[good]].astype(np.float64)
         pairs = {
@@ -1581,6 +1710,12 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
             "residual_px": residual[good],
         }
         distance = None
+    # the searched pixels left without a pair, for restrict_pairs: parent pixel, nearest child
+    # pixel, and why (1: child_border, 2: residual)
+    lone = np.flatnonzero(drop_code)
+    unpaired = {"unpaired_rc": np.stack([rows[lone], cols[lone]], axis=-1),
+                "unpaired_nearest": np.stack([nr[lone], nc[lone]], axis=-1),
+                "unpaired_reason": drop_code[lone]}
 
     # rejection of unreliable pairs, in the order of REJECT_REASONS
     n = pairs["parent_rc"].shape[0]
@@ -1635,4 +1770,4 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         bad = np.flatnonzero(reason >= 0)
         rejected = subset(bad, reason=np.asarray(REJECT_REASONS)[reason[bad]],
                           dropped={k: dropped[k] for k in REJECT_REASONS})
-    return subset(np.flatnonzero(reason < 0), dropped=dropped, rejected=rejected)
+    return subset(np.flatnonzero(reason < 0), dropped=dropped, rejected=rejected, **unpaired)

@@ -1064,6 +1064,9 @@ class SuperScan:
         ``(row, col)`` of each vertex in its camera.
     correspondences : dict
         The :class:`~nail2nail.merge.Correspondence` of each ordered pair ``(i, j)`` used.
+    valid_masks : list of (H, W) bool
+        Per camera, the valid pixels the correspondences searched (spikes taken out): what
+        :func:`~nail2nail.merge.restrict_pairs` needs to narrow a correspondence.
     priority : list of int
         Camera indices, highest priority first.
     duplicates_removed : dict[str, int]
@@ -1086,6 +1089,7 @@ class SuperScan:
     camera: np.ndarray
     pixel: np.ndarray
     correspondences: dict = field(default_factory=dict)
+    valid_masks: list = field(default_factory=list)
     priority: list[int] = field(default_factory=list)
     duplicates_removed: dict = field(default_factory=dict)
     points_rejected: dict = field(default_factory=dict)
@@ -1425,7 +1429,7 @@ def fuse_scans(
     return SuperScan(
         scans=fused_scans, normals=fused_normals, n_views=n_views, vertices=vertices,
         vertex_normals=vertex_normals, colors=colors, faces=faces, camera=camera, pixel=pixel,
-        correspondences=corr, priority=priority, duplicates_removed=removed,
+        correspondences=corr, valid_masks=valid, priority=priority, duplicates_removed=removed,
         points_rejected={s.name: {"spike": spikes_removed[s.name],
                                   "off_surface": off_surface[s.name]} for s in scans},
         timings=clock.seconds,

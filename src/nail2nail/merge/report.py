@@ -22,7 +22,7 @@ from nail2nail._validation import as_int
 from nail2nail.frames import _check_transform, superscan_in_frame
 from nail2nail.io._atomic import atomic_directory, relocate_paths, write_npz
 from nail2nail.io._json import write_json
-from nail2nail.merge.correspondence import CorrespondenceCache, correspond
+from nail2nail.merge.correspondence import CorrespondenceCache, correspond, restrict_pairs
 from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
 from nail2nail.merge.mesh import mesh_topology
 from nail2nail.merge.mesh import seamless_mesh as seamless
@@ -129,8 +129,12 @@ def write_merge(
     pairs : list of (int, int), optional
         ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``.
     stride, max_residual_px, border_px
-        Passed to :func:`nail2nail.merge.correspond`; `max_residual_px` (panel px) also to
-        :func:`nail2nail.merge.fusion.fuse_scans`.
+        The merge error's sampling and tests, as :func:`nail2nail.merge.correspond`;
+        `max_residual_px` (panel px) also the fusion's. With `super_scan` the pairs are the
+        fusion's own (:func:`nail2nail.merge.fusion.fuse_scans` matches every ordered pair
+        once, every pixel, a 1-pixel border), narrowed to `border_px` and `stride`
+        (:func:`nail2nail.merge.restrict_pairs`) rather than searched again; without it,
+        searched here.
     figures : bool
         Write the PNG figures.
     super_scan : bool
@@ -167,8 +171,9 @@ def write_merge(
         distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
         before_rejection: {pairs, distance_mm, squared_mm2}, files}}, "super_scan": {...} |
         None, "seconds": {correspond, fuse, write, figures}, "outputs": [paths]}``
-        (``figures``: the wait for the figures drawn beside the merge). ``distance_mm`` is
-        over the kept pairs; ``rejected`` counts the pairs rejected per reason
+        (``fuse``: the fusion, its correspondences included; ``correspond``: the pairs'
+        statistics; ``figures``: the wait for the figures drawn beside the merge).
+        ``distance_mm`` is over the kept pairs; ``rejected`` counts the pairs rejected per reason
         (:data:`nail2nail.merge.REJECT_REASONS`) and ``before_rejection`` gives the
         statistics of all pairs found. The super scan's
         ``rejected_pairs`` and ``points_rejected`` count what fusion left out; its ``mesh``
@@ -257,13 +262,28 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
     drawn: list[tuple[dict, Future | dict]] = []  # files of a pair or super scan, figures
     mat5_files: list[Path] = []
-    cache = CorrespondenceCache()  # each scan's masks, view cosine and grid, once for all pairs
     bar = progress_bar(desc="merge", unit="step", enabled=progress,
                        total=len(pairs) + 2 * bool(super_scan) + 1)
+    sup = None
+    if super_scan:
+        # the fusion matches every ordered pair once; the statistics read those pairs
+        bar.set_postfix_str("fuse")
+        sup = fuse_scans(scans, max_residual_px=max_residual_px)
+        lap("fuse")
+        bar.update()
+    else:
+        cache = CorrespondenceCache()  # each scan's masks, cosine and grid, once for all pairs
     for i, j in pairs:
         bar.set_postfix_str(f"pair {i}-{j}", refresh=False)
-        corr = correspond(scans[i], scans[j], stride=stride, max_residual_px=max_residual_px,
-                          border_px=border_px, cache=cache)
+        if sup is not None:
+            corr = restrict_pairs(sup.correspondences[i, j], scans[i], scans[j],
+                                  border_px=border_px, stride=stride,
+                                  parent_valid=sup.valid_masks[i],
+                                  child_valid=sup.valid_masks[j])
+        else:
+            corr = correspond(scans[i], scans[j], stride=stride,
+                              max_residual_px=max_residual_px, border_px=border_px,
+                              cache=cache)
         key = f"{i}-{j}"
         stats = corr.statistics()
         _check_kept(corr, stats)
@@ -277,12 +297,9 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         summary["merge"][key] = {**stats, "files": files}
         del corr
         bar.update()
-    del cache  # its images are not needed by the fusion: freed before it
-    if super_scan:
-        bar.set_postfix_str("fuse")
-        sup = fuse_scans(scans, max_residual_px=max_residual_px)
-        lap("fuse")
-        bar.update()
+    if sup is None:
+        del cache
+    else:
         bar.set_postfix_str("write")
         if drawing is not None:
             renders = {}
