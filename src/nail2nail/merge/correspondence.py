@@ -1462,6 +1462,154 @@ def correspond(
     )
 
 
+def same_pixel_pairs(
+    parent: Scan,
+    child: Scan,
+    *,
+    stride: int = 1,
+    border_px: int = 2,
+    max_jump_px: float = 2.0,
+    max_view_angle_deg: float | None = 70.0,
+    min_relative_modulation: float | None = 1 / 3,
+    outlier_mm: float | None = 0.025,
+    outlier_mad: float = 4.0,
+    outlier_block_px: int = 32,
+    cache: CorrespondenceCache | None = None,
+    quality: dict | None = None,
+) -> Correspondence:
+    """Pairs of two scans of one camera under two projectors: the same pixel in both.
+
+    A pixel lit by two projectors is measured twice, once through each projector's
+    coordinates; the two world points are one surface point, so their distance is the merge
+    error of the pair (and their mean a better point). The pixels are those of the parent's
+    inner region (`border_px`, `max_jump_px` as :func:`correspond`) on the `stride` grid that
+    are in the child's inner region too (else ``"child_border"``); the pairs are then tested as
+    :func:`correspond`'s (``view_angle``, ``modulation``, ``outlier``). ``residual_px`` is 0:
+    there is no search.
+
+    Parameters
+    ----------
+    parent, child : Scan
+        Of the same camera (same image size), from two projectors.
+    stride, border_px, max_jump_px, max_view_angle_deg, min_relative_modulation, outlier_mm,
+    outlier_mad, outlier_block_px, cache
+        As :func:`correspond`.
+    quality : dict, optional
+        As :func:`_correspond`'s (the fusion's cached view cosines).
+
+    Returns
+    -------
+    Correspondence
+
+    Examples
+    --------
+    >>> rr, cc = np.mgrid[0:20, 0:20].astype(np.float32)
+    >>> one = np.ones((20, 20), np.float32)
+    >>> a = Scan("a", np.stack([cc, rr, 0 * rr], -1), cc, rr, one, one, one, one > 0)
+    >>> b = Scan("b", np.stack([cc, rr, 0 * rr + 0.01], -1), 2 * cc, rr, one, one, one,
+    ...          one > 0)
+    >>> m = same_pixel_pairs(a, b)
+    >>> m.n_pairs, round(float(np.median(m.distance_mm)), 4)
+    (256, 0.01)
+    """
+    _check_scan(parent, "parent")
+    _check_scan(child, "child")
+    if np.shape(parent.mask) != np.shape(child.mask):
+        raise ValueError(f"child: {np.shape(child.mask)} pixels, the parent's camera has "
+                         f"{np.shape(parent.mask)} (same_pixel_pairs pairs scans of one camera)")
+    stride = as_int(stride, "stride", minimum=1)
+    border_px = as_int(border_px, "border_px", minimum=1)
+    if cache is None:
+        cache = CorrespondenceCache()
+    parent_images, child_images = cache._entry(parent), cache._entry(child)
+    n_sampled, rows, cols = parent_images.inner_pixels(max_jump_px, border_px, stride)
+    child_inner = child_images.inner(max_jump_px, border_px)
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+    dropped["parent_border"] = n_sampled - rows.size
+    both = child_inner[rows, cols]
+    dropped["child_border"] = int(np.count_nonzero(~both))
+    rc = np.stack([rows[both], cols[both]], axis=-1)
+    pairs = {
+        "parent_rc": rc,
+        "child_nearest": rc.copy(),
+        "child_rc": rc.astype(np.float64),
+        "xyz_parent": np.asarray(parent.xyz)[rc[:, 0], rc[:, 1]].astype(np.float64),
+        "xyz_child": np.asarray(child.xyz)[rc[:, 0], rc[:, 1]].astype(np.float64),
+        "residual_px": np.zeros(rc.shape[0]),
+    }
+    lone = np.stack([rows[~both], cols[~both]], axis=-1)
+    unpaired = {"unpaired_rc": lone, "unpaired_nearest": lone.copy(),
+                "unpaired_reason": np.ones(lone.shape[0], dtype=np.int8)}
+    return _tested(parent, child, pairs, None, dropped, unpaired, n_sampled=n_sampled,
+                   stride=stride, shapes=(np.shape(parent.mask), np.shape(child.mask)),
+                   max_view_angle_deg=max_view_angle_deg,
+                   min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
+                   outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
+                   cache=cache)
+
+
+def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, stride, shapes,
+            max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad,
+            outlier_block_px, quality, cache) -> Correspondence:
+    """The pairs found (`pairs`: the :class:`Correspondence` arrays; `distance` their world
+    distances or None) tested for reliability and split into the kept and the rejected ones
+    (:func:`correspond`'s tests); `dropped` gets the rejection counts."""
+    # rejection of unreliable pairs, in the order of REJECT_REASONS
+    n = pairs["parent_rc"].shape[0]
+    reason = np.full(n, -1, dtype=np.int8)
+    pr, pc = pairs["parent_rc"].T
+    tests = any(v is not None for v in (max_view_angle_deg, min_relative_modulation, outlier_mm))
+    if quality is None:
+        quality = {}
+
+    def images(scan, k):
+        slot = quality.setdefault(id(scan), [None, None])
+        if slot[k] is None:
+            entry = cache._entry(scan)
+            slot[k] = entry.cosine() if k == 0 else entry.modulation()
+        return slot[k]
+
+    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
+        if limit is None or n == 0:
+            continue
+        threshold = np.cos(np.radians(limit)) if code == 0 else limit
+        ok = np.ones(n, dtype=bool)
+        for scan, rc in ((parent, pairs["parent_rc"]), (child, pairs["child_rc"])):
+            if code == 0 and scan.camera_center is None:
+                continue
+            _bilinear_at_least(images(scan, code), rc, float(threshold), ok)
+        reason[(reason < 0) & ~ok] = code
+    if outlier_mm is not None and n:
+        live = reason < 0
+        if distance is None:
+            distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
+        outliers = local_outliers(pr[live], pc[live], distance[live],
+                                  block_px=outlier_block_px, floor_mm=outlier_mm,
+                                  k_mad=outlier_mad)
+        reason[np.flatnonzero(live)[outliers]] = 2
+    for code, name in enumerate(REJECT_REASONS):
+        dropped[name] = int(np.count_nonzero(reason == code))
+
+    def subset(index, **extra):
+        # the pairs' arrays when all are taken (copied when views of the kernel's buffers, which
+        # hold a row for every parent pixel searched), else the rows of `index`
+        if index.size == n:
+            arrays = {k: v.copy() if v.base is not None else v for k, v in pairs.items()}
+        else:
+            arrays = {k: _take_rows(v, index) for k, v in pairs.items()}
+        return Correspondence(
+            parent_name=str(parent.name), child_name=str(child.name),
+            parent_shape=tuple(shapes[0]), child_shape=tuple(shapes[1]),
+            **arrays, n_sampled=int(n_sampled), stride=stride, **extra)
+
+    rejected = None
+    if tests:
+        bad = np.flatnonzero(reason >= 0)
+        rejected = subset(bad, reason=np.asarray(REJECT_REASONS)[reason[bad]],
+                          dropped={k: dropped[k] for k in REJECT_REASONS})
+    return subset(np.flatnonzero(reason < 0), dropped=dropped, rejected=rejected, **unpaired)
+
+
 def restrict_pairs(
     corr: Correspondence,
     parent: Scan,
@@ -1717,57 +1865,9 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
                 "unpaired_nearest": np.stack([nr[lone], nc[lone]], axis=-1),
                 "unpaired_reason": drop_code[lone]}
 
-    # rejection of unreliable pairs, in the order of REJECT_REASONS
-    n = pairs["parent_rc"].shape[0]
-    reason = np.full(n, -1, dtype=np.int8)
-    pr, pc = pairs["parent_rc"].T
-    tests = any(v is not None for v in (max_view_angle_deg, min_relative_modulation, outlier_mm))
-    if quality is None:
-        quality = {}
-
-    def images(scan, k):
-        slot = quality.setdefault(id(scan), [None, None])
-        if slot[k] is None:
-            entry = cache._entry(scan)
-            slot[k] = entry.cosine() if k == 0 else entry.modulation()
-        return slot[k]
-
-    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
-        if limit is None or n == 0:
-            continue
-        threshold = np.cos(np.radians(limit)) if code == 0 else limit
-        ok = np.ones(n, dtype=bool)
-        for scan, rc in ((parent, pairs["parent_rc"]), (child, pairs["child_rc"])):
-            if code == 0 and scan.camera_center is None:
-                continue
-            _bilinear_at_least(images(scan, code), rc, float(threshold), ok)
-        reason[(reason < 0) & ~ok] = code
-    if outlier_mm is not None and n:
-        live = reason < 0
-        if distance is None:
-            distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
-        outliers = local_outliers(pr[live], pc[live], distance[live],
-                                  block_px=outlier_block_px, floor_mm=outlier_mm,
-                                  k_mad=outlier_mad)
-        reason[np.flatnonzero(live)[outliers]] = 2
-    for code, name in enumerate(REJECT_REASONS):
-        dropped[name] = int(np.count_nonzero(reason == code))
-
-    def subset(index, **extra):
-        # the pairs' arrays when all are taken (copied when views of the kernel's buffers, which
-        # hold a row for every parent pixel searched), else the rows of `index`
-        if index.size == n:
-            arrays = {k: v.copy() if v.base is not None else v for k, v in pairs.items()}
-        else:
-            arrays = {k: _take_rows(v, index) for k, v in pairs.items()}
-        return Correspondence(
-            parent_name=str(parent.name), child_name=str(child.name),
-            parent_shape=tuple(parent_valid.shape), child_shape=tuple(child_valid.shape),
-            **arrays, n_sampled=int(n_sampled), stride=stride, **extra)
-
-    rejected = None
-    if tests:
-        bad = np.flatnonzero(reason >= 0)
-        rejected = subset(bad, reason=np.asarray(REJECT_REASONS)[reason[bad]],
-                          dropped={k: dropped[k] for k in REJECT_REASONS})
-    return subset(np.flatnonzero(reason < 0), dropped=dropped, rejected=rejected, **unpaired)
+    return _tested(parent, child, pairs, distance, dropped, unpaired, n_sampled=n_sampled,
+                   stride=stride, shapes=(parent_valid.shape, child_valid.shape),
+                   max_view_angle_deg=max_view_angle_deg,
+                   min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
+                   outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
+                   cache=cache)

@@ -27,6 +27,7 @@ takes a few hundred milliseconds besides the correspondences (``bench/fusion.py`
 
 from __future__ import annotations
 
+import itertools
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -49,6 +50,7 @@ from nail2nail.merge.correspondence import (
     _correspond,
     _view_cosine,
     grid_normals,
+    same_pixel_pairs,
     valid_mask,
     view_cosine,
 )
@@ -1135,13 +1137,17 @@ def fuse_scans(
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
     outlier_mad: float = 4.0,
+    projectors=None,
+    cameras=None,
 ) -> SuperScan:
     """Fuse the scans of several cameras into one nail-to-nail point cloud and mesh.
 
     0. Spikes (:func:`spikes`: points off their neighbours' surface by more than `spike_mm`)
        are dropped from each camera's scan.
     1. Correspondence of every ordered pair of cameras in projector space
-       (:func:`nail2nail.merge.correspond`, every pixel), with the unreliable pairs rejected
+       (:func:`nail2nail.merge.correspond`, every pixel; with several projectors, the pairs
+       of one projector so, the pairs of one camera under two projectors at the same pixel,
+       :func:`nail2nail.merge.same_pixel_pairs`), with the unreliable pairs rejected
        (a view beyond `max_view_angle_deg`, modulation below `min_relative_modulation` of the
        camera's median, a distance that is a local outlier: `outlier_mm`, `outlier_mad`).
     2. Ownership (duplicates removed): a pixel is dropped as a duplicate when another camera has
@@ -1194,6 +1200,11 @@ def fuse_scans(
         Off-surface threshold of step 4, mm; None skips it.
     max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad :
         The rejection tests, passed to :func:`~nail2nail.merge.correspond`; None skips one.
+    projectors, cameras : sequence of int, optional
+        A rig of several projectors (:mod:`nail2nail.simulation.projectors`): per scan, the
+        index of the projector and of the camera it was measured with; scans of one camera
+        share its pixel grid. Default: one projector, every scan its own camera (the thesis
+        rig). No two scans may share both.
 
     Returns
     -------
@@ -1229,6 +1240,18 @@ def fuse_scans(
         if value is not None and not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name}: expected a positive number or None, got {value}")
     rank = {cam: k for k, cam in enumerate(priority)}
+    projector_of = [0] * n if projectors is None else [int(k) for k in projectors]
+    camera_of = list(range(n)) if cameras is None else [int(k) for k in cameras]
+    if len(projector_of) != n or len(camera_of) != n:
+        raise ValueError(f"projectors, cameras: expected one index per scan ({n}), got "
+                         f"{len(projector_of)} and {len(camera_of)}")
+    if len(set(zip(projector_of, camera_of, strict=True))) != n:
+        raise ValueError("projectors, cameras: two scans share both their camera and their "
+                         "projector")
+    for i, j in itertools.combinations(range(n), 2):
+        if camera_of[i] == camera_of[j] and np.shape(scans[i].mask) != np.shape(scans[j].mask):
+            raise ValueError(f"cameras: scans {scans[i].name!r} and {scans[j].name!r} are of "
+                             "one camera but differ in size")
 
     normals0 = [grid_normals(s.xyz, camera_center=s.camera_center) for s in scans]
     clock("scan_normals")
@@ -1259,18 +1282,26 @@ def fuse_scans(
     del feathers, normals0  # what is held from here on is freed as soon as it is done with
     clock("weights")
 
+    # pairs that share a projector match in its space (the thesis's merge), pairs that share
+    # a camera at the same pixel; others have no correspondence of their own
+    tests = {"max_view_angle_deg": max_view_angle_deg,
+             "min_relative_modulation": min_relative_modulation, "outlier_mm": outlier_mm,
+             "outlier_mad": outlier_mad, "outlier_block_px": 32, "quality": quality,
+             "cache": cache}
     corr: dict[tuple[int, int], Correspondence] = {}
     for i in range(n):
         for j in range(n):
-            if i != j:
+            if i == j:
+                continue
+            if projector_of[i] == projector_of[j]:
                 corr[i, j] = _correspond(
                     scans[i], scans[j], stride=1, max_residual_px=max_residual_px,
                     border_px=border_px, max_jump_px=2.0, refine=True, method="grid",
-                    workers=-1, max_view_angle_deg=max_view_angle_deg,
-                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
-                    outlier_mad=outlier_mad, outlier_block_px=32, quality=quality,
-                    cache=cache)
-    del quality, cache
+                    workers=-1, **tests)
+            elif camera_of[i] == camera_of[j]:
+                corr[i, j] = same_pixel_pairs(scans[i], scans[j], border_px=border_px,
+                                              max_jump_px=2.0, **tests)
+    del quality, cache, tests
     clock("correspond")
 
     # the valid pixels of all cameras, numbered camera by camera in row-major order: `keep`
@@ -1287,7 +1318,7 @@ def fuse_scans(
     keeps = [keep_all[start[i]:start[i + 1]] for i in range(n)]  # views
     for i in range(n):
         for j in range(n):
-            if j == i:
+            if (i, j) not in corr:
                 continue
             m, j_first = corr[i, j], rank[j] < rank[i]
             _ownership_kernel(keeps[i], index[i], scores[i], scores[j], m.parent_rc, m.child_rc,
@@ -1337,7 +1368,7 @@ def fuse_scans(
         xyz = np.ascontiguousarray(s.xyz)
         w_sum, acc, count = _fusion_init(keeps[i], r, c, xyz, weights[i])
         for j in range(n):
-            if j != i:
+            if (i, j) in corr:
                 m = corr[i, j]
                 _fusion_add(keeps[i], index[i], w_sum, acc, count, m.parent_rc, m.child_rc,
                             m.xyz_child, weights[j])
@@ -1355,7 +1386,7 @@ def fuse_scans(
         trust = np.concatenate([sc.ravel()[p] for sc, p in zip(scores, pixels, strict=True)])
         for j in range(n):
             for k in range(n):
-                if k != j:
+                if (j, k) in corr:
                     m = corr[j, k]
                     _confirm_kernel(trust[start[j]:start[j + 1]], index[j], m.parent_rc,
                                     m.xyz_parent, m.xyz_child, float(surface_mm))

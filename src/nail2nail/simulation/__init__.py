@@ -1,6 +1,7 @@
 """The virtual scanner: rig, scenes, rendering and capture writing (``docs/capture-format.md``).
 
-Modules: :mod:`.rig` (cameras, projector, photometry), :mod:`.scenes` (target, finger, plane,
+Modules: :mod:`.rig` (cameras, projector, photometry), :mod:`.projectors` (rigs of several
+projectors: layouts, and the rolled print's skin they light), :mod:`.scenes` (target, finger, plane,
 sphere, coin, calibration board), :mod:`.fingerprint` (synthetic prints), :mod:`.conditions`
 (random optics, light, skin and finger per seed: many scanners, not one), :mod:`.render`
 (per-camera geometry and frames), :mod:`.capture` (in-memory simulation and capture
@@ -16,6 +17,7 @@ from nail2nail.simulation.capture import (
     write_capture,
 )
 from nail2nail.simulation.conditions import RANGES, Conditions, draw_conditions
+from nail2nail.simulation.projectors import LAYOUTS, projector_rigs, rolled_coverage
 from nail2nail.simulation.render import (
     CameraGeometry,
     camera_geometry,
@@ -33,6 +35,7 @@ from nail2nail.simulation.rig import (
 from nail2nail.simulation.scenes import SCENES, BoardScene, Scene, make_scene
 
 __all__ = [
+    "LAYOUTS",
     "RANGES",
     "SCENES",
     "BoardScene",
@@ -51,7 +54,9 @@ __all__ = [
     "load_rig",
     "make_scene",
     "projector_radiance",
+    "projector_rigs",
     "render_frames",
+    "rolled_coverage",
     "save_rig",
     "simulate",
     "simulate_board_captures",

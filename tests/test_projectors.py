@@ -1,0 +1,182 @@
+"""Issue 26: rigs with more than one projector (layouts, coverage, same-pixel pairs, fusion)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from nail2nail.calibration.files import RigCalibration
+from nail2nail.io.capture import read_capture, read_truth
+from nail2nail.merge import correspond, same_pixel_pairs
+from nail2nail.merge.fusion import fuse_scans
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.results import Scan
+from nail2nail.simulation.capture import simulate_capture
+from nail2nail.simulation.projectors import (
+    LAYOUTS,
+    projector_rigs,
+    rolled_coverage,
+    turned_projector,
+)
+from nail2nail.simulation.render import camera_geometry
+from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
+from nail2nail.simulation.scenes import make_scene
+
+
+# -- layouts ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("azimuth", [-75.0, -45.0, 30.0, 90.0])
+def test_turned_projector_keeps_its_distance_and_aim(azimuth):
+    rig = default_rig(0.25)
+    turned = turned_projector(rig, azimuth).projector
+    p = rig.projector
+    # the centre turns about the Y axis: height and distance from the axis kept
+    c0, c1 = p.center, turned.center
+    assert c1[1] == pytest.approx(c0[1])
+    assert np.hypot(c1[0], c1[2]) == pytest.approx(np.hypot(c0[0], c0[2]))
+    assert np.degrees(np.arctan2(c1[0], c1[2])) == pytest.approx(
+        np.degrees(np.arctan2(c0[0], c0[2])) + azimuth)
+    # a point on the axis projects to the same panel pixel: the aim is kept
+    on_axis = np.array([[0.0, 3.0, 0.0], [0.0, 5.0, 0.0]])
+    np.testing.assert_allclose(turned.project(on_axis), p.project(on_axis), atol=1e-6)
+    np.testing.assert_allclose(turned.K, p.K)
+    assert turned.size == p.size
+    assert np.linalg.det(turned.R) == pytest.approx(1.0)
+
+
+def test_projector_rigs_share_the_cameras():
+    rig = default_rig(0.25)
+    assert projector_rigs("thesis", rig) == [rig]
+    rigs = projector_rigs("sides-60", rig)
+    assert len(rigs) == len(LAYOUTS["sides-60"]) == 3
+    assert rigs[0] is rig
+    for r in rigs[1:]:
+        assert r.cameras is rig.cameras or all(
+            np.array_equal(a.R, b.R) and np.array_equal(a.K, b.K)
+            for a, b in zip(r.cameras, rig.cameras, strict=True))
+        assert r.projector_distortion == rig.projector_distortion
+    assert len(projector_rigs((-45, 45), rig)) == 2
+
+
+@pytest.mark.parametrize(("layout", "message"), [
+    ("nope", "expected one of"), ((), "one or more"), ((10.0, 10.0), "repeat"),
+    ((0.0, float("nan")), "finite"),
+])
+def test_projector_rigs_refuse_bad_layouts(layout, message):
+    with pytest.raises(ValueError, match=message):
+        projector_rigs(layout, default_rig(0.25))
+
+
+def test_side_projectors_light_the_skin_to_the_nail_edges():
+    """The thesis rig lights about 80 % of the nail-to-nail width; two side projectors 100 %."""
+    rig = default_rig(0.2)
+    scene = make_scene("finger", rig=rig, seed=1)
+    cover = {}
+    for layout in ("thesis", "pair-45"):
+        items = []
+        for r in projector_rigs(layout, rig):
+            for i in range(len(r.cameras)):
+                g = camera_geometry(r, scene, i)
+                items.append((g.mask, g.params["u"], g.params["v"]))
+        cover[layout] = rolled_coverage(scene, items, pitch_mm=0.2)
+    thesis, sides = cover["thesis"], cover["pair-45"]
+    assert 0.7 < thesis["width_median"] < 0.88
+    assert thesis["extent_mm"] == pytest.approx(sides["extent_mm"])
+    assert sides["width_median"] >= 0.99 and sides["width_min"] >= 0.97
+    assert sides["area"] > thesis["area"] + 0.1
+    assert sides["span_mm"] > thesis["span_mm"] + 4
+
+
+# -- same-pixel pairs ------------------------------------------------------------------------
+def _plane(name, *, dz=0.0, xp_scale=1.0, shape=(24, 30)):
+    rr, cc = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32)
+    xyz = np.stack([cc * 0.1, rr * 0.1, 0 * rr + dz], -1).astype(np.float32)
+    one = np.ones(shape, np.float32)
+    return Scan(name, xyz, xp_scale * cc, rr + 3, one, one, one, one > 0)
+
+
+def test_same_pixel_pairs_pair_the_pixel_with_itself():
+    a = _plane("cam0-p0")
+    b = _plane("cam0-p1", dz=0.004, xp_scale=-2.0)  # another projector: other coordinates
+    hole = b.mask.copy()
+    hole[10:14, 10:16] = False
+    b = replace(b, mask=hole)
+    m = same_pixel_pairs(a, b, outlier_mm=None)
+    np.testing.assert_array_equal(m.parent_rc, m.child_nearest)
+    np.testing.assert_allclose(m.distance_mm, 0.004, atol=1e-6)
+    # the child's hole and its 2-px border are dropped as child_border
+    inner_a = (20 * 26)  # the parent's inner region: 2 px off every edge
+    assert m.n_sampled == 24 * 30
+    assert m.dropped["parent_border"] == 24 * 30 - inner_a
+    assert m.dropped["child_border"] == (4 + 4) * (6 + 4)
+    assert m.n_pairs + sum(m.dropped.values()) == m.n_sampled
+    # projector-space matching would pair nothing sensible here: other projectors' codes
+    assert correspond(a, b, outlier_mm=None).n_pairs < m.n_pairs
+
+
+def test_same_pixel_pairs_refuse_two_cameras():
+    with pytest.raises(ValueError, match="one camera"):
+        same_pixel_pairs(_plane("a"), _plane("b", shape=(24, 31)))
+
+
+def test_fuse_scans_refuses_inconsistent_groups():
+    scans = [_plane("a"), _plane("b", dz=0.001)]
+    with pytest.raises(ValueError, match="one index per scan"):
+        fuse_scans(scans, projectors=[0], cameras=[0, 0])
+    with pytest.raises(ValueError, match="share both"):
+        fuse_scans(scans, projectors=[0, 0], cameras=[1, 1])
+    with pytest.raises(ValueError, match="differ in size"):
+        fuse_scans([_plane("a"), _plane("b", shape=(24, 31))], projectors=[0, 1],
+                   cameras=[0, 0])
+
+
+# -- end to end: two projectors at ±45° on the virtual scanner -------------------------------
+SCALE = 0.3
+
+
+@pytest.fixture(scope="module")
+def two_projectors(tmp_path_factory):
+    rig = default_rig(SCALE)
+    scene = make_scene("finger", rig=rig, seed=2)
+    scans, projectors, cameras, truths = [], [], [], []
+    for k, r in enumerate(projector_rigs("pair-45", rig)):
+        out = tmp_path_factory.mktemp(f"proj{k}")
+        simulate_capture(out, scene, rig=r, seed=100 + k)
+        capture = read_capture(out, load=False)
+        calib = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
+        for i, s in enumerate(scan_capture(capture, calib, max_gradient=2.0)):
+            scans.append(replace(s, name=f"{s.name}-p{k}"))
+            projectors.append(k)
+            cameras.append(i)
+            truths.append(read_truth(out, s.name))
+    return scene, scans, projectors, cameras, truths
+
+
+def test_two_projectors_fuse_nail_to_nail(two_projectors):
+    scene, scans, projectors, cameras, truths = two_projectors
+    sup = fuse_scans(scans, projectors=projectors, cameras=cameras)
+    # every ordered pair of one projector or of one camera is matched, no other
+    expected = {(i, j) for i in range(6) for j in range(6) if i != j
+                and (projectors[i] == projectors[j] or cameras[i] == cameras[j])}
+    assert set(sup.correspondences) == expected
+    for (i, j), m in sup.correspondences.items():
+        assert m.n_pairs > 0, (i, j)
+        if cameras[i] == cameras[j]:
+            np.testing.assert_array_equal(m.parent_rc, m.child_nearest)
+    # no fused vertex farther than 50 µm from the true surface (along its true normal)
+    for k, tr in enumerate(truths):
+        sel = sup.camera == k
+        r, c = sup.pixel[sel].T
+        assert tr["mask"][r, c].all()
+        d = np.sum((sup.vertices[sel] - tr["xyz"][r, c]) * tr["normal"][r, c], axis=-1)
+        assert np.abs(d).max() < 0.050, (scans[k].name, np.abs(d).max())
+    # both projectors' scans contribute, and the lit skin reaches the nail edges
+    assert all(np.any(sup.camera == k) for k in range(6))
+    cover = rolled_coverage(scene, [(s.mask, t["param_u"], t["param_v"])
+                                    for s, t in zip(scans, truths, strict=True)])
+    assert cover["width_median"] >= 0.95
+    one = rolled_coverage(scene, [(s.mask, t["param_u"], t["param_v"])
+                                  for s, t, p in zip(scans, truths, projectors, strict=True)
+                                  if p == 0])
+    assert one["width_median"] < cover["width_median"] - 0.05
