@@ -13,7 +13,6 @@ from nail2nail.merge import correspond, same_pixel_pairs
 from nail2nail.merge.fusion import fuse_scans
 from nail2nail.scan.capture import scan_capture
 from nail2nail.scan.results import Scan
-from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.projectors import (
     LAYOUTS,
     projector_rigs,
@@ -68,26 +67,6 @@ def test_projector_rigs_refuse_bad_layouts(layout, message):
         projector_rigs(layout, default_rig(0.25))
 
 
-def test_side_projectors_light_the_skin_to_the_nail_edges():
-    """The thesis rig lights about 80 % of the nail-to-nail width; two side projectors 100 %."""
-    rig = default_rig(0.2)
-    scene = make_scene("finger", rig=rig, seed=1)
-    cover = {}
-    for layout in ("thesis", "pair-45"):
-        items = []
-        for r in projector_rigs(layout, rig):
-            for i in range(len(r.cameras)):
-                g = camera_geometry(r, scene, i)
-                items.append((g.mask, g.params["u"], g.params["v"]))
-        cover[layout] = rolled_coverage(scene, items, pitch_mm=0.2)
-    thesis, sides = cover["thesis"], cover["pair-45"]
-    assert 0.7 < thesis["width_median"] < 0.88
-    assert thesis["extent_mm"] == pytest.approx(sides["extent_mm"])
-    assert sides["width_median"] >= 0.99 and sides["width_min"] >= 0.97
-    assert sides["area"] > thesis["area"] + 0.1
-    assert sides["span_mm"] > thesis["span_mm"] + 4
-
-
 # -- same-pixel pairs ------------------------------------------------------------------------
 def _plane(name, *, dz=0.0, xp_scale=1.0, shape=(24, 30)):
     rr, cc = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32)
@@ -133,16 +112,27 @@ def test_fuse_scans_refuses_inconsistent_groups():
 
 # -- end to end: two projectors at ±45° on the virtual scanner -------------------------------
 SCALE = 0.3
+PITCH = 0.25  # coverage cells no finer than a pixel's footprint on grazing skin at this scale
 
 
 @pytest.fixture(scope="module")
-def two_projectors(tmp_path_factory):
+def layout_capture(tmp_path_factory):
+    """``nail2nail simulate --projectors pair-45``: a finger under two projectors at ±45°."""
+    from nail2nail.cli import main
+
+    cap = tmp_path_factory.mktemp("layout") / "cap"
+    assert main(["simulate", "--scene", "finger", "--projectors", "pair-45", "--scale",
+                 str(SCALE), "--seed", "2", "--out", str(cap), "--json"]) == 0
+    return cap
+
+
+@pytest.fixture(scope="module")
+def two_projectors(layout_capture):
     rig = default_rig(SCALE)
     scene = make_scene("finger", rig=rig, seed=2)
     scans, projectors, cameras, truths = [], [], [], []
-    for k, r in enumerate(projector_rigs("pair-45", rig)):
-        out = tmp_path_factory.mktemp(f"proj{k}")
-        simulate_capture(out, scene, rig=r, seed=100 + k)
+    for k in range(2):
+        out = layout_capture / f"p{k}"
         capture = read_capture(out, load=False)
         calib = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
         for i, s in enumerate(scan_capture(capture, calib, max_gradient=2.0)):
@@ -151,6 +141,26 @@ def two_projectors(tmp_path_factory):
             cameras.append(i)
             truths.append(read_truth(out, s.name))
     return scene, scans, projectors, cameras, truths
+
+
+def test_side_projectors_light_the_skin_to_the_nail_edges(layout_capture):
+    """The thesis rig lights about 80 % of the nail-to-nail width; two projectors at ±45° all
+    of it (the captures' true masks: the pixels each projector lights)."""
+    rig = default_rig(SCALE)
+    scene = make_scene("finger", rig=rig, seed=2)
+    thesis = rolled_coverage(scene, [
+        (g.mask, g.params["u"], g.params["v"])
+        for g in (camera_geometry(rig, scene, i) for i in range(len(rig.cameras)))],
+        pitch_mm=PITCH)
+    truths = [read_truth(layout_capture / f"p{k}", f"cam{i}") for k in range(2)
+              for i in range(3)]
+    sides = rolled_coverage(scene, [(t["mask"], t["param_u"], t["param_v"]) for t in truths],
+                            pitch_mm=PITCH)
+    assert 0.7 < thesis["width_median"] < 0.88
+    assert thesis["extent_mm"] == pytest.approx(sides["extent_mm"])
+    assert sides["width_median"] >= 0.99 and sides["width_min"] >= 0.97
+    assert sides["area"] > thesis["area"] + 0.1
+    assert sides["span_mm"] > thesis["span_mm"] + 4
 
 
 def test_two_projectors_fuse_nail_to_nail(two_projectors):
@@ -174,9 +184,51 @@ def test_two_projectors_fuse_nail_to_nail(two_projectors):
     # both projectors' scans contribute, and the lit skin reaches the nail edges
     assert all(np.any(sup.camera == k) for k in range(6))
     cover = rolled_coverage(scene, [(s.mask, t["param_u"], t["param_v"])
-                                    for s, t in zip(scans, truths, strict=True)])
+                                    for s, t in zip(scans, truths, strict=True)], pitch_mm=PITCH)
     assert cover["width_median"] >= 0.95
     one = rolled_coverage(scene, [(s.mask, t["param_u"], t["param_v"])
                                   for s, t, p in zip(scans, truths, projectors, strict=True)
-                                  if p == 0])
+                                  if p == 0], pitch_mm=PITCH)
     assert one["width_median"] < cover["width_median"] - 0.05
+
+
+# -- the commands: simulate --projectors, scan each, merge and unroll them together ----------
+def test_cli_several_projectors_end_to_end(layout_capture, tmp_path, capsys):
+    import json
+
+    from nail2nail.cli import main
+
+    cap = layout_capture
+    layout = json.loads((cap / "projectors.json").read_text())
+    assert [c["capture"] for c in layout["captures"]] == ["p0", "p1"]
+    assert [c["azimuth_deg"] for c in layout["captures"]] == [-45.0, 45.0]
+    assert layout["n_frames"] == 48 and layout["capture_s_at_120_fps"] == pytest.approx(0.4)
+    scans = []
+    for k in range(2):
+        out = tmp_path / f"scans{k}"
+        assert main(["scan", str(cap / f"p{k}"), "--calib",
+                     str(cap / f"p{k}" / "truth" / "calibration.json"), "--out", str(out)]) == 0
+        scans.append(str(out))
+    capsys.readouterr()
+    assert main(["merge", *scans, "--no-figures", "--out", str(tmp_path / "merge"),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["scan_dir"] == scans
+    kinds = {key: m["kind"] for key, m in summary["merge"].items()}
+    # per projector its neighbouring cameras, per camera its two projectors
+    assert kinds == {"0-1": "projector", "1-2": "projector", "3-4": "projector",
+                     "4-5": "projector", "0-3": "camera", "1-4": "camera", "2-5": "camera"}
+    for key, m in summary["merge"].items():
+        assert m["pairs"] > 0 and m["distance_mm"]["median"] < 0.01, key
+    assert set(summary["super_scan"]["cameras"]) == {f"cam{i}-p{k}" for i in range(3)
+                                                    for k in range(2)}
+    assert main(["merge", *scans, "--pairs", "0-4", "--out", str(tmp_path / "bad")]) == 2
+    assert "share neither a projector nor a camera" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    assert main(["unroll", *scans, "--out", str(tmp_path / "print"), "--no-wsq",
+                 "--json"]) == 0
+    meta = json.loads(capsys.readouterr().out)
+    assert meta["scan_dir"] == scans and (tmp_path / "print" / "print.json").is_file()
+    # a directory twice, and another rig's cameras, are refused
+    assert main(["merge", scans[0], scans[0], "--out", str(tmp_path / "twice")]) == 2
+    assert "given twice" in capsys.readouterr().err

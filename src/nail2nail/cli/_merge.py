@@ -1,7 +1,8 @@
 """``nail2nail merge``: merge error between cameras in projector space, and the super scan.
 
-Thin command layer: :func:`run` reads a scan directory (:func:`nail2nail.io.scans.load_scans`),
-calls :func:`nail2nail.merge.report.write_merge` and prints the summary.
+Thin command layer: :func:`run` reads a scan directory, or one per projector of a rig of
+several (:func:`nail2nail.io.scans.load_scan_dirs`), calls
+:func:`nail2nail.merge.report.write_merge` and prints the summary.
 """
 
 from __future__ import annotations
@@ -9,9 +10,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from nail2nail._validation import as_int
 from nail2nail.io._json import dumps_json
-from nail2nail.io.scans import load_scans, read_scan_frame
+from nail2nail.io.scans import load_scan_dirs, read_scan_frame
 from nail2nail.merge.report import parse_pairs, write_merge
 
 __all__ = ["add_parser", "run"]
@@ -26,9 +29,14 @@ def add_parser(sub) -> None:
         "report the world distance of the pairs (thesis chapter four) with figures, and fuse "
         "all cameras into one nail-to-nail point cloud and mesh (super.ply, super mat5).",
     )
-    p.add_argument("scan_dir", type=Path, help="scan directory written by `nail2nail scan`")
+    p.add_argument("scan_dir", type=Path, nargs="+",
+                   help="scan directory written by `nail2nail scan`; with a rig of several "
+                   "projectors, one per projector, in projector order (the scans are then "
+                   "numbered directory by directory, named CAMERA-pK)")
     p.add_argument("--pairs", default=None,
-                   help="camera pairs PARENT-CHILD, comma separated (default: 0-1,1-2,…)")
+                   help="camera pairs PARENT-CHILD, comma separated (default: 0-1,1-2,…; with "
+                   "several projectors, the neighbouring cameras of each projector and the "
+                   "neighbouring projectors of each camera)")
     p.add_argument("--stride", type=int, default=1,
                    help="sample every K-th parent row and column (the thesis used 5 and 20)")
     p.add_argument("--max-residual", type=float, default=0.5,
@@ -56,17 +64,25 @@ def run(args: argparse.Namespace) -> int:
     as_int(args.border, "--border", minimum=0)
     # scans written in a camera's frame (scan --frame) come back in the world frame, where the
     # merge computes; the super scan is written in the scans' frame
-    frame, transform = read_scan_frame(args.scan_dir)
-    scans = load_scans(args.scan_dir)
+    dirs = list(args.scan_dir)
+    frame, transform = read_scan_frame(dirs[0])
+    for d in dirs[1:]:
+        other, T = read_scan_frame(d)
+        if other != frame or not np.allclose(T, transform, atol=1e-9):
+            raise ValueError(f"{d}: its points are in the frame {other!r}, those of {dirs[0]} "
+                             f"in {frame!r} (scan every projector's capture in one frame)")
+    scans, projectors, cameras = load_scan_dirs(dirs)
     if len(scans) < 2:
-        raise ValueError(f"{args.scan_dir}: need at least two cameras to merge, got {len(scans)}")
-    pairs = parse_pairs(args.pairs, len(scans))
+        raise ValueError(f"{dirs[0]}: need at least two cameras to merge, got {len(scans)}")
+    pairs = None if args.pairs is None else parse_pairs(args.pairs, len(scans))
     summary = write_merge(
         scans, args.out, pairs=pairs, stride=args.stride, max_residual_px=args.max_residual,
         border_px=args.border, figures=args.figures, super_scan=not args.no_super,
         progress=True, frame=frame, transform=transform, seamless_mesh=args.seamless_mesh,
+        projectors=projectors, cameras=cameras,
     )
-    summary = {"scan_dir": str(args.scan_dir), **summary}
+    summary = {"scan_dir": str(dirs[0]) if len(dirs) == 1 else [str(d) for d in dirs],
+               **summary}
     if args.json:
         print(dumps_json(summary))
         return 0

@@ -9,11 +9,13 @@ from pathlib import Path
 
 from nail2nail.calibration.boards import BOARD_KINDS
 from nail2nail.cli._print_target import board_from_options
-from nail2nail.io._json import dumps_json
+from nail2nail.io._atomic import atomic_directory, check_output_directory
+from nail2nail.io._json import dumps_json, write_json
 from nail2nail.io.prints import read_print_image
 from nail2nail.simulation.board_poses import simulate_board_captures
 from nail2nail.simulation.capture import _configure_rig, read_pattern_dir, simulate_capture
 from nail2nail.simulation.conditions import draw_conditions
+from nail2nail.simulation.projectors import LAYOUTS, projector_rigs
 from nail2nail.simulation.rig import load_rig
 from nail2nail.simulation.scenes import SCENES, make_scene
 
@@ -92,6 +94,12 @@ def add_parser(sub) -> None:
     board.add_argument("--poses", type=int, metavar="N",
                        help="write N captures of the board at well-spread poses as "
                        "OUT/pose00 ... OUT/poseNN and OUT/board-poses.json")
+    p.add_argument("--projectors", choices=list(LAYOUTS), default=None, metavar="LAYOUT",
+                   help="a rig of several projectors (nail2nail.simulation.projectors): one "
+                   "capture of the scene per projector, shown in turn, written as OUT/p0, "
+                   "OUT/p1 … (each a capture directory with its truth) and OUT/projectors.json; "
+                   f"layouts: {', '.join(f'{k} {LAYOUTS[k]}' for k in LAYOUTS)} (azimuths "
+                   "about the finger's axis, degrees; the thesis rig's projector is at 0)")
     p.add_argument("--no-truth", action="store_true", help="do not write truth/")
     p.add_argument("--json", action="store_true", help="print the manifest summary as JSON")
     p.set_defaults(func=run)
@@ -136,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
     if args.patterns:  # a `nail2nail patterns` directory carries its pattern set (any scheme)
         patterns, names, pattern_set = read_pattern_dir(args.patterns)
     start = time.perf_counter()
+    if args.projectors is not None and args.poses is not None:
+        raise ValueError("--projectors: not with --poses (simulate each projector's board "
+                         "series with its own rig)")
     if args.poses is not None:
         return _run_poses(args, board, rig, patterns, names, start, pattern_set)
     scene = args.scene
@@ -153,6 +164,9 @@ def run(args: argparse.Namespace) -> int:
         if args.pose is not None:
             options["pose"] = tuple(args.pose)
         scene = make_scene("board", rig=rig, **options)
+    if args.projectors is not None and len(LAYOUTS[args.projectors]) > 1:
+        return _run_projectors(args, scene, rig, patterns, names, pattern_set, print_image,
+                               print_ppi, start)
     manifest = simulate_capture(
         args.out, scene, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, patterns=patterns, pattern_names=names,
@@ -178,6 +192,48 @@ def run(args: argparse.Namespace) -> int:
         cams = ", ".join(f"{c['name']} {c['size'][0]}x{c['size'][1]}" for c in summary["cameras"])
         print(f"wrote {args.out}: scene {args.scene}, {summary['n_frames']} frames x "
               f"{len(summary['cameras'])} cameras ({cams}) in {elapsed:.1f} s")
+    return 0
+
+
+def _run_projectors(args, scene, rig, patterns, names, pattern_set, print_image, print_ppi,
+                    start) -> int:
+    """``--projectors``: one capture per projector of the layout, OUT written as a whole."""
+    rig = _configure_rig(rig, scale=args.scale, projector_distortion=args.projector_distortion)
+    if isinstance(scene, str):  # one scene object: every projector sees the same finger
+        options = {}
+        if print_image is not None:
+            options = {"print_image": print_image, "print_ppi": print_ppi or 500.0}
+        scene = make_scene(scene, rig=rig, seed=args.seed, **options)
+    rigs = projector_rigs(args.projectors, rig)
+    azimuths = list(LAYOUTS[args.projectors])
+    check_output_directory(args.out, marker="projectors.json")
+    captures = []
+    with atomic_directory(args.out, marker="projectors.json") as tmp:
+        for k, projector_rig in enumerate(rigs):
+            # the noise differs between the projectors' captures (seed + k), the scene not
+            manifest = simulate_capture(
+                tmp / f"p{k}", scene, rig=projector_rig, patterns=patterns,
+                pattern_names=names, pattern_set=pattern_set, seed=(args.seed + k) % 2**32,
+                write_truth=not args.no_truth, progress=True)
+            captures.append({"capture": f"p{k}", "azimuth_deg": azimuths[k],
+                             "n_frames": manifest["n_frames"]})
+        frames = sum(c["n_frames"] for c in captures)
+        layout = {"format": "nail2nail-projectors", "version": 1, "layout": args.projectors,
+                  "scene": args.scene, "captures": captures, "n_frames": frames,
+                  "capture_s_at_120_fps": round(frames / 120.0, 4),
+                  "note": "one capture per projector, the projectors shown in turn; scan each "
+                          "with its own calibration, then `nail2nail merge` / `unroll` the "
+                          "scan directories in this order"}
+        write_json(tmp / "projectors.json", layout)
+    elapsed = time.perf_counter() - start
+    summary = {"out": str(args.out), **layout, "seconds": round(elapsed, 2)}
+    if args.json:
+        print(dumps_json(summary))
+    else:
+        dirs = ", ".join(c["capture"] for c in captures)
+        angles = ", ".join(f"{a:g}" for a in azimuths)
+        print(f"wrote {args.out}: {len(captures)} captures ({dirs}; projectors at {angles} "
+              f"deg), {frames} frames in all, in {elapsed:.1f} s")
     return 0
 
 

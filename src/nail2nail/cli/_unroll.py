@@ -1,7 +1,7 @@
 """``nail2nail unroll``: per-camera scans of a finger to a rolled-equivalent print.
 
-Thin command layer: reads a scan directory (:func:`nail2nail.io.scans.load_scans`), calls
-:func:`nail2nail.unroll.unroll_scans` and writes the print with
+Thin command layer: reads the scan directories (:func:`nail2nail.io.scans.load_scan_dirs`),
+calls :func:`nail2nail.unroll.unroll_scans` and writes the print with
 :func:`nail2nail.io.rolled.write_rolled_print`.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 from nail2nail._progress import Stages
 from nail2nail.io._json import dumps_json
 from nail2nail.io.rolled import write_rolled_print
-from nail2nail.io.scans import load_scans
+from nail2nail.io.scans import load_scan_dirs
 from nail2nail.unroll import (
     DEFAULT_LENGTH_MM,
     DEFAULT_METHOD,
@@ -139,7 +139,10 @@ def add_parser(sub) -> None:
         "print.wsq, print_binary.png, print_mask.png, print_coverage.png, print_quality.png "
         "and print.json.",
     )
-    p.add_argument("scan_dir", type=Path, help="scan directory written by `nail2nail scan`")
+    p.add_argument("scan_dir", type=Path, nargs="+",
+                   help="scan directory written by `nail2nail scan`; with a rig of several "
+                   "projectors, one per projector (every camera's scan of every projector is "
+                   "blended)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     add_unroll_options(p)
     p.add_argument("--no-wsq", action="store_true", help="skip the compressed print")
@@ -152,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     check_unroll_options(args)
     step = Stages(3, prefix="unroll: ")  # stderr, a terminal only, not with --quiet
     step("read the scans")
-    scans = load_scans(args.scan_dir)
+    scans, _, _ = load_scan_dirs(args.scan_dir)
     start = time.perf_counter()
     step(f"unroll ({args.method})")
     rolled = unroll_scans(scans, method=args.method, ppi=args.ppi,
@@ -160,7 +163,9 @@ def run(args: argparse.Namespace) -> int:
                           **unroll_options(args))
     step("write the print")
     meta = write_rolled_print(args.out, rolled, wsq=not args.no_wsq,
-                              extra={"scan_dir": str(args.scan_dir),
+                              extra={"scan_dir": (str(args.scan_dir[0])
+                                                  if len(args.scan_dir) == 1
+                                                  else [str(d) for d in args.scan_dir]),
                                      "seconds": round(time.perf_counter() - start, 3)})
     if args.json:
         print(dumps_json(meta))

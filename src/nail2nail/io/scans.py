@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +32,8 @@ from nail2nail.io.mat5 import write_mat5
 from nail2nail.io.ply import write_scan_ply
 from nail2nail.scan.results import Scan
 
-__all__ = ["SCAN_FORMAT", "load_scan_npz", "load_scans", "read_scan_frame", "save_scan_npz",
-           "save_scans"]
+__all__ = ["SCAN_FORMAT", "load_scan_dirs", "load_scan_npz", "load_scans", "read_scan_frame",
+           "save_scan_npz", "save_scans"]
 
 SCAN_FORMAT = "nail2nail-scan"
 _ARRAYS = ("xyz", "xp", "yp", "albedo", "intensity", "modulation", "mask")
@@ -392,3 +393,56 @@ def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Sca
         return scans
     world_from_frame = invert_transform(T)
     return [scan_in_frame(scan, world_from_frame) for scan in scans]
+
+
+def load_scan_dirs(scan_dirs) -> tuple[list[Scan], list[int] | None, list[int] | None]:
+    """The scans of one scan directory, or of one per projector of a rig of several.
+
+    Parameters
+    ----------
+    scan_dirs : sequence of path-like
+        One scan directory (a one-projector rig), or one per projector (``nail2nail scan`` of
+        each projector's capture, in projector order), written in one world frame.
+
+    Returns
+    -------
+    scans : list of Scan
+        In the world frame (:func:`load_scans`); with several directories renamed
+        ``<camera>-p<k>`` (``k`` the directory's index), directory by directory.
+    projectors, cameras : list of int or None
+        Per scan, its directory's index and its camera's (cameras matched by name across the
+        directories, numbered in order of first appearance); None for one directory. As
+        :func:`nail2nail.merge.fusion.fuse_scans` takes them.
+
+    Raises
+    ------
+    ValueError
+        Naming the directory: one given twice, or a camera whose image size differs between
+        directories; and every error of :func:`load_scans`.
+    """
+    dirs = [Path(d) for d in scan_dirs]
+    if not dirs:
+        raise ValueError("scan_dirs: expected at least one scan directory")
+    if len(dirs) == 1:
+        return load_scans(dirs[0]), None, None
+    resolved = [d.resolve() for d in dirs]
+    for k, d in enumerate(resolved):
+        if d in resolved[:k]:
+            raise ValueError(f"{dirs[k]}: given twice")
+    scans: list[Scan] = []
+    projectors: list[int] = []
+    cameras: list[int] = []
+    index: dict[str, int] = {}
+    size: dict[str, tuple] = {}
+    for k, d in enumerate(dirs):
+        for scan in load_scans(d):
+            name = str(scan.name)
+            shape = tuple(np.shape(scan.mask))
+            if name in size and size[name] != shape:
+                raise ValueError(f"{d}: camera {name!r} is {shape[1]}x{shape[0]} px, "
+                                 f"{size[name][1]}x{size[name][0]} in the directories before")
+            size.setdefault(name, shape)
+            cameras.append(index.setdefault(name, len(index)))
+            projectors.append(k)
+            scans.append(replace(scan, name=f"{name}-p{k}"))
+    return scans, projectors, cameras

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import importlib
+import itertools
 import os
 import time
 import warnings
@@ -22,12 +23,17 @@ from nail2nail._validation import as_int
 from nail2nail.frames import _check_transform, superscan_in_frame
 from nail2nail.io._atomic import atomic_directory, relocate_paths, write_npz
 from nail2nail.io._json import write_json
-from nail2nail.merge.correspondence import CorrespondenceCache, correspond, restrict_pairs
+from nail2nail.merge.correspondence import (
+    CorrespondenceCache,
+    correspond,
+    restrict_pairs,
+    same_pixel_pairs,
+)
 from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
 from nail2nail.merge.mesh import mesh_topology
 from nail2nail.merge.mesh import seamless_mesh as seamless
 
-__all__ = ["RENDER_VIEWS", "parse_pairs", "write_merge"]
+__all__ = ["RENDER_VIEWS", "default_pairs", "parse_pairs", "write_merge"]
 
 #: Views of the super-scan renders: name -> (elev, azim) in degrees.
 RENDER_VIEWS = {"front": (10.0, 0.0), "side": (15.0, 70.0)}
@@ -107,6 +113,8 @@ def write_merge(
     transform=None,
     final_dir: str | os.PathLike | None = None,
     seamless_mesh: bool = False,
+    projectors=None,
+    cameras=None,
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
@@ -127,7 +135,9 @@ def write_merge(
         an earlier merge there is replaced only once the new one is complete; a non-empty
         directory without ``merge.json`` is refused.
     pairs : list of (int, int), optional
-        ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``.
+        ``(parent, child)`` scan indices; default the neighbours ``(0, 1), (1, 2), …``; with
+        several projectors, the neighbouring cameras of each projector and, for each camera,
+        its neighbouring projectors (:func:`default_pairs`).
     stride, max_residual_px, border_px
         The merge error's sampling and tests, as :func:`nail2nail.merge.correspond`;
         `max_residual_px` (panel px) also the fusion's. With `super_scan` the pairs are the
@@ -163,6 +173,12 @@ def write_merge(
         instead of the cameras' grids side by side; ``super_scan.mesh`` in ``merge.json``
         gives its topology (:func:`~nail2nail.merge.mesh.mesh_topology`). The super mat5 is
         the cameras' grids either way.
+    projectors, cameras : sequence of int, optional
+        A rig of several projectors: per scan, its projector's and its camera's index
+        (:func:`nail2nail.io.scans.load_scan_dirs`). A pair of one projector is matched in its
+        projector space, a pair of one camera at the same pixel
+        (:func:`nail2nail.merge.same_pixel_pairs`); a pair sharing neither is refused. Each
+        pair's summary names its ``kind``: ``"projector"`` or ``"camera"``.
 
     Returns
     -------
@@ -181,11 +197,15 @@ def write_merge(
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
-    pairs = (parse_pairs(None, len(scans)) if pairs is None
+    groups = _groups(len(scans), projectors, cameras)
+    pairs = (default_pairs(*groups) if pairs is None
              else [(int(p[0]), int(p[1])) for p in pairs])
     for i, j in pairs:
         if not (0 <= i < len(scans) and 0 <= j < len(scans)) or i == j:
             raise ValueError(f"pairs: ({i}, {j}) is not a pair of two of the {len(scans)} scans")
+        if _kind(groups, i, j) is None:
+            raise ValueError(f"pairs: {scans[i].name!r} and {scans[j].name!r} share neither a "
+                             "projector nor a camera")
     max_residual_px = float(max_residual_px)
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
@@ -198,10 +218,55 @@ def write_merge(
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
                                mat5=mat5, progress=progress, frame=frame, transform=transform,
-                               seamless_mesh=seamless_mesh)
+                               seamless_mesh=seamless_mesh, groups=groups)
         summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
+
+
+def _groups(n: int, projectors, cameras) -> tuple[list[int], list[int]]:
+    """``(projector, camera)`` index of each of `n` scans (default: one projector, a camera
+    each); ValueError on lists of another length or a repeated pair."""
+    proj = [0] * n if projectors is None else [int(k) for k in projectors]
+    cams = list(range(n)) if cameras is None else [int(k) for k in cameras]
+    if len(proj) != n or len(cams) != n:
+        raise ValueError(f"projectors, cameras: expected one index per scan ({n}), got "
+                         f"{len(proj)} and {len(cams)}")
+    if len(set(zip(proj, cams, strict=True))) != n:
+        raise ValueError("projectors, cameras: two scans share both their camera and their "
+                         "projector")
+    return proj, cams
+
+
+def _kind(groups, i: int, j: int) -> str | None:
+    """``"projector"`` when scans `i`, `j` share a projector, ``"camera"`` a camera, else
+    None."""
+    proj, cams = groups
+    if proj[i] == proj[j]:
+        return "projector"
+    return "camera" if cams[i] == cams[j] else None
+
+
+def default_pairs(projectors, cameras) -> list[tuple[int, int]]:
+    """The merge report's pairs of a rig's scans: per projector its neighbouring cameras
+    (in camera order), then per camera its neighbouring projectors (in projector order).
+
+    For one projector and a camera per scan, the neighbours ``(0, 1), (1, 2), …``.
+
+    Examples
+    --------
+    >>> default_pairs([0, 0, 0], [0, 1, 2])
+    [(0, 1), (1, 2)]
+    >>> default_pairs([0, 0, 1, 1], [0, 1, 0, 1])
+    [(0, 1), (2, 3), (0, 2), (1, 3)]
+    """
+    proj, cams = list(projectors), list(cameras)
+    pairs: list[tuple[int, int]] = []
+    for key, other in ((proj, cams), (cams, proj)):
+        for group in dict.fromkeys(key):
+            members = sorted((other[i], i) for i in range(len(key)) if key[i] == group)
+            pairs.extend((a[1], b[1]) for a, b in itertools.pairwise(members))
+    return pairs
 
 
 #: A camera pair keeping less than this fraction of the pairs found gets a warning.
@@ -226,7 +291,7 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
                  super_scan, data, mat5, progress, frame="world", transform=None,
-                 seamless_mesh=False) -> dict:
+                 seamless_mesh=False, groups=None) -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -241,7 +306,8 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                max_residual_px=max_residual_px, border_px=border_px,
                                super_scan=super_scan, data=data, mat5=mat5,
                                progress=progress, drawing=drawing, frame=frame,
-                               transform=transform, seamless_mesh=seamless_mesh)
+                               transform=transform, seamless_mesh=seamless_mesh,
+                               groups=groups or _groups(len(scans), None, None))
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -252,7 +318,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
-                 data, mat5, progress, drawing, frame="world", transform=None,
+                 data, mat5, progress, drawing, groups, frame="world", transform=None,
                  seamless_mesh=False) -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
@@ -268,7 +334,8 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
     if super_scan:
         # the fusion matches every ordered pair once; the statistics read those pairs
         bar.set_postfix_str("fuse")
-        sup = fuse_scans(scans, max_residual_px=max_residual_px)
+        sup = fuse_scans(scans, max_residual_px=max_residual_px, projectors=groups[0],
+                         cameras=groups[1])
         lap("fuse")
         bar.update()
     else:
@@ -280,10 +347,13 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                   border_px=border_px, stride=stride,
                                   parent_valid=sup.valid_masks[i],
                                   child_valid=sup.valid_masks[j])
-        else:
+        elif _kind(groups, i, j) == "projector":
             corr = correspond(scans[i], scans[j], stride=stride,
                               max_residual_px=max_residual_px, border_px=border_px,
                               cache=cache)
+        else:
+            corr = same_pixel_pairs(scans[i], scans[j], stride=stride, border_px=border_px,
+                                    cache=cache)
         key = f"{i}-{j}"
         stats = corr.statistics()
         _check_kept(corr, stats)
@@ -294,7 +364,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         if drawing is not None:
             drawn.append((files, drawing.submit(
                 _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
-        summary["merge"][key] = {**stats, "files": files}
+        summary["merge"][key] = {**stats, "kind": _kind(groups, i, j), "files": files}
         del corr
         bar.update()
     if sup is None:

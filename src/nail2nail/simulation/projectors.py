@@ -143,7 +143,9 @@ def rolled_coverage(scene, masks_and_params, *, pitch_mm: float = 0.1,
         coordinates ``u, v`` (mm) they see (``CameraGeometry.mask`` and ``params["u"]``,
         ``params["v"]``, or a scan's mask with the capture's truth).
     pitch_mm : float
-        Cell of the ``(u, v)`` grid, mm.
+        Cell of the ``(u, v)`` grid, mm: no finer than a pixel's footprint on the skin at the
+        most grazing view that counts (0.1 mm for the default rig at full resolution; a
+        coarser camera leaves cells between its pixels unlit, which reads as missing width).
     body_fraction : float
         The rows of the print below the tip's cap over which the width is judged, as a fraction
         of the print's length from its lower end (the cap's own coverage is given apart).
