@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nail2nail.merge.fusion import grid_mesh
-from nail2nail.merge.mesh import mesh_topology, param_mesh
+from nail2nail.merge.mesh import boundary_figures, mesh_topology, param_mesh
 
 
 def _cylinder_grids(seed: int, gap_px: int = 1):
@@ -80,6 +80,32 @@ def test_holes_and_concave_outline_stay_open():
     # so the boundary runs round the hole too: more than the block's outline, 2 (59 + 79)
     # grid edges (the notch's L keeps the outline's length; bevels shorten both)
     assert 2 * (59 + 79) < topo["boundary_edges"] < 2 * (59 + 79) + 44
+
+
+def test_small_holes_inside_are_closed_notches_stay_open():
+    """fill_holes_mm closes a hole inside the surface (whose triangles' edges fit), never the
+    outline's notch (outside the scanned area: its dropped triangles reach the hull)."""
+    xyz, left, right, _, uv = _cylinder_grids(1, gap_px=1)
+    keep = left | right
+    keep[20:30, 20:30] = False  # a hole of 10 x 10 px (2.4 mm across)
+    keep[:25, 60:] = False  # a notch in the outline
+    points = xyz[keep]
+    rows, cols = np.nonzero(keep)
+    open_ = param_mesh(points, uv[keep])
+    too_small = param_mesh(points, uv[keep], fill_holes_mm=1.0)
+    closed = param_mesh(points, uv[keep], fill_holes_mm=5.0)
+    np.testing.assert_array_equal(too_small, open_)  # the hole's spans are over 1 mm
+    assert boundary_figures(open_, points)["holes"] == 1
+    figures = boundary_figures(closed, points)
+    assert figures["holes"] == figures["hole_edges"] == 0
+    topo = mesh_topology(closed, len(points))
+    assert topo["non_manifold_edges"] == topo["non_manifold_vertices"] == 0
+    assert topo["inconsistent_edges"] == 0
+    r, c = rows[closed].mean(axis=1), cols[closed].mean(axis=1)
+    assert np.any((r > 22) & (r < 27) & (c > 22) & (c < 27))  # across the hole
+    assert not np.any((r < 21) & (c > 63))  # the notch stays open
+    # the outline is as before: only the hole's boundary went
+    assert topo["boundary_edges"] == boundary_figures(open_, points)["outline_edges"]
 
 
 @settings(max_examples=25, deadline=None)

@@ -33,7 +33,7 @@ from nail2nail.merge.correspondence import (
     view_cosine,
 )
 from nail2nail.merge.fusion import SuperScan, fuse_scans, write_super_mat5, write_super_ply
-from nail2nail.merge.mesh import mesh_topology, param_mesh
+from nail2nail.merge.mesh import boundary_figures, mesh_topology, param_mesh
 from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.merge.statistics import local_outliers, merge_statistics
 
@@ -42,6 +42,7 @@ __all__ = [
     "REJECT_REASONS",
     "Correspondence",
     "SuperScan",
+    "boundary_figures",
     "correspond",
     "fuse_scans",
     "grid_normals",

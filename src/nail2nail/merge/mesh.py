@@ -24,18 +24,20 @@ and 6 in :func:`finger_plane`'s, the last two all on the outline. :func:`seamles
 vertices (bow-ties: more than two boundary edges at a vertex), windings that disagree.
 
 Cost: a Delaunay triangulation of all the vertices (``scipy.spatial.Delaunay``, Qhull): about
-10 s for the 676,000 vertices of the full-resolution demo finger (its boundary edges 67,828 →
-7,161: the outline, at full resolution ragged, and the holes the fusion leaves), 0.5 s for
-the report's 60,000-vertex copy. So the super scan's PLY is meshed this way on request
-(``merge --seamless-mesh``), the report's viewer always.
+10–15 s for the 676,000 vertices of the full-resolution demo finger (its boundary edges
+67,828 → 7,161: the outline, at full resolution ragged, and 183 holes the fusion leaves;
+2,484 with the holes of edges up to 1 mm closed, :data:`FILL_HOLES_MM`), 0.5 s for the
+report's 60,000-vertex copy. So the super scan's PLY is meshed this way on request
+(``merge --seamless-mesh``), the report's viewer always. :func:`boundary_figures` tells the
+outline from the holes.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EDGE_FACTOR", "NEIGHBOURS", "finger_plane", "mesh_topology", "param_mesh",
-           "seamless_mesh"]
+__all__ = ["EDGE_FACTOR", "FILL_HOLES_MM", "NEIGHBOURS", "boundary_figures", "finger_plane",
+           "mesh_topology", "param_mesh", "seamless_mesh"]
 
 #: A triangle's longest edge may be this many local spacings (:func:`param_mesh`): on the
 #: demo finger's 60,000-vertex copy (the report's) in :func:`finger_plane`, 2, 3 and 4
@@ -46,10 +48,13 @@ __all__ = ["EDGE_FACTOR", "NEIGHBOURS", "finger_plane", "mesh_topology", "param_
 EDGE_FACTOR = 3.0
 #: The neighbour whose distance is a vertex's local spacing (:func:`param_mesh`)
 NEIGHBOURS = 6
+#: :func:`seamless_mesh` closes the holes inside the outline whose edges are at most this long,
+#: mm (:func:`param_mesh`'s `fill_holes_mm`)
+FILL_HOLES_MM = 1.0
 
 
 def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int = NEIGHBOURS,
-               normals=None) -> np.ndarray:
+               normals=None, fill_holes_mm: float = 0.0) -> np.ndarray:
     """Triangles over `points` from a Delaunay triangulation of their 2-D parameters `uv`.
 
     Parameters
@@ -70,6 +75,13 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         Vertex normals: the surface is wound counter-clockwise seen from the side most of them
         point to (one flip of every triangle, so the winding stays consistent). Default:
         counter-clockwise in the plane of `uv` (``u`` right, ``v`` up).
+    fill_holes_mm : float
+        Close the holes inside the surface whose triangles' edges are all at most this long
+        (mm): the triangles dropped as too long that are not connected, through other dropped
+        triangles, to the triangulation's hull (what lies outside the scanned outline) are
+        put back, a hole at a time, when the hole's longest edge is within this. 0 (default):
+        no hole is closed. The triangles are flat across the hole: they bridge missing points,
+        they do not extend the scanned area.
 
     Returns
     -------
@@ -102,12 +114,15 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         raise ValueError(f"points: more than neighbours={neighbours} needed, got {len(points)}")
     if not edge_factor > 0:
         raise ValueError(f"edge_factor: expected a positive factor, got {edge_factor}")
-    faces = Delaunay(uv).simplices.astype(np.int64)
+    tri = Delaunay(uv)
+    faces = tri.simplices.astype(np.int64)
     spacing = cKDTree(points).query(points, k=neighbours + 1)[0][:, neighbours]
     a, b, c = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
     longest = np.sqrt(np.maximum.reduce([((a - b) ** 2).sum(1), ((b - c) ** 2).sum(1),
                                          ((c - a) ** 2).sum(1)]))
     keep = longest <= edge_factor * spacing[faces].max(axis=1)
+    if fill_holes_mm > 0:
+        keep |= _interior_holes(tri.neighbors, keep, longest, float(fill_holes_mm))
     faces, a, b, c = faces[keep], a[keep], b[keep], c[keep]
     p, q, r = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
     clockwise = ((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
@@ -120,6 +135,30 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         if np.count_nonzero(facing.sum(1) < 0) > len(faces) / 2:
             faces = faces[:, [0, 2, 1]]
     return faces
+
+
+def _interior_holes(neighbors, keep, longest, max_edge_mm: float) -> np.ndarray:
+    """(T,) bool: the dropped triangles of the holes inside the kept surface whose longest
+    edge is at most `max_edge_mm` (see :func:`param_mesh`)."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    n = len(keep)
+    dropped = ~keep
+    i = np.repeat(np.arange(n), 3)
+    j = neighbors.ravel()
+    link = (j >= 0) & dropped[i] & dropped[np.maximum(j, 0)]
+    graph = scipy.sparse.coo_matrix((np.ones(int(link.sum())), (i[link], j[link])),
+                                    shape=(n, n))
+    _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    # a dropped region that reaches the hull is outside the scanned outline
+    outside = np.zeros(label.max() + 1, dtype=bool)
+    on_hull = dropped & (neighbors < 0).any(axis=1)
+    outside[label[on_hull]] = True
+    widest = np.zeros(label.max() + 1)
+    np.maximum.at(widest, label[dropped], longest[dropped])
+    fill = ~outside & (widest <= max_edge_mm)
+    return dropped & fill[label]
 
 
 def finger_plane(points) -> np.ndarray:
@@ -172,7 +211,7 @@ def finger_plane(points) -> np.ndarray:
     return np.column_stack([radius * np.arctan2(x - cx, y - cy), d @ axis])
 
 
-def seamless_mesh(points, *, normals=None) -> np.ndarray:
+def seamless_mesh(points, *, normals=None, fill_holes_mm: float = FILL_HOLES_MM) -> np.ndarray:
     """:func:`param_mesh` of `points` in :func:`finger_plane`: one mesh of a finger's scan.
 
     Parameters
@@ -181,12 +220,15 @@ def seamless_mesh(points, *, normals=None) -> np.ndarray:
         Vertices, mm.
     normals : (N, 3) float, optional
         Vertex normals, for the winding (:func:`param_mesh`).
+    fill_holes_mm : float
+        Holes inside the outline closed up to this edge length (:func:`param_mesh`), mm.
 
     Returns
     -------
     faces : (F, 3) int64
     """
-    return param_mesh(points, finger_plane(points), normals=normals)
+    return param_mesh(points, finger_plane(points), normals=normals,
+                      fill_holes_mm=fill_holes_mm)
 
 
 def mesh_topology(faces, n_vertices: int) -> dict:
@@ -234,3 +276,75 @@ def mesh_topology(faces, n_vertices: int) -> dict:
         "isolated_vertices": int(n_vertices - np.count_nonzero(used)),
         "inconsistent_edges": int(np.count_nonzero((count == 2) & (forward != 1))),
     }
+
+
+def boundary_figures(faces, vertices, *, far_spacings: float = 2.0) -> dict:
+    """Where a mesh's boundary lies: its outline, and the holes inside it.
+
+    The boundary edges (one triangle each) are split into connected loops; the loop of the
+    greatest length is the outline (the edge of the scanned area), every other one a hole.
+    A hole edge whose midpoint is farther than `far_spacings` grid spacings (the median edge
+    length) from every outline vertex is a hole inside the surface, not a notch at its edge.
+
+    Parameters
+    ----------
+    faces : (F, 3) int
+    vertices : (N, 3) float
+        mm.
+    far_spacings : float
+
+    Returns
+    -------
+    dict
+        ``spacing_mm`` (median edge length), ``outline_edges``, ``holes`` (loops other than
+        the outline), ``hole_edges``, ``hole_edges_far`` (farther than `far_spacings`
+        spacings from the outline), ``hole_distance_max_mm``.
+
+    Examples
+    --------
+    A 7 × 7 grid of unit squares with two missing: one next to the edge, one in the middle.
+
+    >>> rr, cc = np.mgrid[0:8, 0:8]
+    >>> v = np.stack([cc.ravel(), rr.ravel(), 0 * rr.ravel()], -1).astype(float)
+    >>> quads = [(r * 8 + c, r * 8 + c + 1, r * 8 + c + 9, r * 8 + c + 8)
+    ...          for r in range(7) for c in range(7) if (r, c) not in ((1, 1), (3, 3))]
+    >>> f = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    >>> fig = boundary_figures(f, v)
+    >>> fig["outline_edges"], fig["holes"], fig["hole_edges"], fig["hole_edges_far"]
+    (28, 2, 8, 4)
+    """
+    import scipy.sparse
+    import scipy.sparse.csgraph
+    import scipy.spatial
+
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    n = len(vertices)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges.sort(axis=1)
+    unique, count = np.unique(edges[:, 0] * n + edges[:, 1], return_counts=True)
+    pairs = np.stack([unique // n, unique % n], axis=-1)
+    length = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=-1)
+    spacing = float(np.median(length)) if length.size else float("nan")
+    boundary = pairs[count == 1]
+    empty = {"spacing_mm": spacing, "outline_edges": 0, "holes": 0, "hole_edges": 0,
+             "hole_edges_far": 0, "hole_distance_max_mm": 0.0}
+    if not len(boundary):
+        return empty
+    graph = scipy.sparse.coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])),
+                                    shape=(n, n))
+    _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    loop = label[boundary[:, 0]]
+    loop_length = np.bincount(loop, weights=length[count == 1])
+    outline = int(np.argmax(loop_length))
+    on_outline = loop == outline
+    hole = boundary[~on_outline]
+    out = {**empty, "outline_edges": int(np.count_nonzero(on_outline)),
+           "holes": len(np.unique(loop[~on_outline])), "hole_edges": len(hole)}
+    if len(hole):
+        tree = scipy.spatial.cKDTree(vertices[np.unique(boundary[on_outline])])
+        mid = 0.5 * (vertices[hole[:, 0]] + vertices[hole[:, 1]])
+        d, _ = tree.query(mid)
+        out["hole_edges_far"] = int(np.count_nonzero(d > far_spacings * spacing))
+        out["hole_distance_max_mm"] = round(float(d.max()), 4)
+    return out

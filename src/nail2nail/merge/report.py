@@ -30,7 +30,7 @@ from nail2nail.merge.correspondence import (
     same_pixel_pairs,
 )
 from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
-from nail2nail.merge.mesh import mesh_topology
+from nail2nail.merge.mesh import boundary_figures, mesh_topology
 from nail2nail.merge.mesh import seamless_mesh as seamless
 
 __all__ = ["RENDER_VIEWS", "default_pairs", "parse_pairs", "write_merge"]
@@ -171,7 +171,9 @@ def write_merge(
         Mesh ``super.ply`` as one surface (:func:`nail2nail.merge.mesh.seamless_mesh`: the
         seams between the cameras' grids closed; about 10 s for a full-resolution finger)
         instead of the cameras' grids side by side; ``super_scan.mesh`` in ``merge.json``
-        gives its topology (:func:`~nail2nail.merge.mesh.mesh_topology`). The super mat5 is
+        gives its topology (:func:`~nail2nail.merge.mesh.mesh_topology`) and, under
+        ``boundary``, where its boundary lies (:func:`~nail2nail.merge.mesh.boundary_figures`:
+        the outline, the holes inside it). The super mat5 is
         the cameras' grids either way.
     projectors, cameras : sequence of int, optional
         A rig of several projectors: per scan, its projector's and its camera's index
@@ -384,6 +386,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
             start = time.perf_counter()
             faces = seamless(sup.vertices, normals=sup.vertex_normals)
             mesh = {"seamless": True, **mesh_topology(faces, sup.n_vertices),
+                    "boundary": boundary_figures(faces, sup.vertices),
                     "seconds": round(time.perf_counter() - start, 3)}
         if data:
 
