@@ -111,8 +111,8 @@ def test_fuse_scans_refuses_inconsistent_groups():
 
 
 # -- end to end: two projectors at ±45° on the virtual scanner -------------------------------
-SCALE = 0.3
-PITCH = 0.25  # coverage cells no finer than a pixel's footprint on grazing skin at this scale
+SCALE = 0.25
+PITCH = 0.3  # coverage cells no finer than a pixel's footprint on grazing skin at this scale
 
 
 @pytest.fixture(scope="module")
