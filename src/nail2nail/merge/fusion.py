@@ -1121,6 +1121,24 @@ class SuperScan:
         }
 
 
+def scan_groups(n: int, projectors=None, cameras=None) -> tuple[list[int], list[int]]:
+    """The projector and the camera of each of `n` scans, checked.
+
+    Default: one projector, every scan its own camera (the thesis rig). ``ValueError`` for
+    lists of another length than `n`, or two scans that share both their camera and their
+    projector.
+    """
+    proj = [0] * n if projectors is None else [int(k) for k in projectors]
+    cams = list(range(n)) if cameras is None else [int(k) for k in cameras]
+    if len(proj) != n or len(cams) != n:
+        raise ValueError(f"projectors, cameras: expected one index per scan ({n}), got "
+                         f"{len(proj)} and {len(cams)}")
+    if len(set(zip(proj, cams, strict=True))) != n:
+        raise ValueError("projectors, cameras: two scans share both their camera and their "
+                         "projector")
+    return proj, cams
+
+
 def fuse_scans(
     scans,
     *,
@@ -1240,14 +1258,7 @@ def fuse_scans(
         if value is not None and not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name}: expected a positive number or None, got {value}")
     rank = {cam: k for k, cam in enumerate(priority)}
-    projector_of = [0] * n if projectors is None else [int(k) for k in projectors]
-    camera_of = list(range(n)) if cameras is None else [int(k) for k in cameras]
-    if len(projector_of) != n or len(camera_of) != n:
-        raise ValueError(f"projectors, cameras: expected one index per scan ({n}), got "
-                         f"{len(projector_of)} and {len(camera_of)}")
-    if len(set(zip(projector_of, camera_of, strict=True))) != n:
-        raise ValueError("projectors, cameras: two scans share both their camera and their "
-                         "projector")
+    projector_of, camera_of = scan_groups(n, projectors, cameras)
     for i, j in itertools.combinations(range(n), 2):
         if camera_of[i] == camera_of[j] and np.shape(scans[i].mask) != np.shape(scans[j].mask):
             raise ValueError(f"cameras: scans {scans[i].name!r} and {scans[j].name!r} are of "

@@ -29,7 +29,7 @@ from nail2nail.merge.correspondence import (
     restrict_pairs,
     same_pixel_pairs,
 )
-from nail2nail.merge.fusion import fuse_scans, write_super_mat5, write_super_ply
+from nail2nail.merge.fusion import fuse_scans, scan_groups, write_super_mat5, write_super_ply
 from nail2nail.merge.mesh import boundary_figures, mesh_topology
 from nail2nail.merge.mesh import seamless_mesh as seamless
 
@@ -199,7 +199,7 @@ def write_merge(
     """
     scans = list(scans)
     stride = as_int(stride, "stride", minimum=1)
-    groups = _groups(len(scans), projectors, cameras)
+    groups = scan_groups(len(scans), projectors, cameras)
     pairs = (default_pairs(*groups) if pairs is None
              else [(int(p[0]), int(p[1])) for p in pairs])
     for i, j in pairs:
@@ -224,20 +224,6 @@ def write_merge(
         summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
-
-
-def _groups(n: int, projectors, cameras) -> tuple[list[int], list[int]]:
-    """``(projector, camera)`` index of each of `n` scans (default: one projector, a camera
-    each); ValueError on lists of another length or a repeated pair."""
-    proj = [0] * n if projectors is None else [int(k) for k in projectors]
-    cams = list(range(n)) if cameras is None else [int(k) for k in cameras]
-    if len(proj) != n or len(cams) != n:
-        raise ValueError(f"projectors, cameras: expected one index per scan ({n}), got "
-                         f"{len(proj)} and {len(cams)}")
-    if len(set(zip(proj, cams, strict=True))) != n:
-        raise ValueError("projectors, cameras: two scans share both their camera and their "
-                         "projector")
-    return proj, cams
 
 
 def _kind(groups, i: int, j: int) -> str | None:
@@ -309,7 +295,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                super_scan=super_scan, data=data, mat5=mat5,
                                progress=progress, drawing=drawing, frame=frame,
                                transform=transform, seamless_mesh=seamless_mesh,
-                               groups=groups or _groups(len(scans), None, None))
+                               groups=groups or scan_groups(len(scans)))
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
