@@ -29,6 +29,26 @@ def pytest_sessionstart(session) -> None:
         raise pytest.UsageError(f"NAIL2NAIL_CI is set but {SHARED_DATA} is missing")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _shared_prints(tmp_path_factory):
+    """The virtual fingers' synthetic prints, grown once per test run rather than once per
+    test process (about 10 s each): kept in the run's temporary directory, which every xdist
+    worker shares (``$NAIL2NAIL_FINGERPRINT_CACHE``, ``simulation.scenes``). Left alone when
+    the caller set it."""
+    from nail2nail.simulation.scenes import PRINT_CACHE_ENV
+
+    if os.environ.get(PRINT_CACHE_ENV):
+        yield
+        return
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    os.environ[PRINT_CACHE_ENV] = str(root / "synthetic-prints")
+    try:
+        yield
+    finally:
+        os.environ.pop(PRINT_CACHE_ENV, None)
+
+
 def thesis_table_path(camera: int) -> Path:
     """Path of the thesis table for `camera` in ../shared/data (the package copy if absent)."""
     name = {0: "thesis_table2_camera0.tsv", 1: "thesis_table3_camera1.tsv"}[camera]

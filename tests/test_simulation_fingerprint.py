@@ -439,3 +439,33 @@ def test_finger_wears_an_image_print():
     # albedo follows the image: dark pixels (ridges) brighter skin
     albedo = scene.surface(xyz).albedo
     assert np.all(np.sign(albedo - scene.skin_albedo) == np.sign(np.round(expected, 3)))
+
+
+def test_print_cache_between_processes(tmp_path, monkeypatch):
+    """$NAIL2NAIL_FINGERPRINT_CACHE: a print grown once is read back identical (its relief
+    upsampled again the same), keyed by its parameters; a damaged entry is grown again."""
+    from nail2nail.simulation import scenes
+
+    monkeypatch.setenv(scenes.PRINT_CACHE_ENV, str(tmp_path))
+    args = ((-3.0, 3.0), (-3.0, 3.0), (0.0, 0.0), 5, "whorl")
+    scenes._cached_fingerprint.cache_clear()
+    grown = scenes._cached_fingerprint(*args)
+    files = list(tmp_path.glob("print-*.npz"))
+    assert len(files) == 1
+    scenes._cached_fingerprint.cache_clear()
+    read = scenes._cached_fingerprint(*args)
+    assert read is not grown
+    for key in ("ridges", "orientation", "minutiae", "cores", "deltas", "_fine"):
+        np.testing.assert_array_equal(getattr(read, key), getattr(grown, key), err_msg=key)
+    for key in ("u0", "v0", "pitch", "pattern", "seed", "ridge_period", "_pad"):
+        assert getattr(read, key) == getattr(grown, key), key
+    uv = np.array([[0.3, -1.2], [1.7, 0.4]])
+    np.testing.assert_array_equal(read.sample(*uv.T), grown.sample(*uv.T))
+    scenes._cached_fingerprint.cache_clear()
+    scenes._cached_fingerprint((-3.0, 3.0), (-3.0, 3.0), (0.0, 0.0), 6, "whorl")
+    assert len(list(tmp_path.glob("print-*.npz"))) == 2  # another seed, another entry
+    files[0].write_bytes(b"not an npz")
+    scenes._cached_fingerprint.cache_clear()
+    again = scenes._cached_fingerprint(*args)
+    np.testing.assert_array_equal(again.ridges, grown.ridges)
+    scenes._cached_fingerprint.cache_clear()

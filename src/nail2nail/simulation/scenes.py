@@ -14,7 +14,10 @@ Every scene answers two questions, vectorised over rays and points:
 from __future__ import annotations
 
 import functools
+import hashlib
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -465,11 +468,61 @@ def _finger_rotation(rotation_deg) -> np.ndarray:
     return rz @ rx @ ry
 
 
+#: Environment variable naming a directory where synthetic prints are kept between processes
+#: (:func:`_cached_fingerprint`); unset: none are kept
+PRINT_CACHE_ENV = "NAIL2NAIL_FINGERPRINT_CACHE"
+
+
 @functools.lru_cache(maxsize=4)
 def _cached_fingerprint(u_range, v_range, center, seed, pattern) -> Fingerprint:
-    # growing a print takes a few seconds: scenes with the same parameters share it (read-only)
-    return generate_fingerprint(u_range=u_range, v_range=v_range, center=center, seed=seed,
-                                pattern=pattern)
+    """The synthetic print of these parameters, grown once per process (about 10 s for a
+    finger's), and once for all processes when ``$NAIL2NAIL_FINGERPRINT_CACHE`` names a
+    directory: the print is stored there (``.npz``, keyed by the parameters and the synthesis
+    code's own bytes, so a changed synthesis never reads an old print) and read back."""
+    store = os.environ.get(PRINT_CACHE_ENV)
+    path = None
+    if store:
+        code = Path(generate_fingerprint.__code__.co_filename).read_bytes()
+        key = hashlib.sha256(repr((u_range, v_range, center, seed, pattern)).encode() + code)
+        path = Path(store) / f"print-{key.hexdigest()[:24]}.npz"
+        if path.is_file():
+            try:
+                return _read_print(path)
+            except (OSError, ValueError, KeyError):
+                pass  # a damaged entry is grown again and replaced
+    fp = generate_fingerprint(u_range=u_range, v_range=v_range, center=center, seed=seed,
+                              pattern=pattern)
+    if path is not None:
+        _write_print(path, fp)
+    return fp
+
+
+_PRINT_ARRAYS = ("ridges", "orientation", "minutiae", "cores", "deltas")
+
+
+def _write_print(path: Path, fp: Fingerprint) -> None:
+    """Store a grown print (its arrays and scalars; about 8 MB for a finger's) atomically; the
+    upsampled relief is computed again when it is read (about 2 s, four times the bytes)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **{k: getattr(fp, k) for k in _PRINT_ARRAYS},
+                 scalars=np.array([fp.u0, fp.v0, fp.pitch, fp.ridge_period, fp.seed, fp._pad],
+                                  dtype=np.float64),
+                 pattern=np.array(fp.pattern))
+    os.replace(tmp, path)
+
+
+def _read_print(path: Path) -> Fingerprint:
+    with np.load(path, allow_pickle=False) as data:
+        u0, v0, pitch, period, seed, pad = data["scalars"]
+        if int(pad):  # a print of an image with flat skin beyond: never grown here
+            raise ValueError(f"{path}: not a grown print")
+        return Fingerprint(ridges=data["ridges"], u0=float(u0), v0=float(v0), pitch=float(pitch),
+                           orientation=data["orientation"], minutiae=data["minutiae"],
+                           cores=data["cores"], deltas=data["deltas"],
+                           pattern=str(data["pattern"]), seed=int(seed),
+                           ridge_period=float(period))
 
 
 def _smoothstep(x):
