@@ -123,7 +123,7 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
     keep = longest <= edge_factor * spacing[faces].max(axis=1)
     if fill_holes_mm > 0:
         keep |= _interior_holes(tri.neighbors, keep, longest, float(fill_holes_mm))
-    faces, a, b, c = faces[keep], a[keep], b[keep], c[keep]
+    faces = _without_bowties(faces[keep], len(points))
     p, q, r = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
     clockwise = ((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1])
                  - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])) < 0
@@ -134,6 +134,50 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         facing = (np.cross(b - a, c - a) * (n[faces[:, 0]] + n[faces[:, 1]] + n[faces[:, 2]]))
         if np.count_nonzero(facing.sum(1) < 0) > len(faces) / 2:
             faces = faces[:, [0, 2, 1]]
+    return faces
+
+
+def _without_bowties(faces: np.ndarray, n_vertices: int, rounds: int = 4) -> np.ndarray:
+    """`faces` less the triangles that make a vertex non-manifold: at a vertex where two or
+    more fans of triangles touch (a bow-tie: more than two boundary edges meet there), the
+    fans other than the largest are cut away from it. Repeated while cutting makes new ones
+    (at most `rounds` times)."""
+    for _ in range(rounds):
+        edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        edges.sort(axis=1)
+        key, count = np.unique(edges[:, 0] * n_vertices + edges[:, 1], return_counts=True)
+        boundary = key[count == 1]
+        ends = np.bincount(np.concatenate([boundary // n_vertices, boundary % n_vertices]),
+                           minlength=n_vertices)
+        bowties = np.flatnonzero(ends > 2)
+        if not bowties.size:
+            break
+        order = np.argsort(faces.ravel(), kind="stable")
+        first = np.searchsorted(faces.ravel()[order], bowties, side="left")
+        last = np.searchsorted(faces.ravel()[order], bowties, side="right")
+        drop = np.zeros(len(faces), dtype=bool)
+        for v, lo, hi in zip(bowties, first, last, strict=True):  # a few defects, not pixels
+            tris = order[lo:hi] // 3
+            others = [tuple(int(w) for w in faces[t] if w != v) for t in tris]
+            fan = list(range(len(tris)))  # union-find over triangles sharing an edge at v
+
+            def root(i, fan=fan):
+                while fan[i] != i:
+                    fan[i] = fan[fan[i]]
+                    i = fan[i]
+                return i
+
+            by_vertex: dict[int, int] = {}
+            for i, pair in enumerate(others):
+                for w in pair:
+                    if w in by_vertex:
+                        fan[root(i)] = root(by_vertex[w])
+                    else:
+                        by_vertex[w] = i
+            roots = np.array([root(i) for i in range(len(tris))])
+            sizes = np.bincount(roots, minlength=len(tris))
+            drop[tris[roots != np.argmax(sizes)]] = True
+        faces = faces[~drop]
     return faces
 
 
@@ -281,8 +325,9 @@ def mesh_topology(faces, n_vertices: int) -> dict:
 def boundary_figures(faces, vertices, *, far_spacings: float = 2.0) -> dict:
     """Where a mesh's boundary lies: its outline, and the holes inside it.
 
-    The boundary edges (one triangle each) are split into connected loops; the loop of the
-    greatest length is the outline (the edge of the scanned area), every other one a hole.
+    The boundary edges (one triangle each) are split into connected loops; in each piece of
+    the mesh the loop of the greatest length is its outline (the edge of the scanned area),
+    every other one a hole.
     A hole edge whose midpoint is farther than `far_spacings` grid spacings (the median edge
     length) from every outline vertex is a hole inside the surface, not a notch at its edge.
 
@@ -296,9 +341,9 @@ def boundary_figures(faces, vertices, *, far_spacings: float = 2.0) -> dict:
     Returns
     -------
     dict
-        ``spacing_mm`` (median edge length), ``outline_edges``, ``holes`` (loops other than
-        the outline), ``hole_edges``, ``hole_edges_far`` (farther than `far_spacings`
-        spacings from the outline), ``hole_distance_max_mm``.
+        ``spacing_mm`` (median edge length), ``pieces`` (of the mesh), ``outline_edges``,
+        ``holes`` (loops other than the outlines), ``hole_edges``, ``hole_edges_far``
+        (farther than `far_spacings` spacings from any outline), ``hole_distance_max_mm``.
 
     Examples
     --------
@@ -327,8 +372,8 @@ def boundary_figures(faces, vertices, *, far_spacings: float = 2.0) -> dict:
     length = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=-1)
     spacing = float(np.median(length)) if length.size else float("nan")
     boundary = pairs[count == 1]
-    empty = {"spacing_mm": spacing, "outline_edges": 0, "holes": 0, "hole_edges": 0,
-             "hole_edges_far": 0, "hole_distance_max_mm": 0.0}
+    empty = {"spacing_mm": spacing, "pieces": 1 if len(faces) else 0, "outline_edges": 0,
+             "holes": 0, "hole_edges": 0, "hole_edges_far": 0, "hole_distance_max_mm": 0.0}
     if not len(boundary):
         return empty
     graph = scipy.sparse.coo_matrix((np.ones(len(boundary)), (boundary[:, 0], boundary[:, 1])),
@@ -336,10 +381,20 @@ def boundary_figures(faces, vertices, *, far_spacings: float = 2.0) -> dict:
     _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
     loop = label[boundary[:, 0]]
     loop_length = np.bincount(loop, weights=length[count == 1])
-    outline = int(np.argmax(loop_length))
-    on_outline = loop == outline
+    # each piece of the mesh (vertices joined by its edges) has its own outline: its longest
+    # loop; a piece joined to the rest at one vertex only is an island, not a hole
+    mesh_graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                         shape=(n, n))
+    _, piece = scipy.sparse.csgraph.connected_components(mesh_graph, directed=False)
+    loop_piece = np.zeros(loop_length.size, dtype=np.int64)
+    loop_piece[loop] = piece[boundary[:, 0]]
+    longest = np.zeros(piece.max() + 1)
+    np.maximum.at(longest, loop_piece, loop_length)
+    outline_loops = loop_length >= longest[loop_piece]
+    on_outline = outline_loops[loop]
     hole = boundary[~on_outline]
-    out = {**empty, "outline_edges": int(np.count_nonzero(on_outline)),
+    out = {**empty, "pieces": len(np.unique(piece[faces.ravel()])),
+           "outline_edges": int(np.count_nonzero(on_outline)),
            "holes": len(np.unique(loop[~on_outline])), "hole_edges": len(hole)}
     if len(hole):
         tree = scipy.spatial.cKDTree(vertices[np.unique(boundary[on_outline])])
