@@ -70,7 +70,9 @@ def param_mesh(points, uv, *, edge_factor: float = EDGE_FACTOR, neighbours: int 
         from one of its corners to that corner's `neighbours`-th nearest vertex: the local
         spacing, which grows where a camera sees the skin at a grazing angle and samples it
         sparsely. The triangulation's hull spans the outline's concave parts and the holes;
-        the long triangles there go.
+        the long triangles there go. At a vertex where two fans of the kept triangles touch
+        (a bow-tie), the fans but the largest are cut away, so the mesh is vertex-manifold
+        too (a small piece may be left as an island).
     normals : (N, 3) float, optional
         Vertex normals: the surface is wound counter-clockwise seen from the side most of them
         point to (one flip of every triangle, so the winding stays consistent). Default:
