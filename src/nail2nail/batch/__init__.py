@@ -205,12 +205,14 @@ def local_client(n_workers: int, *, memory_limit: int | str | None = None):
     # two clusters never compete for 8787 (dashboard_address=None would still take it).
     # Ctrl-C is for this process alone: blocked while the worker processes start (they inherit
     # the blocked signal, and so do the workers their nannies restart), delivered here after.
-    # Log lines below ERROR (a worker restarted, a task cancelled) are not printed.
+    # Dask's own log lines below CRITICAL (a worker restarted, a task cancelled, a worker's
+    # heartbeat failing while Ctrl-C closes the scheduler before it) are not printed: what
+    # went wrong with a capture is in the results table, with the attempts it took.
     with _sigint_deferred() as deferred:
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                memory_limit=memory_limit, dashboard_address=":0",
                                scheduler_kwargs={"dashboard": False},
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)
         try:
             client = Client(cluster)
         except BaseException:
