@@ -49,6 +49,7 @@ from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.projectors import LAYOUTS, projector_rigs, rolled_coverage
 from nail2nail.simulation.rig import Rig, default_rig, ideal_calibration
 from nail2nail.simulation.scenes import make_scene
+from nail2nail.simulation.truth import surface_distance
 from nail2nail.unroll import unroll_scans
 
 FPS = 120.0
@@ -85,13 +86,8 @@ def run_layout_finger(out: Path, layout: str, seed: int, scale: float) -> dict:
     t0 = time.perf_counter()
     sup = fuse_scans(scans, projectors=projectors, cameras=cameras)
     t_fuse = time.perf_counter() - t0
-    far = 0.0
-    for k, tr in enumerate(truths):
-        sel = sup.camera == k
-        r, c = sup.pixel[sel].T
-        d = np.sum((sup.vertices[sel] - tr["xyz"][r, c]) * tr["normal"][r, c], axis=-1)
-        if d.size:
-            far = max(far, float(np.nanmax(np.abs(d))))
+    far = float(np.nanmax(np.abs(surface_distance(sup.vertices, sup.camera, sup.pixel,
+                                                   truths))))
     merge = {"projector": [], "camera": []}
     for (i, j), m in sup.correspondences.items():
         if i < j and m.n_pairs:

@@ -42,6 +42,7 @@ from nail2nail.simulation.capture import simulate_capture
 from nail2nail.simulation.conditions import draw_conditions
 from nail2nail.simulation.rig import Rig, ideal_calibration
 from nail2nail.simulation.scenes import make_scene
+from nail2nail.simulation.truth import surface_distance
 
 
 def render(out: Path, seed: int, scale: float) -> Path:
@@ -75,14 +76,8 @@ def measure(capture_dir: Path, out: Path) -> dict:
     sup = fuse_scans(scans)
     if not np.array_equal(np.asarray(ply.points), sup.vertices):
         raise RuntimeError(f"{merge_dir}: super.ply's vertices are not the super scan's")
-    far = []
-    for k, scan in enumerate(scans):
-        tr = read_truth(capture_dir, scan.name)
-        sel = sup.camera == k
-        r, c = sup.pixel[sel].T
-        far.append(np.abs(np.sum((sup.vertices[sel] - tr["xyz"][r, c]) * tr["normal"][r, c],
-                                 axis=-1)))
-    d = np.concatenate(far)
+    truths = [read_truth(capture_dir, scan.name) for scan in scans]
+    d = np.abs(surface_distance(sup.vertices, sup.camera, sup.pixel, truths))
     glb = out / "merge" / f"{label}.glb"
     write_mesh(glb, ply.points, ply.faces, colors=ply.colors, normals=ply.normals)
     loaded = trimesh.load(glb, force="mesh", process=False)

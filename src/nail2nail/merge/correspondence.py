@@ -1500,6 +1500,13 @@ def same_pixel_pairs(
     Returns
     -------
     Correspondence
+        ``child_nearest`` and ``child_rc`` are the parent's pixels; ``residual_px`` 0.
+
+    References
+    ----------
+    Thesis, chapter four: the merge error is the world distance of two measurements of one
+    surface point; there the point is found in the shared projector's coordinates, here in
+    the shared camera's pixel (``docs/projectors.md``).
 
     Examples
     --------
@@ -1653,6 +1660,11 @@ def restrict_pairs(
     -------
     Correspondence
         With `stride`, its own ``dropped`` counts and its ``rejected`` pairs.
+
+    References
+    ----------
+    Thesis, chapter four, "Merging in Projector Space": the merge error of sampled pixels
+    (the thesis sampled every 5th and 20th), away from the edges of the valid regions.
 
     Examples
     --------

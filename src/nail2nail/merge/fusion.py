@@ -1139,6 +1139,16 @@ def scan_groups(n: int, projectors=None, cameras=None) -> tuple[list[int], list[
     return proj, cams
 
 
+def pair_kind(groups, i: int, j: int) -> str | None:
+    """How scans `i` and `j` of a rig are matched: ``"projector"`` when they share a
+    projector (in its projector space), ``"camera"`` when they share a camera (at the same
+    pixel), None when neither. `groups` is :func:`scan_groups`'s ``(projectors, cameras)``."""
+    projectors, cameras = groups
+    if projectors[i] == projectors[j]:
+        return "projector"
+    return "camera" if cameras[i] == cameras[j] else None
+
+
 def fuse_scans(
     scans,
     *,
@@ -1302,14 +1312,13 @@ def fuse_scans(
     corr: dict[tuple[int, int], Correspondence] = {}
     for i in range(n):
         for j in range(n):
-            if i == j:
-                continue
-            if projector_of[i] == projector_of[j]:
+            kind = None if i == j else pair_kind((projector_of, camera_of), i, j)
+            if kind == "projector":
                 corr[i, j] = _correspond(
                     scans[i], scans[j], stride=1, max_residual_px=max_residual_px,
                     border_px=border_px, max_jump_px=2.0, refine=True, method="grid",
                     workers=-1, **tests)
-            elif camera_of[i] == camera_of[j]:
+            elif kind == "camera":
                 corr[i, j] = same_pixel_pairs(scans[i], scans[j], border_px=border_px,
                                               max_jump_px=2.0, **tests)
     del quality, cache, tests

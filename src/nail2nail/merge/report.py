@@ -29,7 +29,13 @@ from nail2nail.merge.correspondence import (
     restrict_pairs,
     same_pixel_pairs,
 )
-from nail2nail.merge.fusion import fuse_scans, scan_groups, write_super_mat5, write_super_ply
+from nail2nail.merge.fusion import (
+    fuse_scans,
+    pair_kind,
+    scan_groups,
+    write_super_mat5,
+    write_super_ply,
+)
 from nail2nail.merge.mesh import boundary_figures, mesh_topology
 from nail2nail.merge.mesh import seamless_mesh as seamless
 
@@ -205,7 +211,7 @@ def write_merge(
     for i, j in pairs:
         if not (0 <= i < len(scans) and 0 <= j < len(scans)) or i == j:
             raise ValueError(f"pairs: ({i}, {j}) is not a pair of two of the {len(scans)} scans")
-        if _kind(groups, i, j) is None:
+        if pair_kind(groups, i, j) is None:
             raise ValueError(f"pairs: {scans[i].name!r} and {scans[j].name!r} share neither a "
                              "projector nor a camera")
     max_residual_px = float(max_residual_px)
@@ -224,15 +230,6 @@ def write_merge(
         summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
-
-
-def _kind(groups, i: int, j: int) -> str | None:
-    """``"projector"`` when scans `i`, `j` share a projector, ``"camera"`` a camera, else
-    None."""
-    proj, cams = groups
-    if proj[i] == proj[j]:
-        return "projector"
-    return "camera" if cams[i] == cams[j] else None
 
 
 def default_pairs(projectors, cameras) -> list[tuple[int, int]]:
@@ -335,7 +332,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                   border_px=border_px, stride=stride,
                                   parent_valid=sup.valid_masks[i],
                                   child_valid=sup.valid_masks[j])
-        elif _kind(groups, i, j) == "projector":
+        elif pair_kind(groups, i, j) == "projector":
             corr = correspond(scans[i], scans[j], stride=stride,
                               max_residual_px=max_residual_px, border_px=border_px,
                               cache=cache)
@@ -352,7 +349,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         if drawing is not None:
             drawn.append((files, drawing.submit(
                 _pair_figures, corr, scans[i].albedo, scans[j].albedo, out, key, stride)))
-        summary["merge"][key] = {**stats, "kind": _kind(groups, i, j), "files": files}
+        summary["merge"][key] = {**stats, "kind": pair_kind(groups, i, j), "files": files}
         del corr
         bar.update()
     if sup is None:

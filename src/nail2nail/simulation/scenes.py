@@ -23,6 +23,8 @@ import numpy as np
 
 from nail2nail.calibration.boards import Board, default_board
 from nail2nail.calibration.markers import TargetGeometry
+from nail2nail.io._atomic import write_npz
+from nail2nail.io._npz import read_npz
 from nail2nail.simulation.fingerprint import Fingerprint, generate_fingerprint, legacy_geometry
 
 __all__ = [
@@ -488,7 +490,7 @@ def _cached_fingerprint(u_range, v_range, center, seed, pattern) -> Fingerprint:
         if path.is_file():
             try:
                 return _read_print(path)
-            except (OSError, ValueError, KeyError):
+            except (OSError, ValueError):
                 pass  # a damaged entry is grown again and replaced
     fp = generate_fingerprint(u_range=u_range, v_range=v_range, center=center, seed=seed,
                               pattern=pattern)
@@ -501,28 +503,27 @@ _PRINT_ARRAYS = ("ridges", "orientation", "minutiae", "cores", "deltas")
 
 
 def _write_print(path: Path, fp: Fingerprint) -> None:
-    """Store a grown print (its arrays and scalars; about 8 MB for a finger's) atomically; the
-    upsampled relief is computed again when it is read (about 2 s, four times the bytes)."""
+    """Store a grown print (its arrays and scalars; about 8 MB for a finger's) atomically
+    (:func:`nail2nail.io._atomic.write_npz`); the upsampled relief is computed again when it
+    is read (about 2 s, four times the bytes)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **{k: getattr(fp, k) for k in _PRINT_ARRAYS},
-                 scalars=np.array([fp.u0, fp.v0, fp.pitch, fp.ridge_period, fp.seed, fp._pad],
-                                  dtype=np.float64),
-                 pattern=np.array(fp.pattern))
-    os.replace(tmp, path)
+    write_npz(path, {**{k: getattr(fp, k) for k in _PRINT_ARRAYS},
+                     "scalars": np.array([fp.u0, fp.v0, fp.pitch, fp.ridge_period, fp.seed,
+                                          fp._pad], dtype=np.float64),
+                     "pattern": np.array(fp.pattern)}, compress=False)
 
 
 def _read_print(path: Path) -> Fingerprint:
-    with np.load(path, allow_pickle=False) as data:
-        u0, v0, pitch, period, seed, pad = data["scalars"]
-        if int(pad):  # a print of an image with flat skin beyond: never grown here
-            raise ValueError(f"{path}: not a grown print")
-        return Fingerprint(ridges=data["ridges"], u0=float(u0), v0=float(v0), pitch=float(pitch),
-                           orientation=data["orientation"], minutiae=data["minutiae"],
-                           cores=data["cores"], deltas=data["deltas"],
-                           pattern=str(data["pattern"]), seed=int(seed),
-                           ridge_period=float(period))
+    data = read_npz(path, required=(*_PRINT_ARRAYS, "scalars", "pattern"),
+                    what="synthetic print")
+    u0, v0, pitch, period, seed, pad = data["scalars"]
+    if int(pad):  # a print of an image with flat skin beyond: never grown here
+        raise ValueError(f"{path}: not a grown print")
+    return Fingerprint(ridges=data["ridges"], u0=float(u0), v0=float(v0), pitch=float(pitch),
+                       orientation=data["orientation"], minutiae=data["minutiae"],
+                       cores=data["cores"], deltas=data["deltas"],
+                       pattern=str(data["pattern"]), seed=int(seed),
+                       ridge_period=float(period))
 
 
 def _smoothstep(x):

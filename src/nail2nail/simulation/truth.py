@@ -20,7 +20,7 @@ import numpy as np
 from nail2nail.io._json import read_json
 from nail2nail.io._npz import read_npz
 
-__all__ = ["truth_print_sampler", "truth_skin_coordinates"]
+__all__ = ["surface_distance", "truth_print_sampler", "truth_skin_coordinates"]
 
 
 def _truth_entries(capture_dir: Path) -> dict:
@@ -114,3 +114,46 @@ def truth_print_sampler(capture_dir: str | os.PathLike):
         return (127.5 - value) / 127.5
 
     return image, sampler
+
+
+def surface_distance(points, camera, pixel, truths) -> np.ndarray:
+    """Signed distance of measured points from the true surface, mm.
+
+    Each point is compared with the true point of the camera pixel it was measured at, along
+    that point's true outward normal (first order: the surface is flat over the gap), so
+    what is measured is the error across the surface, not a slide along it.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        World points, mm (a super scan's ``vertices``).
+    camera : (N,) int
+        Index into `truths` of each point's camera (``SuperScan.camera``).
+    pixel : (N, 2) int
+        ``(row, col)`` of each point in its camera (``SuperScan.pixel``).
+    truths : sequence of dict
+        Per camera, its truth (:func:`nail2nail.io.capture.read_truth`): ``xyz`` and
+        ``normal``, (H, W, 3), world mm and unit vectors.
+
+    Returns
+    -------
+    (N,) float64
+        Positive outside the true surface; NaN where the pixel sees no true surface.
+
+    Examples
+    --------
+    >>> xyz = np.zeros((1, 2, 3)); normal = np.zeros((1, 2, 3)); normal[..., 2] = 1
+    >>> truth = {"xyz": xyz, "normal": normal}
+    >>> surface_distance([[0.5, 0, 0.01], [0, 0, -0.02]], [0, 0], [[0, 0], [0, 1]], [truth])
+    array([ 0.01, -0.02])
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    camera = np.asarray(camera).reshape(-1)
+    pixel = np.asarray(pixel).reshape(-1, 2)
+    out = np.full(len(points), np.nan)
+    for k, truth in enumerate(truths):
+        sel = np.flatnonzero(camera == k)
+        r, c = pixel[sel, 0], pixel[sel, 1]
+        gap = points[sel] - np.asarray(truth["xyz"], dtype=np.float64)[r, c]
+        out[sel] = np.sum(gap * np.asarray(truth["normal"], dtype=np.float64)[r, c], axis=-1)
+    return out
