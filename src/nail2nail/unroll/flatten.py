@@ -55,6 +55,7 @@ __all__ = [
     "RolledMap",
     "SphereMap",
     "bulk_sphere",
+    "fingertip",
     "fit_cylinder",
     "fit_flattening",
     "fit_sphere",
@@ -854,6 +855,91 @@ def _weighted_stats(x, w) -> dict:
             "max": round(float(x.max()), 5)}
 
 
+#: The fingertip's cap on the pad's profile: the profile's points whose radius is below this
+#: fraction of the profile's largest are the cap's (the body's taper changes the radius by a
+#: few per cent over a finger; the cap's falls to zero)
+CAP_RADIUS_FRACTION = 0.85
+#: half-width of the band around the pad's centre line whose points make its profile, mm
+PROFILE_BAND_MM = 1.5
+#: the most arc the fingertip's estimate may add beyond the scanned skin, mm (a cap seen only
+#: at its base extrapolates badly; a fingertip's whole cap is about 10–13 mm of arc)
+MAX_TIP_ARC_MM = 10.0
+
+
+def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
+    """The fingertip's apex, where the scanner did not see it: an ellipse fitted to the pad's cap.
+
+    Cameras that look at the pad see the fingertip's cap at a grazing angle near its apex, so
+    a scan stops a few millimetres short of the tip, by how much depending on the rig. A
+    rolled print's length is counted from the tip (:data:`~nail2nail.unroll.rolled.
+    DEFAULT_LENGTH_MM`), so the unseen arc is estimated: the pad's profile (median radius of
+    the mesh vertices within :data:`PROFILE_BAND_MM` of the centre line, per row of the
+    mesh) is, where its radius is below :data:`CAP_RADIUS_FRACTION` of its largest, fitted by
+    least squares with a conic of revolution ``r² = c₀ + c₁ z + c₂ z²`` (``c₂ < 0``: an ellipse
+    of semi-axes ``(R, a)`` centred on the axis, the section of an ellipsoidal cap), and the
+    arc from the last scanned point of the profile to the ellipse's apex (``r = 0``) is
+    integrated.
+
+    Parameters
+    ----------
+    mesh : SurfaceMesh
+        :func:`surface_mesh` of the scan.
+    cylinder : CylinderMap
+        Its axis (towards the tip) and pad direction.
+
+    Returns
+    -------
+    dict
+        ``estimated`` (bool); when True: ``last_point`` (3,) world mm, the last scanned point
+        of the pad's profile towards the tip, ``arc_mm`` (along the profile to the apex),
+        ``axial_mm`` (along the axis), ``cap_semi_axes_mm`` ``[R, a]``, ``cap_points`` (rows
+        of the profile fitted), ``last_angle_deg`` (the last point's elevation on the cap, 90°
+        at the apex); when False: ``reason``.
+    """
+    theta, z, r = cylinder.angles(mesh.vertices)
+    near = np.abs(theta) * cylinder.radius <= PROFILE_BAND_MM
+    if near.sum() < 4:
+        return {"estimated": False, "reason": "no pad profile"}
+    row = mesh.node[near, 0]
+    rows, inverse = np.unique(row, return_inverse=True)
+    # median radius per mesh row: sort by row, then by radius within it
+    order = np.lexsort((r[near], inverse))
+    counts = np.bincount(inverse)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rad = 0.5 * (r[near][order][starts + (counts - 1) // 2] + r[near][order][starts + counts // 2])
+    top = int(np.argmax(rad))
+    # the cap: the profile's vertices beyond its widest row whose radius is below the fraction
+    # (every vertex of the band, not the rows' medians: a vertex more or less moves the fit
+    # less)
+    beyond = np.zeros(rows.size, bool)
+    beyond[top + 1:] = True
+    cap = beyond[inverse] & (r[near] < CAP_RADIUS_FRACTION * rad[top])
+    if np.unique(inverse[cap]).size < 4:
+        return {"estimated": False, "reason": "the fingertip's cap was not scanned"}
+    zc, rc = z[near][cap], r[near][cap]
+    design = np.stack([np.ones(zc.size), zc, zc * zc], axis=1)
+    (c0, c1, c2), *_ = np.linalg.lstsq(design, rc * rc, rcond=None)
+    z0 = -c1 / (2 * c2) if c2 < 0 else np.nan
+    r2 = c0 + c1 * z0 + c2 * z0 * z0 if c2 < 0 else np.nan
+    if not (c2 < 0 and r2 > 0):
+        return {"estimated": False, "reason": "the cap's profile is not an ellipse"}
+    big_r, a = float(np.sqrt(r2)), float(np.sqrt(r2 / -c2))
+    # the last scanned point of the profile: in its row nearest the tip, nearest the centre line
+    pick = np.flatnonzero(near)[row == rows[-1]]
+    pick = pick[np.argmin(np.abs(theta[pick]))]
+    psi = float(np.arcsin(np.clip((z[pick] - z0) / a, -1.0, 1.0)))
+    angles = np.linspace(psi, np.pi / 2, 256)
+    speed = np.hypot(big_r * np.sin(angles), a * np.cos(angles))
+    arc = float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(angles)))
+    if not arc <= MAX_TIP_ARC_MM:
+        return {"estimated": False, "reason": f"the fitted cap adds {arc:.1f} mm of arc, more "
+                                              f"than {MAX_TIP_ARC_MM:g} mm"}
+    point = mesh.vertices[pick]
+    return {"estimated": True, "last_point": point, "arc_mm": arc,
+            "axial_mm": float(z0 + a - z[pick]), "cap_semi_axes_mm": [big_r, a],
+            "cap_points": int(cap.sum()), "last_angle_deg": float(np.degrees(psi))}
+
+
 def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0.0),
                    pad_direction=(0.0, 0.0, 1.0), grid_mm: float = 0.5,
                    iterations: int = 30, pad_from_section: bool = False):
@@ -879,6 +965,7 @@ def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0
     flat : CylinderMap or SphereMap or RolledMap or IsometricMap
         The map, callable on world points ``(N, 3)`` → print plane ``(N, 2)``, mm.
     mesh : SurfaceMesh
+        With ``extra["fingertip"]``, :func:`fingertip` of the mesh.
 
     Raises
     ------
@@ -892,6 +979,7 @@ def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0
     if pad_from_section:
         cyl, _ = section_pad(xyz, cyl)
     mesh = surface_mesh(xyz, cyl, grid_mm=grid_mm)
+    mesh.extra["fingertip"] = fingertip(mesh, cyl)
     if method == "cylinder":
         return cyl, mesh
     if method == "sphere":

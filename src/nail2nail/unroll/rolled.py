@@ -200,6 +200,7 @@ class RolledPrint:
                 "regions": _region_quality(q, self.share, self.cameras),
                 "mixing": q.get("mixing"),
                 "gate": q.get("gate"),
+                "fingertip": q.get("fingertip"),
                 "fringes": q.get("fringes"),
             },
             "timings_s": {k: round(v, 4) for k, v in self.timings.items()},
@@ -233,18 +234,50 @@ def _region_quality(q, share, cameras) -> dict:
     return out
 
 
-def _cut_length(grid: PrintGrid, value, mask, share, length_mm: float):
-    """Drop the rows more than `length_mm` below the print's top row with data; crop."""
+def _cut_length(grid: PrintGrid, value, mask, share, length_mm: float,
+                tip_row: float | None = None):
+    """Drop the rows more than `length_mm` below the fingertip's row; crop.
+
+    `tip_row` is the fingertip's print row (:func:`_tip_row`, above the scanned skin when the
+    scanner did not see the tip); None: the print's top row with data.
+    """
     if not length_mm > 0:
         raise ValueError(f"length_mm: expected a positive length, got {length_mm}")
     rows = np.flatnonzero(mask.any(axis=1))
-    last = min(mask.shape[0] - 1, rows[0] + int(np.floor(length_mm / grid.pitch)))
+    top = rows[0] if tip_row is None else tip_row
+    last = int(np.clip(np.floor(top + length_mm / grid.pitch), 0, mask.shape[0] - 1))
     keep = min(mask.shape[0], last + 1 + int(np.ceil(1.0 / grid.pitch)))  # 1 mm margin
     mask = mask[:keep].copy()
     mask[last + 1:] = False
     value = np.where(mask, value[:keep], np.nan).astype(np.float32)
     share = share[:, :keep] * mask
     return PrintGrid(grid.s0, grid.t0, grid.pitch, mask.shape), value, mask, share
+
+
+def _tip_row(flat, tip: dict, grid: PrintGrid, method: str) -> float | None:
+    """The fingertip's print row (fractional), from :func:`~nail2nail.unroll.flatten.fingertip`:
+    the last scanned point of the pad's profile, moved towards the tip by the estimated arc
+    (the axial distance for the cylinder map, whose ``t`` runs along the axis). None when not
+    estimated."""
+    if not tip.get("estimated"):
+        return None
+    t_last = float(flat(np.asarray(tip["last_point"], np.float64)[None])[0, 1])
+    t_tip = t_last + (tip["axial_mm"] if method == "cylinder" else tip["arc_mm"])
+    return (grid.t0 - t_tip) / grid.pitch
+
+
+def _tip_summary(tip: dict, tip_row: float | None, mask, pitch: float) -> dict:
+    """JSON-ready :func:`~nail2nail.unroll.flatten.fingertip`: how far beyond the print's top
+    row with data the fingertip was placed (mm), the cap fitted; or why it was not."""
+    if tip_row is None:
+        return {"estimated": False, "reason": tip.get("reason")}
+    rows = np.flatnonzero(mask.any(axis=1))
+    above = (rows[0] - tip_row) * pitch if rows.size else None
+    return {"estimated": True,
+            "above_print_mm": None if above is None else round(float(above), 3),
+            "arc_beyond_scan_mm": round(float(tip["arc_mm"]), 3),
+            "cap_semi_axes_mm": [round(float(x), 3) for x in tip["cap_semi_axes_mm"]],
+            "last_angle_deg": round(float(tip["last_angle_deg"]), 1)}
 
 
 def _direction(v, name: str) -> np.ndarray:
@@ -407,6 +440,7 @@ def unroll_scans(
     feather_px: float = 40.0,
     grid_mm: float = 0.5,
     length_mm: float | None = DEFAULT_LENGTH_MM,
+    estimate_tip: bool = True,
     mix: bool = True,
     min_clarity: float | None = MIN_CLARITY,
 ) -> RolledPrint:
@@ -444,7 +478,15 @@ def unroll_scans(
         Keep only the skin within this distance (print-plane ``t``) below the fingertip, as an
         inked roll does: :data:`DEFAULT_LENGTH_MM` (25 mm reaches the distal crease of an
         adult finger), :data:`MIN_LENGTH_MM` … :data:`MAX_LENGTH_MM`; None keeps everything
-        the cameras saw.
+        the cameras saw. The fingertip is the apex of the pad's profile: where the scan stops
+        short of it (cameras facing the pad see the tip's cap at a grazing angle), the unseen
+        arc is estimated from an ellipse fitted to the scanned part of the cap
+        (:func:`~nail2nail.unroll.flatten.fingertip`; ``quality["fingertip"]`` says how far
+        above the print's first row it was placed).
+    estimate_tip : bool
+        False: count `length_mm` from the print's top row with data instead (the scanned
+        skin nearest the tip, which depends on how much of the cap the rig saw; the behaviour
+        before the estimate existed).
     mix : bool
         Blend relief and albedo apart and average them by their measured ridge clarity, the
         albedo's sign measured (:func:`~nail2nail.unroll.mixing.mix_layers`); normalise with
@@ -556,8 +598,11 @@ def unroll_scans(
     lap("blend")
     if not mask.any():
         raise ValueError(_no_data(scans, valids, ppi))
+    tip = mesh.extra.get("fingertip", {"estimated": False, "reason": "not measured"}) \
+        if estimate_tip else {"estimated": False, "reason": "estimate_tip=False"}
+    tip_row = _tip_row(flat, tip, grid, method)
     if length_mm is not None:
-        grid, value, mask, share = _cut_length(grid, value, mask, share, length_mm)
+        grid, value, mask, share = _cut_length(grid, value, mask, share, length_mm, tip_row)
         if albedo is not None:
             albedo = albedo[:mask.shape[0]]
     pitch = grid.pitch
@@ -593,6 +638,7 @@ def unroll_scans(
     quality["mixing"] = None if mixing is None else {
         "albedo_share": round(mixing["albedo_share"], 4)}
     quality["gate"] = gated
+    quality["fingertip"] = _tip_summary(tip, tip_row, mask, grid.pitch)
     # the phase-locked error taken out of each camera's relief and albedo (fringes.py)
     quality["fringes"] = {s.name: i["fringes"] for s, i in zip(scans, infos, strict=True)
                           if "fringes" in i} or None
