@@ -67,11 +67,13 @@ PROBE_VS_MATCHING = 235.6  # SourceAFIS 3.18.1, measured by the issue
 #: what the default options are compared with (``--before``): the fixed relief + albedo blend
 #: of earlier versions (no clarity mix, no mask, no phase-locked fit), or the default options
 #: without the phase-locked fit alone, or the print's length counted from the scan's top row
-#: instead of the estimated fingertip
+#: instead of the estimated fingertip, or the grey print without its unsharp mask
 BEFORE = {
-    "fixed-blend": {"mix": False, "min_clarity": None, "ridge_options": {"fringe_harmonics": 0}},
+    "fixed-blend": {"mix": False, "min_clarity": None, "ridge_options": {"fringe_harmonics": 0},
+                    "sharpen": 0.0},
     "no-fringe-fit": {"ridge_options": {"fringe_harmonics": 0}},
     "scan-top": {"estimate_tip": False},
+    "no-sharpen": {"sharpen": 0.0},
 }
 
 

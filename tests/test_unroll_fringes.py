@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from PIL import Image
 
 from nail2nail.scan.patterns import (
     default_pattern_set,
@@ -162,7 +163,7 @@ def test_cli_unroll_records_the_fit_and_turns_it_off(tmp_path, capsys):
                  "--out", str(tmp_path / "scan"), "--no-mat5", "--no-ply"]) == 0
     manifest = json.loads((tmp_path / "scan" / "scan.json").read_text())
     assert all(c["fringe_periods_px"] == {"x": 20.0, "y": 16.25} for c in manifest["cameras"])
-    for name, extra in (("fit", []), ("off", ["--no-fringe-fit"])):
+    for name, extra in (("fit", []), ("off", ["--no-fringe-fit"]), ("plain", ["--sharpen", "0"])):
         assert main(["-q", "unroll", str(tmp_path / "scan"), "--out", str(tmp_path / name),
                      *extra]) == 0
     capsys.readouterr()
@@ -170,3 +171,10 @@ def test_cli_unroll_records_the_fit_and_turns_it_off(tmp_path, capsys):
     off = json.loads((tmp_path / "off" / "print.json").read_text())["quality"]["fringes"]
     assert sorted(fit) == ["cam0", "cam1", "cam2"] and off is None
     assert all(v["terms"] == 20 and v["relief_um"] >= 0 for v in fit.values())
+    # the grey print's unsharp mask is recorded; the clarity mask is measured before it, so
+    # the print without it has the same mask
+    sharp = json.loads((tmp_path / "fit" / "print.json").read_text())["quality"]["sharpening"]
+    plain = json.loads((tmp_path / "plain" / "print.json").read_text())["quality"]["sharpening"]
+    assert sharp == {"amount": 2.0, "sigma_mm": 0.075} and plain is None
+    masks = [np.asarray(Image.open(tmp_path / n / "print_mask.png")) for n in ("fit", "plain")]
+    np.testing.assert_array_equal(masks[0], masks[1])

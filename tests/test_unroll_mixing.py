@@ -153,7 +153,7 @@ def test_skin_without_ridges_is_left_out_never_striped(patch_finger, error_um):
     rolled = unroll_scans(scans, length_mm=None)
     ungated = unroll_scans(scans, length_mm=None, min_clarity=None)  # the same grid
     # the fixed blend of earlier versions, without the phase-locked fit either
-    before = unroll_scans(scans, length_mm=None, mix=False, min_clarity=None,
+    before = unroll_scans(scans, length_mm=None, mix=False, min_clarity=None, sharpen=0.0,
                           ridge_options={"fringe_harmonics": 0})
     # the flat skin away from the print's outer rim (1.5 mm: there the 1 mm windows of the
     # normalisations are cut by the edge, and only grazing views saw the skin; the rim is
@@ -196,6 +196,15 @@ def test_cli_refuses_a_bad_clarity_before_reading(tmp_path, capsys):
                      "--min-clarity", value]) == 2
         err = capsys.readouterr().err
         assert "--min-clarity" in err and "missing" not in err
+    assert not (tmp_path / "o").exists()
+    for value in ("-1", "11", "nan", "inf"):
+        assert main(["unroll", str(tmp_path / "missing"), "--out", str(tmp_path / "o"),
+                     "--sharpen", value]) == 2
+        err = capsys.readouterr().err
+        assert "--sharpen" in err and "missing" not in err
+        assert main(["process", str(tmp_path / "missing"), "--calib", str(tmp_path / "c.json"),
+                     "--out", str(tmp_path / "o"), "--sharpen", value]) == 2
+        assert "--sharpen" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
     # --length and --full-length are one choice
     with pytest.raises(SystemExit):

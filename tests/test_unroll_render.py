@@ -253,6 +253,65 @@ def test_to_gray_ignores_gain_and_offset(ridges, scale, offset):
     assert np.abs(out.astype(int) - ref).max() <= 1
 
 
+def _harmonic(z, mask, period_px, angle_deg=30.0):
+    """Amplitude of the sinusoid of `period_px` along `angle_deg` in `z` over `mask` (least
+    squares on its sine and cosine)."""
+    a = sinusoid(z.shape, period_px, angle_deg) / np.sqrt(2)
+    b = sinusoid(z.shape, period_px, angle_deg, phase=np.pi / 2) / np.sqrt(2)
+    basis = np.stack([a[mask], b[mask]], -1)
+    coef, *_ = np.linalg.lstsq(basis, z[mask], rcond=None)
+    return float(np.hypot(*coef))
+
+
+def test_to_gray_sharpen_zero_is_the_plain_print(ridges):
+    v, mask = ridges
+    plain = to_gray(np.where(mask, v, np.nan), mask, sigma_px=20.0)
+    off = to_gray(np.where(mask, v, np.nan), mask, sigma_px=20.0, sharpen=0.0,
+                  sharpen_sigma_px=1.5)
+    np.testing.assert_array_equal(off, plain)
+
+
+@settings(max_examples=10, deadline=None)
+@given(amount=st.floats(0.5, 4.0), sigma=st.floats(0.8, 2.5))
+def test_to_gray_sharpen_leaves_a_sinusoid_as_it_is(ridges, amount, sigma):
+    """A linear filter changes a pure sinusoid's amplitude only, which is brought back."""
+    v, mask = ridges
+    plain = to_gray(np.where(mask, v, np.nan), mask, sigma_px=20.0).astype(int)
+    sharp = to_gray(np.where(mask, v, np.nan), mask, sigma_px=20.0, sharpen=amount,
+                    sharpen_sigma_px=sigma).astype(int)
+    inner = ndi.binary_erosion(mask, iterations=int(4 * sigma) + 2)
+    assert np.abs(sharp[inner] - plain[inner]).max() <= 2
+    assert (sharp[~mask] == 255).all()
+
+
+@pytest.mark.parametrize(("amount", "sigma"), [(2.0, 1.5), (1.0, 1.0), (3.0, 2.0)])
+def test_to_gray_sharpen_raises_the_harmonic_by_the_unsharp_gain(ridges, amount, sigma):
+    """Fundamental (period 12 px) plus its third harmonic: their amplitude ratio grows by
+    ``(1 + a(1 − G(3f))) / (1 + a(1 − G(f)))``, ``G(f) = exp(−2π²σ²f²)``."""
+    _, mask = ridges
+    period = 12.0
+    v = sinusoid(mask.shape, period) + 0.3 * sinusoid(mask.shape, period / 3)
+    inner = ndi.binary_erosion(mask, iterations=int(4 * sigma) + 2)
+
+    def ratio(gray):
+        z = (127.5 - gray.astype(float)) / 90
+        return _harmonic(z, inner, period / 3) / _harmonic(z, inner, period)
+
+    plain = to_gray(np.where(mask, v, np.nan), mask, sigma_px=40.0)
+    sharp = to_gray(np.where(mask, v, np.nan), mask, sigma_px=40.0, sharpen=amount,
+                    sharpen_sigma_px=sigma)
+
+    def gain(f):
+        return 1 + amount * (1 - np.exp(-2 * np.pi**2 * sigma**2 * f**2))
+
+    expected = gain(3 / period) / gain(1 / period)
+    assert ratio(sharp) / ratio(plain) == pytest.approx(expected, rel=0.03)
+    # the grey levels keep their span: the RMS is brought back (clipping aside)
+    z_plain = (127.5 - plain[inner].astype(float)) / 90
+    z_sharp = (127.5 - sharp[inner].astype(float)) / 90
+    assert np.sqrt(np.mean(z_sharp**2)) == pytest.approx(np.sqrt(np.mean(z_plain**2)), rel=0.05)
+
+
 def test_binarize_marks_crests(ridges):
     v, mask = ridges
     gray = to_gray(np.where(mask, v, np.nan), mask, sigma_px=20.0)

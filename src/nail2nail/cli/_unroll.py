@@ -25,6 +25,7 @@ from nail2nail.unroll import (
     MIN_CLARITY,
     MIN_LENGTH_MM,
     MIN_PPI,
+    SHARPEN,
     unroll_scans,
 )
 
@@ -100,6 +101,10 @@ def add_unroll_options(p) -> None:
                    help="keep the scanner's phase-locked error (a periodic function of the "
                    "decoded fringe phase) in the ridge signal (default: fitted per camera and "
                    "taken out, docs/unroll.md)")
+    p.add_argument("--sharpen", type=_number, default=SHARPEN, metavar="AMOUNT",
+                   help="unsharp mask that gives the grey print back the ridges' edges the "
+                   f"scanner's optics blurred, 0 to 10 (default {SHARPEN:g}; 0: none; "
+                   "docs/unroll.md)")
 
 
 def check_unroll_options(args: argparse.Namespace) -> None:
@@ -115,6 +120,8 @@ def check_unroll_options(args: argparse.Namespace) -> None:
     if tip is not None and not (all(math.isfinite(v) for v in tip) and any(tip)):
         raise ValueError("--tip-direction: expected three finite numbers X,Y,Z (not all 0), "
                          f"got {_given(tip)}")
+    if not 0 <= args.sharpen <= 10:
+        raise ValueError(f"--sharpen: expected an amount from 0 to 10, got {_given(args.sharpen)}")
     if not 0 <= args.min_clarity < 1:
         raise ValueError(f"--min-clarity: expected a clarity in [0, 1), got {args.min_clarity}")
 
@@ -122,7 +129,8 @@ def check_unroll_options(args: argparse.Namespace) -> None:
 def unroll_options(args: argparse.Namespace) -> dict:
     """The ridge-signal keyword arguments of :func:`nail2nail.unroll.unroll_scans`."""
     options = {"mix": not args.fixed_blend,
-               "min_clarity": args.min_clarity if args.min_clarity > 0 else None}
+               "min_clarity": args.min_clarity if args.min_clarity > 0 else None,
+               "sharpen": float(args.sharpen)}
     if args.no_fringe_fit:
         options["ridge_options"] = {"fringe_harmonics": 0}
     return options
