@@ -484,3 +484,13 @@ def test_blend_cameras_keeps_a_large_piece_parted_by_a_gap():
     assert not ((t > 3.5) & (t < 4.5)).any()  # the gap stays a gap
     s = grid.plane(*np.nonzero(mask))[:, 0]
     assert not ((s < -8.7) & (t > 3.9) & (t < 4.3)).any()  # the speck dropped
+
+
+@pytest.mark.parametrize("amount", [-0.5, 10.5, float("nan"), float("inf"), "2"])
+def test_unroll_refuses_a_bad_sharpen_amount(amount):
+    from nail2nail.unroll import unroll_scans
+
+    xyz, _ = plane_with_relief((40, 40))
+    scan = grid_scan(xyz, (0.0, 0.0, 100.0))
+    with pytest.raises(ValueError, match="sharpen"):
+        unroll_scans([scan], sharpen=amount)

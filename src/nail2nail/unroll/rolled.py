@@ -9,6 +9,7 @@ quality figures (:mod:`~nail2nail.unroll.quality`).
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -547,7 +548,7 @@ def unroll_scans(
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
     check_print_size(ppi, length_mm)
-    if not (isinstance(sharpen, int | float) and np.isfinite(sharpen) and 0 <= sharpen <= 10):
+    if not (isinstance(sharpen, numbers.Real) and np.isfinite(sharpen) and 0 <= sharpen <= 10):
         raise ValueError(f"sharpen: expected a number from 0 to 10, got {sharpen!r}")
     if tip_direction is not None:
         tip_direction = _direction(tip_direction, "tip_direction")
