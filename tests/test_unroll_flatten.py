@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import cumulative_trapezoid
 
@@ -467,7 +467,16 @@ def ellipse_arc(radius, cap, psi0):
 @given(radius=st.floats(6.0, 9.0), cap=st.floats(6.0, 11.0), top_deg=st.floats(50.0, 75.0))
 def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg):
     """The apex of an ellipsoidal cap seen only up to 50–75° of elevation is placed within
-    0.3 mm along the axis, and the arc to it within 0.3 mm of the exact ellipse's."""
+    0.3 mm along the axis, and the arc to it within 0.3 mm of the exact ellipse's.
+
+    The fit needs the cap's profile over four rows of the 0.5 mm mesh where its radius is
+    under ``CAP_RADIUS_FRACTION`` of the widest: a short cap seen to 50° only (its part under
+    0.85 R spans 1.5 mm along the axis) is said to be unscanned instead, as
+    :func:`test_fingertip_not_estimated_on_a_short_scanned_cap` checks."""
+    from nail2nail.unroll.flatten import CAP_RADIUS_FRACTION
+
+    start = np.arccos(CAP_RADIUS_FRACTION)  # elevation where the radius falls under 0.85 R
+    assume(cap * (np.sin(np.radians(top_deg)) - np.sin(start)) >= 2.5)  # five mesh rows
     xyz = capped_finger(radius, cap, top_deg)
     _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
     tip = mesh.extra["fingertip"]
@@ -477,6 +486,15 @@ def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg):
     psi_last = np.arcsin(np.clip(last[1] / cap, -1, 1))
     assert tip["arc_mm"] == pytest.approx(ellipse_arc(radius, cap, psi_last), abs=0.3)
     assert tip["cap_semi_axes_mm"][0] == pytest.approx(radius, rel=0.05)
+
+
+def test_fingertip_not_estimated_on_a_short_scanned_cap():
+    """Hypothesis's find: a cap of 6.5 mm seen to 50° only leaves three mesh rows under 0.85 R,
+    too few to fit; the estimate says so and the length counts from the print's first row."""
+    xyz = capped_finger(6.0, 6.5, 50.0)
+    _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
+    assert mesh.extra["fingertip"] == {"estimated": False,
+                                       "reason": "the fingertip's cap was not scanned"}
 
 
 def test_fingertip_not_estimated_without_a_cap():
