@@ -22,7 +22,12 @@ options and with the fixed relief + albedo blend of earlier versions (``before``
   *ceiling*: the ideal print of the skin this rig saw (the true print cut to the scanned area)
   against the true print. A real-print finger is scored against ``matching.png`` (another
   impression of the same finger; ``probe.png`` against it scores 235.6) and
-  ``nonmatching.png``.
+  ``nonmatching.png``;
+- where the score is lost: the true print brought through the default print's own geometry
+  and mask (``unroll_matcher.truth_through_print``: perfect ridges, our map and data region)
+  against the true print, as a fraction of the ceiling (what geometry and coverage cost; the
+  rest, to the unrolled print's ratio, is the ridge signal's), and the print's area against
+  the ideal crop's.
 
 From these: genuine and impostor distributions, FNMR at threshold 40 and at the threshold of
 FMR 10⁻³ (the impostors' 99.9th percentile), a DET plot (``--det docs/img/interop_det.png``),
@@ -148,6 +153,10 @@ def run_finger(job: dict) -> dict:
         rolled = unroll_scans(scans, **options)
         t_unroll = time.perf_counter() - t1
         sourceafis.save_png(out / f"print_{tag}.png", rolled.image)
+        if tag == "default":
+            # perfect ridges through this print's geometry and mask: what those cost
+            sourceafis.save_png(out / "truth_through_print.png",
+                                um.truth_through_print(rolled, scans, uv, sampler))
         acc = geometric_accuracy(rolled, scans, uv, truth_sampler=sampler, maps=True)
         meta = rolled.metadata()
         result[tag] = {
@@ -158,6 +167,7 @@ def run_finger(job: dict) -> dict:
             "clarity_median": meta["quality"]["clarity_median"],
             "gate": meta["quality"].get("gate"),
             "print_size_mm": meta["print_size_mm"],
+            "print_area_mm2": meta["print_area_mm2"],
         }
     return result
 
@@ -234,6 +244,7 @@ def score(results: list[dict], out: Path) -> dict:
     for i, r in enumerate(synthetic):
         d = out / r["name"]
         add(d / "ideal.png", d / "truth.png", ("ceiling", i))
+        add(d / "truth_through_print.png", d / "truth.png", ("through", i))
         for tag in ("default", "before"):
             for j, s in enumerate(synthetic):
                 add(d / f"print_{tag}.png", out / s["name"] / "truth.png", (tag, i, j))
@@ -253,6 +264,9 @@ def score(results: list[dict], out: Path) -> dict:
     for i, r in enumerate(synthetic):
         ceiling = scores[("ceiling", i)]
         r["ceiling"] = ceiling
+        # perfect ridges through our geometry and mask, as a fraction of the ceiling
+        r["through_print_ratio"] = round(scores[("through", i)] / ceiling, 4) \
+            if ceiling > 0 else None
         for tag in ("default", "before"):
             g = scores[(tag, i, i)]
             imp = [scores[(tag, i, j)] for j in range(n) if j != i]
@@ -283,6 +297,13 @@ def score(results: list[dict], out: Path) -> dict:
                 "fnmr_at_fmr_1e-3": float((genuine < t_fmr3).mean()) if t_fmr3 else None,
                 "ratio_to_ceiling_median": float(np.median(ratios)),
                 "ratio_to_ceiling_min": float(ratios.min()),
+                # the loss split: perfect ridges through the print's geometry and mask (the
+                # same for both variants: the default's), and the print's area against the
+                # ideal crop's
+                "through_print_ratio_median": float(np.median(
+                    [r["through_print_ratio"] for r in synthetic])),
+                "area_to_ideal_median": float(np.median(
+                    [r[tag]["print_area_mm2"] / r["ideal"]["area_mm2"] for r in synthetic])),
                 "_genuine": genuine.tolist(), "_impostor": impostor.tolist(),
             }
         if real:
@@ -315,6 +336,9 @@ def markdown(summary: dict, results: list[dict], before: str = "fixed-blend") ->
 
     row("unrolled / ceiling, median", "ratio_to_ceiling_median")
     row("unrolled / ceiling, worst finger", "ratio_to_ceiling_min")
+    row("true print through the default's geometry and mask / ceiling, median",
+        "through_print_ratio_median")
+    row("print area / ideal crop's area, median", "area_to_ideal_median")
     row("genuine score, lowest", "genuine_min", "{:.1f}")
     row("impostor score, highest", "impostor_max", "{:.1f}")
     row("FNMR at 40 (FMR 0.01 %)", "fnmr_at_40")

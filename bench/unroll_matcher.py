@@ -170,6 +170,40 @@ def truth_crop(image: np.ndarray, geometry: dict, scans, uv, *, margin_px: int =
                   "area_mm2": round(float(mask.sum()) * pitch * pitch, 2)}
 
 
+def truth_through_print(rolled, scans, uv, sampler) -> np.ndarray:
+    """The true print brought onto an unrolled print's grid, inside its mask: perfect ridges
+    through the print's own geometry and data region.
+
+    Every valid camera pixel carries the true print's value at its true skin coordinates
+    (`sampler`, `uv`) to the print pixel the unroll maps its 3D point to; the values are
+    averaged per pixel, the splat's gaps filled by a normalised Gaussian (σ 0.7 px), and the
+    result rendered as the true print is (``I = 127.5 − 127.5 f``), white off ``rolled.mask``.
+    Scored against the true print, it separates what the geometry and the mask cost from what
+    the ridge signal costs (the unrolled print through the same grid).
+    """
+    from nail2nail.unroll.ridges import scan_valid
+
+    h, w = rolled.grid.shape
+    total = np.zeros(h * w)
+    count = np.zeros(h * w)
+    for scan, (tu, tv) in zip(scans, uv, strict=True):
+        ok = scan_valid(scan) & np.isfinite(tu) & np.isfinite(tv)
+        r, c = rolled.pixel_of(np.asarray(scan.xyz, np.float64)[ok])
+        ri, ci = np.rint(r).astype(np.intp), np.rint(c).astype(np.intp)
+        inside = (ri >= 0) & (ri < h) & (ci >= 0) & (ci < w)
+        pix = ri[inside] * w + ci[inside]
+        total += np.bincount(pix, sampler(tu[ok], tv[ok])[inside], minlength=h * w)
+        count += np.bincount(pix, minlength=h * w)
+    have = (count > 0).reshape(h, w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        field = np.where(have, total.reshape(h, w) / count.reshape(h, w), 0.0)
+    num = ndi.gaussian_filter(field, 0.7)
+    den = ndi.gaussian_filter(have.astype(np.float64), 0.7)
+    field = num / np.maximum(den, 1e-6)
+    return np.where(rolled.mask, np.clip(np.rint(127.5 - 127.5 * field), 0, 255),
+                    255).astype(np.uint8)
+
+
 def to_ppi(image: np.ndarray, ppi: float, target: float = PPI) -> np.ndarray:
     """`image` resampled from `ppi` to `target` ppi (unchanged when equal)."""
     if abs(ppi - target) < 1e-6:
