@@ -441,10 +441,13 @@ def test_surface_mesh_too_small():
 
 
 # -- the fingertip beyond the scan -------------------------------------------------------------
-def capped_finger(radius, cap, top_deg, *, n=120_000, half_deg=100.0, length=20.0, seed=0):
+def capped_finger(radius, cap, top_deg, *, n=120_000, half_deg=100.0, length=20.0, seed=0,
+                  taper=0.0):
     """Points of a circular finger (axis +y, pad +z, radius `radius`) below ``y = 0`` capped by
     a half-ellipsoid of semi-axes ``(radius, cap, radius)``, scanned on the cap only up to the
-    elevation `top_deg` (the apex, ``y = cap``, at 90°)."""
+    elevation `top_deg` (the apex, ``y = cap``, at 90°); with `taper`, the body's radius grows
+    by that fraction per mm below the cap (``radius · (1 − taper · y)``, as the virtual
+    finger's)."""
     rng = np.random.default_rng(seed)
     top = np.radians(top_deg)
     cap_arc = cap * top  # a rough share of the points for the cap
@@ -453,7 +456,7 @@ def capped_finger(radius, cap, top_deg, *, n=120_000, half_deg=100.0, length=20.
     y_body = rng.uniform(-length, 0.0, n - m)
     psi = rng.uniform(0.0, top, m)
     y = np.concatenate([y_body, cap * np.sin(psi)])
-    r = np.concatenate([np.full(n - m, radius), radius * np.cos(psi)])
+    r = np.concatenate([radius * (1 - taper * y_body), radius * np.cos(psi)])
     return np.stack([r * np.sin(phi), y, r * np.cos(phi)], axis=1)
 
 
@@ -464,10 +467,12 @@ def ellipse_arc(radius, cap, psi0):
 
 
 @settings(max_examples=12, deadline=None)
-@given(radius=st.floats(6.0, 9.0), cap=st.floats(6.0, 11.0), top_deg=st.floats(50.0, 75.0))
-def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg):
+@given(radius=st.floats(6.0, 9.0), cap=st.floats(6.0, 11.0), top_deg=st.floats(50.0, 75.0),
+       taper=st.sampled_from([0.0, 0.005, 0.01, 0.02]))
+def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg, taper):
     """The apex of an ellipsoidal cap seen only up to 50–75° of elevation is placed within
-    0.3 mm along the axis, and the arc to it within 0.3 mm of the exact ellipse's.
+    0.3 mm along the axis, and the arc to it within 0.3 mm of the exact ellipse's, on a
+    straight body and on one tapered by up to 2 % per mm (its radius 40 % larger 20 mm down).
 
     The fit needs the cap's profile over four rows of the 0.5 mm mesh where its radius is
     under ``CAP_RADIUS_FRACTION`` of the widest: a short cap seen to 50° only (its part under
@@ -477,7 +482,7 @@ def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg):
 
     start = np.arccos(CAP_RADIUS_FRACTION)  # elevation where the radius falls under 0.85 R
     assume(cap * (np.sin(np.radians(top_deg)) - np.sin(start)) >= 2.5)  # five mesh rows
-    xyz = capped_finger(radius, cap, top_deg)
+    xyz = capped_finger(radius, cap, top_deg, taper=taper)
     _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
     tip = mesh.extra["fingertip"]
     assert tip["estimated"], tip

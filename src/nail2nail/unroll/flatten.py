@@ -856,9 +856,17 @@ def _weighted_stats(x, w) -> dict:
 
 
 #: The fingertip's cap on the pad's profile: the profile's points whose radius is below this
-#: fraction of the profile's largest are the cap's (the body's taper changes the radius by a
-#: few per cent over a finger; the cap's falls to zero)
+#: fraction of the profile's largest within :data:`CAP_REFERENCE_MM` below them are the cap's
+#: (the cap's radius falls to zero; the body's does not)
 CAP_RADIUS_FRACTION = 0.85
+#: How far below a row of the profile its reference radius is looked for, mm: a tapered
+#: body widens by up to 25 % over the 25 mm a scan sees (the random conditions' taper,
+#: 1 % per mm), so the profile's widest row overall lies far down the finger, and a fraction
+#: of it took the body's upper part for the cap (fitted semi-axes 1–3 mm off on tapered
+#: fingers). 6 mm reaches the cap's base from where its radius has fallen to 0.85 on caps up
+#: to 11 mm long (0.53 of the cap's length), and leaves the body out for tapers up to 2.9 %
+#: per mm (1 / (1 + 6 τ) > 0.85)
+CAP_REFERENCE_MM = 6.0
 #: half-width of the band around the pad's centre line whose points make its profile, mm
 PROFILE_BAND_MM = 1.5
 #: the most arc the fingertip's estimate may add beyond the scanned skin, mm (a cap seen only
@@ -874,7 +882,8 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     rolled print's length is counted from the tip (:data:`~nail2nail.unroll.rolled.
     DEFAULT_LENGTH_MM`), so the unseen arc is estimated: the pad's profile (median radius of
     the mesh vertices within :data:`PROFILE_BAND_MM` of the centre line, per row of the
-    mesh) is, where its radius is below :data:`CAP_RADIUS_FRACTION` of its largest, fitted by
+    mesh) is, where its radius is below :data:`CAP_RADIUS_FRACTION` of its largest within
+    :data:`CAP_REFERENCE_MM` below (the cap's base, on a tapered finger too), fitted by
     least squares with a conic of revolution ``r² = c₀ + c₁ z + c₂ z²`` (``c₂ < 0``: an ellipse
     of semi-axes ``(R, a)`` centred on the axis, the section of an ellipsoidal cap), and the
     arc from the last scanned point of the profile to the ellipse's apex (``r = 0``) is
@@ -908,12 +917,19 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     rad = 0.5 * (r[near][order][starts + (counts - 1) // 2] + r[near][order][starts + counts // 2])
     top = int(np.argmax(rad))
+    # each row's reference: the profile's largest radius within CAP_REFERENCE_MM below it
+    # (rows may have gaps: a running maximum over the row numbers, not the list)
+    window = max(1, int(round(CAP_REFERENCE_MM / mesh.grid_mm)))
+    line = np.full(int(rows[-1] - rows[0]) + 1 + window, -np.inf)
+    line[window + (rows - rows[0])] = rad
+    reference = np.lib.stride_tricks.sliding_window_view(line, window + 1).max(axis=1)
+    reference = reference[rows - rows[0]]
     # the cap: the profile's vertices beyond its widest row whose radius is below the fraction
-    # (every vertex of the band, not the rows' medians: a vertex more or less moves the fit
-    # less)
+    # of their row's reference (every vertex of the band, not the rows' medians: a vertex more
+    # or less moves the fit less)
     beyond = np.zeros(rows.size, bool)
     beyond[top + 1:] = True
-    cap = beyond[inverse] & (r[near] < CAP_RADIUS_FRACTION * rad[top])
+    cap = beyond[inverse] & (r[near] < CAP_RADIUS_FRACTION * reference[inverse])
     if np.unique(inverse[cap]).size < 4:
         return {"estimated": False, "reason": "the fingertip's cap was not scanned"}
     zc, rc = z[near][cap], r[near][cap]
