@@ -919,7 +919,7 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     top = int(np.argmax(rad))
     # each row's reference: the profile's largest radius within CAP_REFERENCE_MM below it
     # (rows may have gaps: a running maximum over the row numbers, not the list)
-    window = max(1, int(round(CAP_REFERENCE_MM / mesh.grid_mm)))
+    window = max(1, round(CAP_REFERENCE_MM / mesh.grid_mm))
     line = np.full(int(rows[-1] - rows[0]) + 1 + window, -np.inf)
     line[window + (rows - rows[0])] = rad
     reference = np.lib.stride_tricks.sliding_window_view(line, window + 1).max(axis=1)
