@@ -84,21 +84,9 @@ BEFORE = {
 
 def body_and_cap(rolled, scans, uv, y0: float, acc: dict) -> dict:
     """Scale error and displacement p95 over the body (true ``v ≤ y0``) and the cap."""
-    from nail2nail.unroll.ridges import scan_valid
-
-    h, w = rolled.grid.shape
-    v_sum = np.zeros(h * w)
-    n = np.zeros(h * w)
-    for scan, (tu, tv) in zip(scans, uv, strict=True):
-        ok = scan_valid(scan) & np.isfinite(tu) & np.isfinite(tv)
-        r, c = rolled.pixel_of(np.asarray(scan.xyz, np.float64)[ok])
-        ri, ci = np.rint(r).astype(np.intp), np.rint(c).astype(np.intp)
-        inside = (ri >= 0) & (ri < h) & (ci >= 0) & (ci < w)
-        pix = ri[inside] * w + ci[inside]
-        v_sum += np.bincount(pix, tv[ok][inside], minlength=h * w)
-        n += np.bincount(pix, minlength=h * w)
+    v_sum, n = um.splat_on_print(rolled, scans, uv, lambda tu, tv: tv)
     with np.errstate(invalid="ignore"):
-        v_map = (v_sum / n).reshape(h, w)
+        v_map = v_sum / n
     out = {}
     for part, sel in (("body", v_map <= y0), ("cap", v_map > y0)):
         scale = acc["scale_error_map"][sel & np.isfinite(acc["scale_error_map"])]

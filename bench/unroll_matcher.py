@@ -170,16 +170,16 @@ def truth_crop(image: np.ndarray, geometry: dict, scans, uv, *, margin_px: int =
                   "area_mm2": round(float(mask.sum()) * pitch * pitch, 2)}
 
 
-def truth_through_print(rolled, scans, uv, sampler) -> np.ndarray:
-    """The true print brought onto an unrolled print's grid, inside its mask: perfect ridges
-    through the print's own geometry and data region.
+def splat_on_print(rolled, scans, uv, value_of) -> tuple[np.ndarray, np.ndarray]:
+    """Sum and count per print pixel of ``value_of(u, v)`` over every valid camera pixel.
 
-    Every valid camera pixel carries the true print's value at its true skin coordinates
-    (`sampler`, `uv`) to the print pixel the unroll maps its 3D point to; the values are
-    averaged per pixel, the splat's gaps filled by a normalised Gaussian (σ 0.7 px), and the
-    result rendered as the true print is (``I = 127.5 − 127.5 f``), white off ``rolled.mask``.
-    Scored against the true print, it separates what the geometry and the mask cost from what
-    the ridge signal costs (the unrolled print through the same grid).
+    Each camera pixel with a 3D point and a true skin coordinate ``(u, v)`` (mm, `uv` per scan)
+    lands on the print pixel the unroll maps its point to (nearest pixel).
+
+    Returns
+    -------
+    total, count : (H, W) float64
+        Of the print's grid; ``total / count`` is the mean where ``count > 0``.
     """
     from nail2nail.unroll.ridges import scan_valid
 
@@ -192,11 +192,26 @@ def truth_through_print(rolled, scans, uv, sampler) -> np.ndarray:
         ri, ci = np.rint(r).astype(np.intp), np.rint(c).astype(np.intp)
         inside = (ri >= 0) & (ri < h) & (ci >= 0) & (ci < w)
         pix = ri[inside] * w + ci[inside]
-        total += np.bincount(pix, sampler(tu[ok], tv[ok])[inside], minlength=h * w)
+        total += np.bincount(pix, np.asarray(value_of(tu[ok], tv[ok]))[inside], minlength=h * w)
         count += np.bincount(pix, minlength=h * w)
-    have = (count > 0).reshape(h, w)
+    return total.reshape(h, w), count.reshape(h, w)
+
+
+def truth_through_print(rolled, scans, uv, sampler) -> np.ndarray:
+    """The true print brought onto an unrolled print's grid, inside its mask: perfect ridges
+    through the print's own geometry and data region.
+
+    Every valid camera pixel carries the true print's value at its true skin coordinates
+    (`sampler`, `uv`) to the print pixel the unroll maps its 3D point to; the values are
+    averaged per pixel, the splat's gaps filled by a normalised Gaussian (σ 0.7 px), and the
+    result rendered as the true print is (``I = 127.5 − 127.5 f``), white off ``rolled.mask``.
+    Scored against the true print, it separates what the geometry and the mask cost from what
+    the ridge signal costs (the unrolled print through the same grid).
+    """
+    total, count = splat_on_print(rolled, scans, uv, sampler)
+    have = count > 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        field = np.where(have, total.reshape(h, w) / count.reshape(h, w), 0.0)
+        field = np.where(have, total / count, 0.0)
     num = ndi.gaussian_filter(field, 0.7)
     den = ndi.gaussian_filter(have.astype(np.float64), 0.7)
     field = num / np.maximum(den, 1e-6)
