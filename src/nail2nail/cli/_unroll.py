@@ -21,6 +21,7 @@ from nail2nail.unroll import (
     DEFAULT_METHOD,
     MAX_LENGTH_MM,
     MAX_PPI,
+    MAX_SHARPEN,
     METHODS,
     MIN_CLARITY,
     MIN_LENGTH_MM,
@@ -103,7 +104,8 @@ def add_unroll_options(p) -> None:
                    "taken out, docs/unroll.md)")
     p.add_argument("--sharpen", type=_number, default=SHARPEN, metavar="AMOUNT",
                    help="unsharp mask that gives the grey print back the ridges' edges the "
-                   f"scanner's optics blurred, 0 to 10 (default {SHARPEN:g}; 0: none; "
+                   f"scanner's optics blurred, 0 to {MAX_SHARPEN:g} (default {SHARPEN:g}; "
+                   "0: none; "
                    "docs/unroll.md)")
 
 
@@ -120,8 +122,9 @@ def check_unroll_options(args: argparse.Namespace) -> None:
     if tip is not None and not (all(math.isfinite(v) for v in tip) and any(tip)):
         raise ValueError("--tip-direction: expected three finite numbers X,Y,Z (not all 0), "
                          f"got {_given(tip)}")
-    if not 0 <= args.sharpen <= 10:
-        raise ValueError(f"--sharpen: expected an amount from 0 to 10, got {_given(args.sharpen)}")
+    if not 0 <= args.sharpen <= MAX_SHARPEN:
+        raise ValueError(f"--sharpen: expected an amount from 0 to {MAX_SHARPEN:g}, got "
+                         f"{_given(args.sharpen)}")
     if not 0 <= args.min_clarity < 1:
         raise ValueError(f"--min-clarity: expected a clarity in [0, 1), got {args.min_clarity}")
 

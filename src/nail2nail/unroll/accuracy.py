@@ -176,7 +176,7 @@ def geometric_accuracy(rolled: RolledPrint, scans, truth_uv, *, baseline_mm: flo
         truth[gr, gc] = 127.5 - 127.5 * truth_sampler(tuv[:, 0], tuv[:, 1])
         block = round(3.2 / grid.pitch)
         # the print before its sharpening: the unsharp mask biases the measured period
-        plain = rolled.plain if getattr(rolled, "plain", None) is not None else rolled.image
+        plain = rolled.plain if rolled.plain is not None else rolled.image
         qa = block_quality(plain, rolled.mask, block_px=block)
         qb = block_quality(truth, rolled.mask, block_px=block)
         both = (qa["clarity"] > 0.3) & (qb["clarity"] > 0.3)

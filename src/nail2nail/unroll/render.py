@@ -23,7 +23,8 @@ from nail2nail.unroll.flatten import RolledMap
 from nail2nail.unroll.ridges import masked_gaussian
 
 __all__ = ["MAX_PRINT_PIXELS", "MM_PER_INCH", "SUPPORT_PPI", "PrintGrid", "binarize",
-           "blend_cameras", "print_grid", "to_gray"]
+           "blend_cameras", "gray_levels", "normalized_print", "print_grid", "to_gray",
+           "unsharp_mask"]
 
 MM_PER_INCH = 25.4
 
@@ -224,17 +225,9 @@ def camera_samples(scan, signal, weight, flat):
     return flat(xyz), signal[ok], weight[ok]
 
 
-def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
-            floor_fraction: float = 0.0, sharpen: float = 0.0,
-            sharpen_sigma_px: float = 0.0) -> np.ndarray:
-    """8-bit print: ridges dark on white, contrast normalised locally (σ `sigma_px`).
-
-    ``I = 127.5 − 90 z`` with ``z`` the locally normalised ridge signal (a sinusoid of unit
-    RMS spans ±1.41, i.e. about 0–255); white (255) off `mask`. With `sharpen`, ``z`` is first
-    given back the ridges' edges that the capture chain blurred (camera and projector optics,
-    subsurface scattering, the noise smoothing and the splatting): an unsharp mask
-    ``z + sharpen · (z − G_σ z)`` (σ `sharpen_sigma_px`, normalised over the mask), brought
-    back to the RMS ``z`` had, so that the grey levels span the same range.
+def normalized_print(value, mask, *, sigma_px: float, reduce: int = 1,
+                     floor_fraction: float = 0.0) -> np.ndarray:
+    """The ridge signal normalised locally: ``z = (v − mean) / rms`` over a Gaussian window.
 
     Parameters
     ----------
@@ -249,6 +242,86 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
     floor_fraction : float
         The local RMS is floored at this fraction of its 90th percentile over the mask (the
         ridges' level), so that a faint region stays faint (0: no floor).
+
+    Returns
+    -------
+    (H, W) float
+        About unit local RMS on the mask; 0 off it.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    mean = masked_gaussian(value, mask, sigma_px, reduce=reduce)
+    d = np.where(mask, value - mean, 0)
+    rms = np.sqrt(masked_gaussian(d * d, mask, sigma_px, reduce=reduce))
+    if floor_fraction > 0 and np.any(mask):
+        level = rms[mask & np.isfinite(rms)]
+        if level.size:
+            rms = np.maximum(rms, floor_fraction * float(np.percentile(level, 90)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(mask, d / np.maximum(rms, 1e-12), 0)
+
+
+def unsharp_mask(z, mask, *, amount: float, sigma_px: float) -> np.ndarray:
+    """``z + amount · (z − G_σ z)``, brought back to the RMS `z` had over `mask`.
+
+    Gives the ridges back the edges that the capture chain blurred (camera and projector
+    optics, subsurface scattering, the noise smoothing and the splatting); ``G_σ`` is a
+    Gaussian normalised over the mask (:func:`~nail2nail.unroll.ridges.masked_gaussian`), so
+    the print's edge is not pulled towards 0. A sinusoid of frequency ``f`` (cycles/px) gains
+    ``1 + amount (1 − exp(−2π² σ² f²))`` before the RMS is brought back. Unsharp masking
+    (Gonzalez and Woods, *Digital Image Processing*, "unsharp masking and highboost
+    filtering"); no thesis equation covers it.
+
+    Parameters
+    ----------
+    z : (H, W) float
+        Normalised print signal (:func:`normalized_print`).
+    mask : (H, W) bool
+    amount : float
+        0 (or `sigma_px` 0, or an empty mask): `z` unchanged.
+    sigma_px : float
+        σ of the Gaussian, print px.
+
+    Returns
+    -------
+    (H, W) float
+        0 off `mask`.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if not (amount > 0 and sigma_px > 0 and mask.any()):
+        return z
+    blurred = np.nan_to_num(masked_gaussian(z, mask, sigma_px))
+    sharp = np.where(mask, z + amount * (z - blurred), 0)
+    before = float(np.sqrt(np.mean(z[mask] ** 2)))
+    after = float(np.sqrt(np.mean(sharp[mask] ** 2)))
+    return sharp * (before / after) if after > 0 else z
+
+
+def gray_levels(z, mask) -> np.ndarray:
+    """``I = 127.5 − 90 z``, rounded and clipped to 8 bits; white (255) off `mask`.
+
+    A sinusoid of unit RMS spans ±1.41, i.e. about 0–255; ridges (``z > 0``) dark.
+
+    Returns
+    -------
+    (H, W) uint8
+    """
+    gray = np.clip(np.rint(127.5 - 90.0 * z), 0, 255)
+    return np.where(mask, gray, 255).astype(np.uint8)
+
+
+def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
+            floor_fraction: float = 0.0, sharpen: float = 0.0,
+            sharpen_sigma_px: float = 0.0) -> np.ndarray:
+    """8-bit print: ridges dark on white, contrast normalised locally (σ `sigma_px`).
+
+    :func:`gray_levels` of :func:`normalized_print`, with `sharpen` first given an
+    :func:`unsharp_mask` (the print :func:`unroll_scans` delivers).
+
+    Parameters
+    ----------
+    value, mask, sigma_px, reduce, floor_fraction
+        As :func:`normalized_print` (`value` (H, W) float, positive on ridge crests; `mask`
+        (H, W) bool).
     sharpen : float
         Amount of the unsharp mask (0: none).
     sharpen_sigma_px : float
@@ -260,24 +333,10 @@ def to_gray(value, mask, *, sigma_px: float, reduce: int = 1,
     -------
     (H, W) uint8
     """
-    mask = np.asarray(mask, dtype=bool)
-    mean = masked_gaussian(value, mask, sigma_px, reduce=reduce)
-    d = np.where(mask, value - mean, 0)
-    rms = np.sqrt(masked_gaussian(d * d, mask, sigma_px, reduce=reduce))
-    if floor_fraction > 0 and np.any(mask):
-        level = rms[mask & np.isfinite(rms)]
-        if level.size:
-            rms = np.maximum(rms, floor_fraction * float(np.percentile(level, 90)))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.where(mask, d / np.maximum(rms, 1e-12), 0)
-    if sharpen > 0 and sharpen_sigma_px > 0 and mask.any():
-        blurred = np.nan_to_num(masked_gaussian(z, mask, sharpen_sigma_px))
-        sharp = np.where(mask, z + sharpen * (z - blurred), 0)
-        before, after = float(np.sqrt(np.mean(z[mask] ** 2))), \
-            float(np.sqrt(np.mean(sharp[mask] ** 2)))
-        z = sharp * (before / after) if after > 0 else z
-    gray = np.clip(np.rint(127.5 - 90.0 * z), 0, 255)
-    return np.where(mask, gray, 255).astype(np.uint8)
+    z = normalized_print(value, mask, sigma_px=sigma_px, reduce=reduce,
+                         floor_fraction=floor_fraction)
+    z = unsharp_mask(z, mask, amount=sharpen, sigma_px=sharpen_sigma_px)
+    return gray_levels(z, mask)
 
 
 def binarize(gray, mask, *, period_px: float) -> np.ndarray:
