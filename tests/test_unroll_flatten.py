@@ -493,13 +493,62 @@ def test_fingertip_found_beyond_the_scanned_cap(radius, cap, top_deg, taper):
     assert tip["cap_semi_axes_mm"][0] == pytest.approx(radius, rel=0.05)
 
 
-def test_fingertip_not_estimated_on_a_short_scanned_cap():
-    """Hypothesis's find: a cap of 6.5 mm seen to 50° only leaves three mesh rows under 0.85 R,
-    too few to fit; the estimate says so and the length counts from the print's first row."""
+@settings(max_examples=12, deadline=None)
+@given(radius=st.floats(6.0, 9.0), cap=st.floats(6.0, 11.0), top_deg=st.floats(38.0, 50.0),
+       taper=st.sampled_from([0.0, 0.005, 0.01]))
+def test_fingertip_found_from_the_cap_base(radius, cap, top_deg, taper):
+    """A cap seen only to 38–50° (under four mesh rows below 0.85 R: hypothesis's earlier
+    find, a 6.5 mm cap seen to 50°) is fitted on the rows that fall away from the body's
+    trend instead: the apex within 0.3 mm along the axis, the arc within 0.3 mm."""
+    xyz = capped_finger(radius, cap, top_deg, taper=taper)
+    _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
+    tip = mesh.extra["fingertip"]
+    assert tip["estimated"], tip
+    last = tip["last_point"]
+    assert last[1] + tip["axial_mm"] == pytest.approx(cap, abs=0.3)
+    psi_last = np.arcsin(np.clip(last[1] / cap, -1, 1))
+    assert tip["arc_mm"] == pytest.approx(ellipse_arc(radius, cap, psi_last), abs=0.3)
+
+
+def test_fingertip_short_cap_uses_the_cap_base():
+    """The 6.5 mm cap seen to 50° leaves three rows under 0.85 R; the cap base's fit gives its
+    apex within 0.05 mm and says which fit it was."""
     xyz = capped_finger(6.0, 6.5, 50.0)
+    _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
+    tip = mesh.extra["fingertip"]
+    assert tip["fit"] == "cap base"
+    assert tip["last_point"][1] + tip["axial_mm"] == pytest.approx(6.5, abs=0.05)
+
+
+def test_fingertip_not_estimated_on_a_barely_scanned_cap():
+    """A cap seen to 15° only (its radius 3.4 % under the body's) is too little to extrapolate:
+    the estimate says so and the length counts from the print's first row."""
+    xyz = capped_finger(6.0, 6.5, 15.0)
     _, mesh = fit_flattening(xyz, "rolled", tip_direction=(0, 1, 0), pad_direction=(0, 0, 1))
     assert mesh.extra["fingertip"] == {"estimated": False,
                                        "reason": "the fingertip's cap was not scanned"}
+
+
+@pytest.mark.parametrize("method", ["rolled", "isometric"])
+def test_a_band_across_the_finger_leaves_the_cap_in_the_mesh(method):
+    """A 2 mm band the cameras did not see (a shadow, a hair) parts the cap from the body: the
+    mesh keeps both pieces, so the cap is flattened as a cap, not as the body's extension. On
+    the pad's line the print's ``t`` from the cap's base to 50° of elevation is the arc
+    ``R ψ`` within 0.05 mm, as without the band, across the band 6 mm of body within 0.1 mm
+    (the isometric map places each piece by its middle vertex's cylinder coordinates: 0.06 mm
+    off here), and the fingertip is found."""
+    xyz = capped_finger(8.0, 8.0, 60.0)
+    band = (xyz[:, 1] > -3.0) & (xyz[:, 1] < -1.0)
+    psi = np.radians(50.0)
+    line = np.array([[0.0, 8.0 * np.sin(psi), 8.0 * np.cos(psi)], [0.0, 0.0, 8.0],
+                     [0.0, -6.0, 8.0]])
+    flat, mesh = fit_flattening(xyz[~band], method, tip_direction=(0, 1, 0),
+                                pad_direction=(0, 0, 1))
+    assert np.bincount(mesh.piece).size == 2
+    assert mesh.extra["fingertip"]["estimated"]
+    t = flat(line)[:, 1]
+    assert t[0] - t[1] == pytest.approx(8.0 * psi, abs=0.05)
+    assert t[1] - t[2] == pytest.approx(6.0, abs=0.1)
 
 
 def test_fingertip_not_estimated_without_a_cap():

@@ -324,6 +324,10 @@ MAX_EXTENT_MM = 300.0
 #: :data:`MAX_EXTENT_MM`, which a cylinder fit gone wrong can still reach around the finger);
 #: about 100 MB of work arrays.
 MAX_MESH_CELLS = 4_000_000
+#: Smallest connected piece of the surface mesh kept, as a fraction of the largest piece's
+#: triangles (:func:`surface_mesh`): a cap parted from the body by a band the cameras did not
+#: see is 10–40 % of the body; the stray specks left of a scan's outliers are a few triangles
+MIN_PIECE_FRACTION = 0.02
 
 
 def bulk_sphere(xyz, *, n_max: int = 20000, seed: int = 2) -> tuple[np.ndarray, float]:
@@ -683,6 +687,8 @@ class SurfaceMesh:
     grid_origin : (2,) float
         Cylinder ``(s, t)`` of node ``[0, 0]``, mm.
     grid_mm : float
+    piece : (V,) int64
+        The connected piece of each vertex, numbered by size (0: the largest).
     """
 
     vertices: np.ndarray
@@ -691,7 +697,21 @@ class SurfaceMesh:
     grid_shape: tuple[int, int]
     grid_origin: np.ndarray
     grid_mm: float
+    piece: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
+
+    def largest_piece(self) -> SurfaceMesh:
+        """The mesh of the largest connected piece alone (itself when it has one piece)."""
+        if self.piece is None or not self.piece.any():
+            return self
+        keep = self.piece == 0
+        remap = np.full(len(keep), -1, dtype=np.int64)
+        remap[keep] = np.arange(int(keep.sum()))
+        faces = remap[self.faces]
+        return SurfaceMesh(vertices=self.vertices[keep], faces=faces[(faces >= 0).all(axis=1)],
+                           node=self.node[keep], grid_shape=self.grid_shape,
+                           grid_origin=self.grid_origin, grid_mm=self.grid_mm,
+                           piece=np.zeros(int(keep.sum()), dtype=np.int64))
 
 
 def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
@@ -702,8 +722,10 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     the points that fall in it (which averages out
     ridges, so the mesh is the skin's base surface); cells with fewer than `min_samples`
     points are empty. Neighbouring cells are joined by two triangles per square, triangles with
-    an edge longer than 3 `grid_mm` are dropped (depth jumps), and only the largest connected
-    piece is kept.
+    an edge longer than 3 `grid_mm` are dropped (depth jumps), and the connected pieces with at
+    least :data:`MIN_PIECE_FRACTION` of the largest one's triangles are kept (a band the
+    cameras did not see, a shadow or a hair across the finger, parts the cap from the body:
+    both are skin; specks of stray points are not).
 
     Parameters
     ----------
@@ -764,35 +786,50 @@ def surface_mesh(xyz, cylinder: CylinderMap, *, grid_mm: float = 0.5,
     adj = scipy.sparse.coo_matrix(
         (np.ones(3 * len(tris)), (tris.ravel(), np.roll(tris, 1, axis=1).ravel())), (n, n))
     _, label = scipy.sparse.csgraph.connected_components(adj, directed=False)
-    largest = np.bincount(label[tris[:, 0]]).argmax()
-    tris = tris[label[tris[:, 0]] == largest]
+    size = np.bincount(label[tris[:, 0]])
+    kept = np.flatnonzero(size >= MIN_PIECE_FRACTION * size.max())
+    tri_label = label[tris[:, 0]]
+    inside = np.isin(tri_label, kept)
+    tris, tri_label = tris[inside], tri_label[inside]
     used = np.unique(tris)
     remap = np.full(n, -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     rows, cols = np.divmod(np.flatnonzero(ok)[used], gw)
+    # pieces numbered by size, 0 the largest
+    rank = np.empty(label.max() + 1, dtype=np.int64)
+    rank[kept[np.argsort(-size[kept], kind="stable")]] = np.arange(kept.size)
     return SurfaceMesh(vertices=verts[used], faces=remap[tris], node=np.stack([rows, cols], -1),
-                       grid_shape=(gh, gw), grid_origin=origin, grid_mm=float(grid_mm))
+                       grid_shape=(gh, gw), grid_origin=origin, grid_mm=float(grid_mm),
+                       piece=rank[label[used]])
 
 
 def _fit_isometric(mesh: SurfaceMesh, cylinder: CylinderMap, *, iterations: int) -> IsometricMap:
     import igl
 
     st0 = cylinder(mesh.vertices)
+    piece = np.zeros(len(st0), np.int64) if mesh.piece is None else mesh.piece
     data = igl.ARAPData()
     data.max_iter = int(iterations)
-    # one vertex pinned (near the middle) fixes the translation; the rotation stays free
-    pin = int(np.argmin(np.linalg.norm(st0 - st0.mean(axis=0), axis=1)))
-    igl.arap_precomputation(mesh.vertices, mesh.faces, 2, np.array([pin], dtype=np.int32), data)
-    uv = igl.arap_solve(st0[[pin]], data, st0)
-    # ARAP is defined up to a rigid motion: align it with the cylinder coordinates (Kabsch,
-    # no scale, no reflection), so that s still runs around the finger and t towards the tip
-    mu, m0 = uv.mean(axis=0), st0.mean(axis=0)
-    u, _, vt = np.linalg.svd((uv - mu).T @ (st0 - m0))
-    rot = u @ vt
-    if np.linalg.det(rot) < 0:
-        u[:, -1] *= -1
+    # one vertex pinned per connected piece (near its middle) fixes its translation at its
+    # cylinder coordinates (a piece parted from the others by a band the cameras did not see
+    # would float free); the rotations stay free
+    pins = np.array([np.flatnonzero(piece == k)[np.argmin(np.linalg.norm(
+        st0[piece == k] - st0[piece == k].mean(axis=0), axis=1))]
+        for k in range(int(piece.max()) + 1)], dtype=np.int32)
+    igl.arap_precomputation(mesh.vertices, mesh.faces, 2, pins, data)
+    uv = igl.arap_solve(st0[pins], data, st0)
+    # ARAP is defined up to a rigid motion: turn each piece about its pin onto the cylinder
+    # coordinates (Kabsch, no scale, no reflection), so that s still runs around the finger
+    # and t towards the tip
+    for k, pin in enumerate(pins):
+        sel = piece == k
+        mu, m0 = uv[sel].mean(axis=0), st0[sel].mean(axis=0)
+        u, _, vt = np.linalg.svd((uv[sel] - mu).T @ (st0[sel] - m0))
         rot = u @ vt
-    uv = (uv - mu) @ rot + m0
+        if np.linalg.det(rot) < 0:
+            u[:, -1] *= -1
+            rot = u @ vt
+        uv[sel] = (uv[sel] - uv[pin]) @ rot + st0[pin]
     # the displacement on the grid nodes; empty nodes take their nearest node's value
     gh, gw = mesh.grid_shape
     disp = np.zeros((gh, gw, 2))
@@ -869,6 +906,14 @@ CAP_RADIUS_FRACTION = 0.85
 CAP_REFERENCE_MM = 6.0
 #: half-width of the band around the pad's centre line whose points make its profile, mm
 PROFILE_BAND_MM = 1.5
+#: Where the cap's fit is short of rows under :data:`CAP_RADIUS_FRACTION` (the scan stopped near
+#: the cap's base), the cap is the profile's rows that fall this fraction below the body's
+#: trend, the trend a line fitted between these distances below the profile's last row, mm
+#: (the cap is at most ~12 mm long; the body's radius is linear in z there, tapered or not),
+#: and its last row must lie :data:`CAP_BASE_DEPTH` below the trend
+CAP_DEPARTURE = 0.02
+BODY_TREND_MM = (12.0, 24.0)
+CAP_BASE_DEPTH = 0.05
 #: the most arc the fingertip's estimate may add beyond the scanned skin, mm (a cap seen only
 #: at its base extrapolates badly; a fingertip's whole cap is about 10–13 mm of arc)
 MAX_TIP_ARC_MM = 10.0
@@ -887,7 +932,9 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     least squares with a conic of revolution ``r² = c₀ + c₁ z + c₂ z²`` (``c₂ < 0``: an ellipse
     of semi-axes ``(R, a)`` centred on the axis, the section of an ellipsoidal cap), and the
     arc from the last scanned point of the profile to the ellipse's apex (``r = 0``) is
-    integrated.
+    integrated. Where fewer than four rows are under that fraction (the scan stopped near the
+    cap's base), the ellipse is fitted on the rows that fall away from the body's trend
+    instead (:func:`_cap_base`).
 
     Parameters
     ----------
@@ -903,7 +950,8 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
         of the pad's profile towards the tip, ``arc_mm`` (along the profile to the apex),
         ``axial_mm`` (along the axis), ``cap_semi_axes_mm`` ``[R, a]``, ``cap_points`` (rows
         of the profile fitted), ``last_angle_deg`` (the last point's elevation on the cap, 90°
-        at the apex); when False: ``reason``.
+        at the apex), ``fit`` (``"cap"`` or ``"cap base"``, the rows fitted); when False:
+        ``reason``.
     """
     theta, z, r = cylinder.angles(mesh.vertices)
     near = np.abs(theta) * cylinder.radius <= PROFILE_BAND_MM
@@ -930,8 +978,13 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     beyond = np.zeros(rows.size, bool)
     beyond[top + 1:] = True
     cap = beyond[inverse] & (r[near] < CAP_RADIUS_FRACTION * reference[inverse])
+    method = "cap"
     if np.unique(inverse[cap]).size < 4:
-        return {"estimated": False, "reason": "the fingertip's cap was not scanned"}
+        # the scan stopped near the cap's base: the rows that fall away from the body's trend
+        cap = _cap_base(z[near], r[near], inverse, rad)
+        method = "cap base"
+        if cap is None:
+            return {"estimated": False, "reason": "the fingertip's cap was not scanned"}
     zc, rc = z[near][cap], r[near][cap]
     design = np.stack([np.ones(zc.size), zc, zc * zc], axis=1)
     (c0, c1, c2), *_ = np.linalg.lstsq(design, rc * rc, rcond=None)
@@ -953,7 +1006,29 @@ def fingertip(mesh: SurfaceMesh, cylinder: CylinderMap) -> dict:
     point = mesh.vertices[pick]
     return {"estimated": True, "last_point": point, "arc_mm": arc,
             "axial_mm": float(z0 + a - z[pick]), "cap_semi_axes_mm": [big_r, a],
-            "cap_points": int(cap.sum()), "last_angle_deg": float(np.degrees(psi))}
+            "cap_points": int(cap.sum()), "last_angle_deg": float(np.degrees(psi)),
+            "fit": method}
+
+
+def _cap_base(z, r, inverse, rad) -> np.ndarray | None:
+    """The profile's vertices on the cap's base, or None: those of the rows towards the tip
+    whose radius falls more than :data:`CAP_DEPARTURE` below the body's straight trend (a line
+    fitted to the profile's rows :data:`BODY_TREND_MM` below its last one; a tapered body's
+    radius changes linearly there, the cap's falls away). At least four rows, the last of
+    them :data:`CAP_BASE_DEPTH` below the trend (a cap seen far enough to bend the fit)."""
+    zrow = np.bincount(inverse, z) / np.bincount(inverse)
+    near_end, far_end = BODY_TREND_MM
+    body = (zrow <= zrow[-1] - near_end) & (zrow >= zrow[-1] - far_end)
+    if body.sum() < 6:
+        return None
+    slope, icept = np.polyfit(zrow[body], rad[body], 1)
+    below = rad < (1.0 - CAP_DEPARTURE) * (icept + slope * zrow)
+    # the cap's rows: the run of departing rows that ends the profile
+    run = np.flatnonzero(~below)
+    first = int(run[-1]) + 1 if run.size else 0
+    if rad.size - first < 4 or not rad[-1] < (1.0 - CAP_BASE_DEPTH) * (icept + slope * zrow[-1]):
+        return None
+    return inverse >= first
 
 
 def fit_flattening(xyz, method: str = "isometric", *, tip_direction=(0.0, 1.0, 0.0),

@@ -298,7 +298,8 @@ def _tip_summary(tip: dict, tip_row: float | None, mask, pitch: float) -> dict:
             "above_print_mm": None if above is None else round(float(above), 3),
             "arc_beyond_scan_mm": round(float(tip["arc_mm"]), 3),
             "cap_semi_axes_mm": [round(float(x), 3) for x in tip["cap_semi_axes_mm"]],
-            "last_angle_deg": round(float(tip["last_angle_deg"]), 1)}
+            "last_angle_deg": round(float(tip["last_angle_deg"]), 1),
+            "fit": tip.get("fit", "cap")}
 
 
 def _direction(v, name: str) -> np.ndarray:
