@@ -79,6 +79,7 @@ BEFORE = {
     "no-fringe-fit": {"ridge_options": {"fringe_harmonics": 0}},
     "scan-top": {"estimate_tip": False},
     "no-sharpen": {"sharpen": 0.0},
+    "local-polarity": {"polarity": "local"},
 }
 
 

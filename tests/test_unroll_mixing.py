@@ -56,6 +56,33 @@ def test_mix_layers_weighs_the_clearer_signal_and_finds_the_albedo_sign():
     assert info["albedo_share"] == 0.0
 
 
+def test_mix_layers_keeps_one_polarity_where_the_relief_phase_drifts():
+    """The relief's ridge phase drifts by 0.75 π across the patch (as light scattered under
+    the skin biases it), so its local correlation with the albedo turns negative on the
+    right. A sign taken there flips the albedo and prints the ridges inverted (and a seam);
+    the print's one polarity keeps them."""
+    rng = np.random.default_rng(3)
+    shape = (200, 300)
+    truth = ridges(shape, angle=0.0)
+    _, c = np.mgrid[: shape[0], : shape[1]]
+    drift = 0.75 * np.pi * c / shape[1]
+    relief = np.cos(2 * np.pi / 0.5 * c * PITCH + drift) + 0.3 * rng.standard_normal(shape)
+    albedo = truth + 0.1 * rng.standard_normal(shape)
+    mask = np.ones(shape, bool)
+    right = np.s_[:, 240:]
+    mixed, info = mix_layers(relief, albedo, mask, PITCH)
+    assert info["albedo_polarity"] == 1
+    assert np.median(info["correlation"][right]) < -0.2
+    assert np.corrcoef(mixed[right].ravel(), truth[right].ravel())[0, 1] > 0.9
+    local, _ = mix_layers(relief, albedo, mask, PITCH, polarity="local")
+    assert np.corrcoef(local[right].ravel(), truth[right].ravel())[0, 1] < 0
+    # a negative polarity (furrows brighter) is found over the whole print as well
+    _, info = mix_layers(relief, -albedo, mask, PITCH)
+    assert info["albedo_polarity"] == -1
+    with pytest.raises(ValueError, match="polarity"):
+        mix_layers(relief, albedo, mask, PITCH, polarity="per-pixel")
+
+
 def test_gate_mask_keeps_the_ridged_piece():
     clarity = np.full((100, 100), 0.9)
     clarity[:, 60:] = 0.1  # no ridges

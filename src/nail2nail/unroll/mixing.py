@@ -7,10 +7,11 @@ suffers at grazing view; the albedo's ridge contrast is 5–20 % on live skin (s
 scattering lowers it), has either sign, and carries shading and highlights. So neither gets a
 fixed weight. On the print grid, each signal's *ridge clarity* (the fraction of its local
 spectral energy in the ring of the ridge frequency, :func:`~nail2nail.unroll.quality.
-block_quality`) is measured per region, the albedo's sign is taken from its local correlation
-with the relief, and the two are averaged with weights ``q / (1 − q)``, the ridge-to-rest
-energy ratio each clarity implies (an estimate's weight in an average is its signal-to-noise
-ratio).
+block_quality`) is measured per region, the albedo's sign is taken from its correlation with
+the relief over the whole print (one polarity: how ridges reflect is the capture's, while the
+local correlation crosses zero wherever the relief's ridge phase is biased), and the two are
+averaged with weights ``q / (1 − q)``, the ridge-to-rest energy ratio each clarity implies (an
+estimate's weight in an average is its signal-to-noise ratio).
 
 Then what carries no ridge signal is left out of the print: :func:`clarity_map` of the final
 print, and pixels below ``min_clarity`` are masked (white, as off the finger), so a patch of
@@ -154,7 +155,8 @@ def _reduced_clarity(value, mask, pitch: float, f: int, **blocks) -> np.ndarray:
     return out
 
 
-def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.5):
+def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.5,
+               polarity: str = "global"):
     """Relief and albedo signals of the print grid averaged by their measured clarity.
 
     Parameters
@@ -166,24 +168,31 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
     pitch : float
         Print pixel, mm.
     correlation_mm : float
-        σ of the window of the albedo's local correlation with the relief, mm.
+        σ of the window of the albedo's local correlation ``ρ`` with the relief, mm.
+    polarity : {"global", "local"}
+        "global" (default): the albedo's sign ``s`` is that of its correlation with the
+        relief over the whole mask. "local": ``s = sign(ρ)`` per pixel (earlier versions;
+        flips the albedo wherever ``ρ`` crosses zero).
 
     Returns
     -------
     mixed : (H, W) float32
-        ``(w_r R + sign(ρ) w_a A) / (w_r + w_a)``, ``w = q / (1 − q)`` of each signal's
-        clarity ``q`` (clipped to [0.05, 0.98]); NaN off `mask`.
+        ``(w_r R + s w_a A) / (w_r + w_a)``, ``w = q / (1 − q)`` of each signal's clarity
+        ``q`` (clipped to [0.05, 0.98]); NaN off `mask`.
     info : dict
-        ``relief_clarity``, ``albedo_clarity``, ``correlation`` (H, W) maps and
-        ``albedo_share``, the albedo's mean weight fraction over the mask.
+        ``relief_clarity``, ``albedo_clarity``, ``correlation`` (H, W) maps,
+        ``albedo_share``, the albedo's mean weight fraction over the mask, and
+        ``albedo_polarity`` (+1 or −1; with "local", the sign of the mean of ``sign(ρ)``).
     """
+    if polarity not in ("global", "local"):
+        raise ValueError(f"polarity must be 'global' or 'local', not {polarity!r}")
     mask = np.asarray(mask, dtype=bool)
     r = np.where(mask, np.nan_to_num(relief), 0.0).astype(np.float32)
     q_r = clarity_map(r, mask, pitch)
     if albedo is None:
         return np.where(mask, r, np.nan).astype(np.float32), {
             "relief_clarity": q_r, "albedo_clarity": None, "correlation": None,
-            "albedo_share": 0.0}
+            "albedo_share": 0.0, "albedo_polarity": None}
     a = np.where(mask, np.nan_to_num(albedo), 0.0).astype(np.float32)
     q_a = clarity_map(a, mask, pitch)
     sigma = correlation_mm / pitch
@@ -200,11 +209,20 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
         return q / (1 - q)
 
     w_r, w_a = snr(q_r), snr(q_a)
-    mixed = (w_r * r + np.sign(rho) * w_a * a) / (w_r + w_a)
+    if polarity == "local":
+        sign = np.sign(rho)
+    else:
+        # one polarity for the print: it is the capture's (how ridges reflect), while the
+        # local correlation crosses zero wherever the relief's ridge phase is biased (light
+        # scattered under the skin shifts it), and a sign taken there flips the albedo
+        # abruptly, printing seams and cancelling ridges
+        sign = np.float32(1.0 if float(np.sum((r * a)[mask])) >= 0 else -1.0)
+    mixed = (w_r * r + sign * w_a * a) / (w_r + w_a)
     share = float(np.mean((w_a / (w_r + w_a))[mask])) if mask.any() else 0.0
     return np.where(mask, mixed, np.nan).astype(np.float32), {
         "relief_clarity": q_r, "albedo_clarity": q_a, "correlation": rho,
-        "albedo_share": share}
+        "albedo_share": share,
+        "albedo_polarity": int(np.sign(np.mean(sign[mask] if np.ndim(sign) else sign)) or 1)}
 
 
 def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0,

@@ -464,6 +464,7 @@ def unroll_scans(
     length_mm: float | None = DEFAULT_LENGTH_MM,
     estimate_tip: bool = True,
     mix: bool = True,
+    polarity: str = "global",
     min_clarity: float | None = MIN_CLARITY,
     sharpen: float = SHARPEN,
 ) -> RolledPrint:
@@ -516,6 +517,11 @@ def unroll_scans(
         an RMS floor (``FLOOR_FRACTION`` of the ridges' level) and take the smooth surface's
         curvature bias back. False: the fixed sum of earlier versions (relief + 0.3 × albedo,
         no floor), for comparison.
+    polarity : {"global", "local"}
+        How the albedo's sign is measured when mixing (``mix_layers``): "global" (default),
+        one sign for the print from the albedo's correlation with the relief over it; "local",
+        per 1.5 mm window (earlier versions; flips the albedo where the correlation crosses
+        zero), for comparison.
     min_clarity : float or None
         Leave out of the print (mask) the pixels whose ridge clarity is below this
         (:func:`~nail2nail.unroll.mixing.clarity_map`, 3.2 mm blocks) or whose signal is faint
@@ -640,7 +646,7 @@ def unroll_scans(
     pitch = grid.pitch
     mixing = None
     if mix:
-        value, mixing = mix_layers(value, albedo, mask, pitch)
+        value, mixing = mix_layers(value, albedo, mask, pitch, polarity=polarity)
     lap("mix")
     gray_options: dict[str, Any] = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
     if mix:
@@ -678,7 +684,8 @@ def unroll_scans(
     # ring of the ridge frequency, which shortens the measured period by about 1 %
     quality = _print_quality(plain, mask, pitch)
     quality["mixing"] = None if mixing is None else {
-        "albedo_share": round(mixing["albedo_share"], 4)}
+        "albedo_share": round(mixing["albedo_share"], 4), "polarity": polarity,
+        "albedo_polarity": mixing["albedo_polarity"]}
     quality["gate"] = gated
     quality["sharpening"] = {"amount": float(sharpen), "sigma_mm": SHARPEN_SIGMA_MM} \
         if sharpen else None
