@@ -66,7 +66,7 @@ def test_mix_layers_keeps_one_polarity_where_the_relief_phase_drifts():
     truth = ridges(shape, angle=0.0)
     _, c = np.mgrid[: shape[0], : shape[1]]
     drift = 0.75 * np.pi * c / shape[1]
-    relief = np.cos(2 * np.pi / 0.5 * c * PITCH + drift) + 0.3 * rng.standard_normal(shape)
+    relief = ridges(shape, angle=0.0, phase=drift) + 0.3 * rng.standard_normal(shape)
     albedo = truth + 0.1 * rng.standard_normal(shape)
     mask = np.ones(shape, bool)
     right = np.s_[:, 240:]

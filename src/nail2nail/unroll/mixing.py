@@ -209,20 +209,22 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
         return q / (1 - q)
 
     w_r, w_a = snr(q_r), snr(q_a)
+    overall = 1 if float(np.sum((r * a)[mask])) >= 0 else -1
     if polarity == "local":
         sign = np.sign(rho)
+        overall = 1 if float(np.mean(sign[mask])) >= 0 else -1
     else:
         # one polarity for the print: it is the capture's (how ridges reflect), while the
         # local correlation crosses zero wherever the relief's ridge phase is biased (light
         # scattered under the skin shifts it), and a sign taken there flips the albedo
         # abruptly, printing seams and cancelling ridges
-        sign = np.float32(1.0 if float(np.sum((r * a)[mask])) >= 0 else -1.0)
+        sign = np.float32(overall)
     mixed = (w_r * r + sign * w_a * a) / (w_r + w_a)
     share = float(np.mean((w_a / (w_r + w_a))[mask])) if mask.any() else 0.0
     return np.where(mask, mixed, np.nan).astype(np.float32), {
         "relief_clarity": q_r, "albedo_clarity": q_a, "correlation": rho,
         "albedo_share": share,
-        "albedo_polarity": int(np.sign(np.mean(sign[mask] if np.ndim(sign) else sign)) or 1)}
+        "albedo_polarity": overall}
 
 
 def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0,
