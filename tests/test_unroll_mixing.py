@@ -5,8 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from nail2nail.unroll.mixing import clarity_map, gate_mask, mix_layers
+from nail2nail.unroll.mixing import (
+    clarity_map,
+    deshade_albedo,
+    gate_mask,
+    mix_layers,
+    riesz_transform,
+)
 from nail2nail.unroll.render import to_gray
 from nail2nail.unroll.ridges import local_normalize
 
@@ -49,7 +57,12 @@ def test_mix_layers_weighs_the_clearer_signal_and_finds_the_albedo_sign():
     assert corr > 0.95
     assert corr > np.corrcoef(relief.ravel(), truth.ravel())[0, 1] + 0.3
     assert info["albedo_share"] > 0.8
-    assert np.median(info["correlation"]) < -0.2
+    assert info["albedo_polarity"] == -1
+    # the correlation is the deshaded albedo's, which deshading gave the relief's sign
+    assert np.median(info["correlation"]) > 0.2
+    _, plain = mix_layers(relief, albedo, mask, PITCH, deshade=False)
+    assert plain["albedo_polarity"] == -1
+    assert np.median(plain["correlation"]) < -0.2
     # relief alone: returned as it is
     alone, info = mix_layers(relief, None, mask, PITCH)
     np.testing.assert_allclose(alone, relief.astype(np.float32))
@@ -70,17 +83,101 @@ def test_mix_layers_keeps_one_polarity_where_the_relief_phase_drifts():
     albedo = truth + 0.1 * rng.standard_normal(shape)
     mask = np.ones(shape, bool)
     right = np.s_[:, 240:]
-    mixed, info = mix_layers(relief, albedo, mask, PITCH)
+    # without deshading: the albedo is taken as blended (deshading would bring it to the
+    # relief's drifting phase instead, tested below)
+    mixed, info = mix_layers(relief, albedo, mask, PITCH, deshade=False)
     assert info["albedo_polarity"] == 1
     assert np.median(info["correlation"][right]) < -0.2
     assert np.corrcoef(mixed[right].ravel(), truth[right].ravel())[0, 1] > 0.9
-    local, _ = mix_layers(relief, albedo, mask, PITCH, polarity="local")
+    local, _ = mix_layers(relief, albedo, mask, PITCH, polarity="local", deshade=False)
     assert np.corrcoef(local[right].ravel(), truth[right].ravel())[0, 1] < 0
     # a negative polarity (furrows brighter) is found over the whole print as well
-    _, info = mix_layers(relief, -albedo, mask, PITCH)
+    _, info = mix_layers(relief, -albedo, mask, PITCH, deshade=False)
     assert info["albedo_polarity"] == -1
     with pytest.raises(ValueError, match="polarity"):
         mix_layers(relief, albedo, mask, PITCH, polarity="per-pixel")
+
+
+def _corr(a, b) -> float:
+    return float(np.corrcoef(np.ravel(a), np.ravel(b))[0, 1])
+
+
+@settings(max_examples=20, deadline=None)
+@given(angle=st.floats(0, np.pi), period=st.floats(0.4, 0.7), phase=st.floats(0, 2 * np.pi))
+def test_riesz_transform_of_ridges_is_their_quadrature(angle, period, phase):
+    """``R cos(ω·x + φ) = (ω/|ω|) sin(ω·x + φ)`` for any orientation (away from the grid's
+    edges, where the zero padding cuts the pattern)."""
+    shape = (160, 160)
+    r, c = np.mgrid[: shape[0], : shape[1]] * PITCH
+    k = 2 * np.pi / period
+    arg = k * (np.sin(angle) * r + np.cos(angle) * c) + phase
+    rows, cols = riesz_transform(np.cos(arg), np.ones(shape, bool))
+    inner = np.s_[40:-40, 40:-40]
+    for comp, direction in ((rows, np.sin(angle)), (cols, np.cos(angle))):
+        np.testing.assert_allclose(comp[inner], direction * np.sin(arg)[inner], atol=0.08)
+
+
+def shaded_albedo(shape=(240, 300), contrast=0.4, slope=1.0, seed=4):
+    """Ridges (a whorl-like curved pattern), their relief with noise, and an albedo of
+    reflectance contrast `contrast` plus the shading of the ridges' slopes along a light
+    direction that turns across the patch (as around a finger), ``slope`` × the shading of
+    unit-height sinusoidal ridges."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[: shape[0], : shape[1]] * PITCH
+    k = 2 * np.pi / 0.5
+    arg = k * np.hypot(r - 3.0, c - 4.0)  # rings: every orientation occurs
+    truth = np.cos(arg)
+    relief = truth + 0.5 * rng.standard_normal(shape)
+    # the light's tangential direction turns from −x to +x across the patch
+    lx = np.linspace(-1.0, 1.0, shape[1])[None, :] * np.ones(shape)
+    ly = 0.3 * np.ones(shape)
+    grad_r, grad_c = np.gradient(truth, PITCH)
+    shading = -(ly * grad_r + lx * grad_c) / k  # ∂h/∂l of unit ridges, about ±1
+    albedo = contrast * truth + slope * shading + 0.05 * rng.standard_normal(shape)
+    return truth, relief, albedo
+
+
+def test_deshade_albedo_brings_a_shaded_albedo_into_the_ridges_phase():
+    """Shading as large as 2.5 × the reflectance contrast turns the albedo's ridges by up to
+    68° and its sign with the light across the patch; deshaded, it follows the ridges (and
+    the mix of relief and albedo with it)."""
+    truth, relief, albedo = shaded_albedo()
+    mask = np.ones(truth.shape, bool)
+    out, info = deshade_albedo(relief, albedo, mask, PITCH)
+    inner = np.s_[30:-30, 30:-30]
+    assert _corr(albedo[inner], truth[inner]) < 0.7
+    assert _corr(out[inner], truth[inner]) > 0.9
+    assert info["polarity"] == 1
+    assert info["relief_correlation"][1] > info["relief_correlation"][0] + 0.2
+    mixed, mixing = mix_layers(relief, albedo, mask, PITCH)
+    plain, _ = mix_layers(relief, albedo, mask, PITCH, deshade=False)
+    assert mixing["shading"]["correction_rms"] > 0.5
+    assert _corr(mixed[inner], truth[inner]) > _corr(plain[inner], truth[inner]) + 0.1
+    # furrows brighter: the polarity is found, the deshaded albedo positive on the crests
+    out, info = deshade_albedo(relief, -albedo, mask, PITCH)
+    assert info["polarity"] == -1
+    assert _corr(out[inner], truth[inner]) > 0.9
+
+
+def test_deshade_albedo_leaves_an_unshaded_albedo_alone():
+    """No shading (a diffuse light, or ridges lit along their length): the correction is
+    small, the albedo's ridges and local RMS are kept."""
+    truth, relief, albedo = shaded_albedo(slope=0.0)
+    mask = np.ones(truth.shape, bool)
+    out, info = deshade_albedo(relief, albedo, mask, PITCH)
+    inner = np.s_[30:-30, 30:-30]
+    assert info["correction_rms"] < 0.1
+    assert _corr(out[inner], albedo[inner]) > 0.99
+    assert np.std(out[inner]) == pytest.approx(np.std(albedo[inner]), rel=0.05)
+    # NaN off the mask; a mask of a few pixels: returned as given
+    mask[:, :100] = False
+    out, _ = deshade_albedo(relief, albedo, mask, PITCH)
+    assert np.isnan(out[:, :100]).all() and np.isfinite(out[:, 100:]).all()
+    tiny = np.zeros_like(mask)
+    tiny[0, :5] = True
+    out, info = deshade_albedo(relief, albedo, tiny, PITCH)
+    np.testing.assert_allclose(out[tiny], albedo[tiny].astype(np.float32))
+    assert info["correction_rms"] == 0.0
 
 
 def test_gate_mask_keeps_the_ridged_piece():

@@ -9,9 +9,19 @@ fixed weight. On the print grid, each signal's *ridge clarity* (the fraction of 
 spectral energy in the ring of the ridge frequency, :func:`~nail2nail.unroll.quality.
 block_quality`) is measured per region, the albedo's sign is taken from its correlation with
 the relief over the whole print (one polarity: how ridges reflect is the capture's, while the
-local correlation crosses zero wherever the relief's ridge phase is biased), and the two are
+local correlation crosses zero wherever the two signals' ridge phases drift apart), and the two are
 averaged with weights ``q / (1 − q)``, the ridge-to-rest energy ratio each clarity implies (an
 estimate's weight in an average is its signal-to-noise ratio).
+
+Before that, the albedo is *deshaded* (:func:`deshade_albedo`): what a camera records as albedo
+is reflectance × shading, and the ridges' own slopes shade them, ``∂h/∂l`` along the light's
+direction in the skin's tangent plane. That term is in quadrature with the ridges (a quarter
+period off), as large as the reflectance contrast or larger for high ridges (a 70 µm relief of
+0.47 mm period slopes by up to 0.49), and its weight turns with the light's direction around
+the finger: added to the relief as it is, the albedo partly cancels it. For locally
+sinusoidal ridges the shading is a phase rotation, undone by adding ``K(x) · (L(x) · R a)``
+(``R``: the Riesz transform) with the light field ``K L`` smooth over the print and fitted to
+the relief by least squares.
 
 Then what carries no ridge signal is left out of the print: :func:`clarity_map` of the final
 print, and pixels below ``min_clarity`` are masked (white, as off the finger), so a patch of
@@ -27,7 +37,8 @@ from nail2nail.unroll._kernels import block_mean
 from nail2nail.unroll.quality import block_quality
 from nail2nail.unroll.ridges import masked_gaussian
 
-__all__ = ["CLARITY_PITCH_MM", "clarity_map", "gate_mask", "mix_layers", "reduce_print",
+__all__ = ["CLARITY_PITCH_MM", "DESHADE_DEGREE", "MAX_SHADING_GAIN", "clarity_map",
+           "deshade_albedo", "gate_mask", "mix_layers", "reduce_print", "riesz_transform",
            "upsample_blocks"]
 
 #: block size and step of the clarity maps, mm (3.2 mm: about six ridges per block, the
@@ -45,6 +56,17 @@ PERIOD_RANGE_MM = (0.3, 1.0)
 #: and its cost do not grow with the ppi; the ridges (periods ≥ 0.3 mm) are far below 500
 #: ppi's Nyquist period (0.1 mm)
 CLARITY_PITCH_MM = 25.4 / 500
+
+#: Degree of the polynomial (in the print's coordinates) of the shading's light field
+#: (:func:`deshade_albedo`): 1, the tangential light of one projector on a finger turns
+#: smoothly, roughly linearly across it (degrees 2 and 3 fitted no better on tuning fingers)
+DESHADE_DEGREE = 1
+#: The largest RMS of the shading correction, as a multiple of the albedo's own RMS: a
+#: rotation by up to 72° (tan 72° ≈ 3); beyond, the albedo carries hardly any reflectance
+#: contrast and the correction would only amplify its noise
+MAX_SHADING_GAIN = 3.0
+#: σ of the window over which the deshaded albedo is given the albedo's local RMS back, mm
+RMS_SIGMA_MM = 1.0
 
 
 def clarity_map(value, mask, pitch: float, *, block_mm: float = CLARITY_BLOCK_MM,
@@ -155,8 +177,139 @@ def _reduced_clarity(value, mask, pitch: float, f: int, **blocks) -> np.ndarray:
     return out
 
 
+def riesz_transform(value, mask) -> tuple[np.ndarray, np.ndarray]:
+    """The Riesz transform of a zero-mean signal over a mask, by FFT.
+
+    ``R_j f = F⁻¹(−i ω_j / |ω| · F f)`` along rows (``j = 0``) and columns (``j = 1``)
+    (Felsberg and Sommer, *The monogenic signal*, IEEE Trans. Signal Processing 49(12), 2001).
+    For a locally sinusoidal pattern ``cos(ω·x + φ)`` it is ``(ω/|ω|) sin(ω·x + φ)``: the
+    quadrature of the ridges along their normal, whatever their orientation.
+
+    Parameters
+    ----------
+    value : (H, W) float
+        High-passed signal (0 mean); taken as 0 off `mask`.
+    mask : (H, W) bool
+
+    Returns
+    -------
+    rows, cols : (H, W) float32
+        The two components (0 off `mask`); the grid is padded by 16 px to an FFT-friendly size
+        against wrap-around.
+    """
+    from scipy import fft
+
+    mask = np.asarray(mask, dtype=bool)
+    v = np.where(mask, np.nan_to_num(np.asarray(value, dtype=np.float64)), 0.0)
+    h, w = v.shape
+    hp, wp = fft.next_fast_len(h + 16, real=True), fft.next_fast_len(w + 16, real=True)
+    spectrum = fft.rfft2(v, s=(hp, wp), workers=-1)
+    fr = fft.fftfreq(hp)[:, None]
+    fc = fft.rfftfreq(wp)[None, :]
+    norm = np.hypot(fr, fc)
+    norm[0, 0] = 1.0
+    out = []
+    for f in (fr, fc):
+        comp = fft.irfft2(spectrum * (-1j * f / norm), s=(hp, wp), workers=-1)[:h, :w]
+        out.append(np.where(mask, comp, 0.0).astype(np.float32))
+    return out[0], out[1]
+
+
+def deshade_albedo(relief, albedo, mask, pitch: float, *, weights=None,
+                   degree: int = DESHADE_DEGREE, max_gain: float = MAX_SHADING_GAIN):
+    """The albedo signal less the ridges' own shading, brought into phase with the relief.
+
+    A camera's albedo of ridged skin is ``a = c h + k ∂h/∂l``: reflectance contrast ``c``
+    and the shading of the ridges' slopes along ``l``, the light's direction in the skin's
+    tangent plane (Lambertian ``n · l``), which turns around the finger. For locally
+    sinusoidal ridges ``h = cos φ`` this is ``ρ cos(φ + θ)`` with ``tan θ = (k/c) (l · ω)``,
+    and, with the Riesz transform ``R a = ω̂ ρ sin(φ + θ)`` (:func:`riesz_transform`),
+
+        ``a + K (L · R a) = ρ cos φ / cos θ``   for ``K L = (k |ω| / c) l``,
+
+    so the ridges' phase comes back by adding the Riesz components weighed by a smooth vector
+    field: no orientation estimate, no sign ambiguity. The field ``K L(x)`` is a polynomial
+    of `degree` in the print's coordinates, fitted by weighted least squares of the relief
+    on ``[a, p_k(x) R_row a, p_k(x) R_col a]`` (the relief's noise is not correlated with the
+    albedo, so it does not bias the fit; its ridge phase is what the albedo is brought to).
+    The result is given the albedo's local RMS back (σ 1 mm).
+
+    Parameters
+    ----------
+    relief, albedo : (H, W) float
+        High-passed, locally normalised ridge signals on the print grid (NaN off `mask`).
+    mask : (H, W) bool
+    pitch : float
+        Print pixel, mm.
+    weights : (H, W) float, optional
+        Weight of each pixel in the fit (the relief's signal-to-noise ratio), default 1.
+    degree : int
+        Degree of the light field's polynomial (0: one constant direction).
+    max_gain : float
+        The correction's RMS is capped at this multiple of the albedo's RMS.
+
+    Returns
+    -------
+    deshaded : (H, W) float32
+        The albedo signal brought into phase with the relief, positive on the relief's crests
+        (the albedo's polarity taken out); NaN off `mask`.
+    info : dict
+        ``polarity`` (+1 / −1: the sign of the albedo's reflectance term against the relief),
+        ``correction_rms`` (the correction's RMS over the albedo's, after the cap),
+        ``relief_correlation`` (the weighted correlation of the relief with the albedo before
+        and with the deshaded albedo after), ``degree``.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    a = np.where(mask, np.nan_to_num(np.asarray(albedo, dtype=np.float32)), 0.0)
+    r = np.where(mask, np.nan_to_num(np.asarray(relief, dtype=np.float32)), 0.0)
+    rows, cols = np.nonzero(mask)
+    if rows.size < 16:
+        return np.where(mask, a, np.nan).astype(np.float32), {
+            "polarity": 1, "correction_rms": 0.0, "relief_correlation": None,
+            "degree": degree}
+    w = np.ones(rows.size) if weights is None \
+        else np.nan_to_num(np.asarray(weights, dtype=np.float64)[mask])
+    riesz = riesz_transform(a, mask)
+    # polynomial terms in coordinates centred on the mask and scaled to about ±1
+    y = (rows - rows.mean()) / max(float(np.ptp(rows)) / 2, 1.0)
+    x = (cols - cols.mean()) / max(float(np.ptp(cols)) / 2, 1.0)
+    terms = [y**i * x**j for i in range(degree + 1) for j in range(degree + 1 - i)]
+    design = np.column_stack([a[mask]] + [t * c[mask] for c in riesz for t in terms])
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(design * sw[:, None], r[mask] * sw, rcond=None)
+    a_m = design[:, 0]
+
+    def corr(u):
+        return float(np.sum(w * u * r[mask]) / np.sqrt(max(
+            float(np.sum(w * u * u)) * float(np.sum(w * r[mask] ** 2)), 1e-30)))
+
+    if not abs(coef[0]) > 0:
+        return np.where(mask, a, np.nan).astype(np.float32), {
+            "polarity": 1, "correction_rms": 0.0,
+            "relief_correlation": [round(corr(a_m), 4)] * 2, "degree": degree}
+    polarity = 1 if coef[0] > 0 else -1
+    correction = design[:, 1:] @ (coef[1:] / coef[0])
+    gain = float(np.sqrt(np.mean(correction**2) / max(float(np.mean(a_m**2)), 1e-30)))
+    if gain > max_gain:
+        correction *= max_gain / gain
+        gain = max_gain
+    out = np.zeros(mask.shape, np.float32)
+    out[mask] = polarity * (a_m + correction)
+    # the albedo's local RMS back (σ 1 mm): its floors (faint skin stays faint) are kept
+    sigma = RMS_SIGMA_MM / pitch
+    reduce = max(1, int(sigma // 4))
+    level = masked_gaussian(np.stack([a * a, out * out], -1), mask, sigma, reduce=reduce)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.sqrt(level[..., 0] / np.maximum(level[..., 1], 1e-12))
+    out = np.where(mask, out * np.nan_to_num(scale), np.nan).astype(np.float32)
+    info = {"polarity": polarity, "correction_rms": round(gain, 4),
+            "relief_correlation": [round(polarity * corr(a_m), 4), round(corr(out[mask]), 4)],
+            "degree": degree}
+    return out, info
+
+
 def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.5,
-               polarity: str = "global"):
+               polarity: str = "global", deshade: bool = True):
     """Relief and albedo signals of the print grid averaged by their measured clarity.
 
     Parameters
@@ -173,6 +326,10 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
         "global" (default): the albedo's sign ``s`` is that of its correlation with the
         relief over the whole mask. "local": ``s = sign(ρ)`` per pixel (earlier versions;
         flips the albedo wherever ``ρ`` crosses zero).
+    deshade : bool
+        Take the ridges' own shading out of the albedo first (:func:`deshade_albedo`, fitted
+        with the relief's clarity weights); the albedo's clarity is then measured on the
+        deshaded signal. False: the albedo as blended (earlier versions).
 
     Returns
     -------
@@ -180,9 +337,11 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
         ``(w_r R + s w_a A) / (w_r + w_a)``, ``w = q / (1 − q)`` of each signal's clarity
         ``q`` (clipped to [0.05, 0.98]); NaN off `mask`.
     info : dict
-        ``relief_clarity``, ``albedo_clarity``, ``correlation`` (H, W) maps,
-        ``albedo_share``, the albedo's mean weight fraction over the mask, and
-        ``albedo_polarity`` (+1 or −1; with "local", the sign of the mean of ``sign(ρ)``).
+        ``relief_clarity``, ``albedo_clarity``, ``correlation`` (H, W) maps (of the
+        deshaded albedo, already of the relief's sign, with `deshade`),
+        ``albedo_share``, the albedo's mean weight fraction over the mask,
+        ``albedo_polarity`` (+1 or −1; with "local", the sign of the mean of ``sign(ρ)``),
+        and ``shading`` (:func:`deshade_albedo`'s info, None without `deshade`).
     """
     if polarity not in ("global", "local"):
         raise ValueError(f"polarity must be 'global' or 'local', not {polarity!r}")
@@ -192,7 +351,16 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
     if albedo is None:
         return np.where(mask, r, np.nan).astype(np.float32), {
             "relief_clarity": q_r, "albedo_clarity": None, "correlation": None,
-            "albedo_share": 0.0, "albedo_polarity": None}
+            "albedo_share": 0.0, "albedo_polarity": None, "shading": None}
+
+    def snr(q):
+        q = np.clip(np.nan_to_num(q, nan=0.05), 0.05, 0.98)
+        return q / (1 - q)
+
+    w_r = snr(q_r)
+    shading = None
+    if deshade:
+        albedo, shading = deshade_albedo(r, albedo, mask, pitch, weights=w_r)
     a = np.where(mask, np.nan_to_num(albedo), 0.0).astype(np.float32)
     q_a = clarity_map(a, mask, pitch)
     sigma = correlation_mm / pitch
@@ -203,20 +371,16 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.clip(ra / np.sqrt(np.maximum(rr * aa, 1e-12)), -1, 1)
     rho = np.nan_to_num(rho)
-
-    def snr(q):
-        q = np.clip(np.nan_to_num(q, nan=0.05), 0.05, 0.98)
-        return q / (1 - q)
-
-    w_r, w_a = snr(q_r), snr(q_a)
+    w_a = snr(q_a)
     overall = 1 if float(np.sum((r * a)[mask])) >= 0 else -1
     if polarity == "local":
         sign = np.sign(rho)
         overall = 1 if float(np.mean(sign[mask])) >= 0 else -1
     else:
         # one polarity for the print: it is the capture's (how ridges reflect), while the
-        # local correlation crosses zero wherever the relief's ridge phase is biased (light
-        # scattered under the skin shifts it), and a sign taken there flips the albedo
+        # local correlation crosses zero wherever the two signals' ridge phases drift apart
+        # (the ridges' own shading turns the albedo's, deshade_albedo; scanner errors bias
+        # the relief's), and a sign taken there flips the albedo
         # abruptly, printing seams and cancelling ridges
         sign = np.float32(overall)
     mixed = (w_r * r + sign * w_a * a) / (w_r + w_a)
@@ -224,7 +388,8 @@ def mix_layers(relief, albedo, mask, pitch: float, *, correlation_mm: float = 1.
     return np.where(mask, mixed, np.nan).astype(np.float32), {
         "relief_clarity": q_r, "albedo_clarity": q_a, "correlation": rho,
         "albedo_share": share,
-        "albedo_polarity": overall}
+        "albedo_polarity": overall if shading is None else shading["polarity"] * overall,
+        "shading": shading}
 
 
 def gate_mask(clarity, mask, *, min_clarity: float, min_area_px: int = 0,

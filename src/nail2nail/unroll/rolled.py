@@ -465,6 +465,7 @@ def unroll_scans(
     estimate_tip: bool = True,
     mix: bool = True,
     polarity: str = "global",
+    deshade: bool = True,
     min_clarity: float | None = MIN_CLARITY,
     sharpen: float = SHARPEN,
 ) -> RolledPrint:
@@ -522,6 +523,11 @@ def unroll_scans(
         one sign for the print from the albedo's correlation with the relief over it; "local",
         per 1.5 mm window (earlier versions; flips the albedo where the correlation crosses
         zero), for comparison.
+    deshade : bool
+        Take the ridges' own shading out of the albedo before mixing
+        (:func:`~nail2nail.unroll.mixing.deshade_albedo`: the albedo brought into phase with
+        the relief); with `mix` only. False: the albedo as blended (earlier versions), for
+        comparison.
     min_clarity : float or None
         Leave out of the print (mask) the pixels whose ridge clarity is below this
         (:func:`~nail2nail.unroll.mixing.clarity_map`, 3.2 mm blocks) or whose signal is faint
@@ -646,7 +652,8 @@ def unroll_scans(
     pitch = grid.pitch
     mixing = None
     if mix:
-        value, mixing = mix_layers(value, albedo, mask, pitch, polarity=polarity)
+        value, mixing = mix_layers(value, albedo, mask, pitch, polarity=polarity,
+                                   deshade=deshade)
     lap("mix")
     gray_options: dict[str, Any] = {"sigma_px": 1.0 / pitch, "reduce": max(1, int(0.25 / pitch))}
     if mix:
@@ -685,7 +692,7 @@ def unroll_scans(
     quality = _print_quality(plain, mask, pitch)
     quality["mixing"] = None if mixing is None else {
         "albedo_share": round(mixing["albedo_share"], 4), "polarity": polarity,
-        "albedo_polarity": mixing["albedo_polarity"]}
+        "albedo_polarity": mixing["albedo_polarity"], "shading": mixing["shading"]}
     quality["gate"] = gated
     quality["sharpening"] = {"amount": float(sharpen), "sigma_mm": SHARPEN_SIGMA_MM} \
         if sharpen else None
