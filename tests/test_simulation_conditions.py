@@ -182,6 +182,28 @@ def test_tapered_finger_widens_below_the_cap():
         make_scene("finger", rotation_deg=(1.0, 2.0))
 
 
+@settings(max_examples=40, deadline=None)
+@given(taper=st.floats(0.002, 0.02), below=st.floats(0.05, 3.0),
+       azimuth=st.floats(-60.0, 60.0), elevation=st.floats(15.0, 60.0))
+def test_tapered_finger_is_hit_first_from_above_the_cap(taper, below, azimuth, elevation):
+    """A ray from above the cap's base (a projector above the cameras) to the body just below
+    it hits the body there: its first hit is the point. The march's outer shell once left out
+    the rays entering the tapered body's grown cylinder through the plane of the cap's base,
+    so their march began past the skin and the simulator printed a false shadow band across
+    the finger below the cap."""
+    finger = make_scene("finger", taper=taper)
+    a = np.radians(azimuth)
+    y = finger.y0 - below
+    k = 1 + taper * below
+    # a point of the body (without the ridges, whose height the march finds) facing the ray
+    point = np.array([finger.ax * k * np.sin(a), y, finger.az * k * np.cos(a)])
+    e = np.radians(elevation)
+    toward = np.array([np.sin(a) * np.cos(e), np.sin(e), np.cos(a) * np.cos(e)])
+    origin = point + 150.0 * toward
+    t = finger.intersect(origin, -toward[None])[0]
+    assert t == pytest.approx(150.0, abs=2 * finger._hmax + 0.01)
+
+
 def test_cli_simulate_conditions(tmp_path, capsys):
     out = tmp_path / "cap"
     assert main(["simulate", "--scene", "finger", "--conditions", "5", "--scale", "0.125",

@@ -929,13 +929,22 @@ class Finger(Scene):
         k = self._k_max if offset > 0 else 1.0
         c0, c1 = _elliptic_cylinder_t(o, d, self.ax * k + offset, self.az * k + offset)
         e0, e1 = _ellipsoid_t(o, d, (ax, ay, az), np.array([0.0, self.y0, 0.0]))
-        y_c0 = o[1] + c0 * d[:, 1]
-        y_c1 = o[1] + c1 * d[:, 1]
-        entry = np.where(y_c0 <= self.y0, c0, np.inf)
+        # the body's part: the cylinder's interval cut to the half-space y <= y0. A ray can
+        # enter it through the plane y = y0 (or leave through it), inside the cylinder's
+        # section but outside the cap's: a tapered body's grown cylinder is wider than the cap
+        # (by ax · taper · 30 mm), and a projector's ray from above that enters there, missed,
+        # started its march past the skin below the cap's base (a false shadow band there)
+        dy = d[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_plane = (self.y0 - o[1]) / dy
+        lo = np.where(dy < 0, np.fmax(c0, t_plane), c0)
+        hi = np.where(dy > 0, np.fmin(c1, t_plane), c1)
+        lo = np.where((dy == 0) & (o[1] > self.y0), np.inf, lo)
+        inside = np.isfinite(lo) & np.isfinite(hi) & (lo < hi)
+        entry = np.where(inside, lo, np.inf)
+        exit_ = np.where(inside, hi, -np.inf)
         entry = np.fmin(entry, np.where(np.isfinite(e0), e0, np.inf))
-        exit_ = np.where(y_c1 <= self.y0, c1, -np.inf)
         exit_ = np.fmax(exit_, np.where(np.isfinite(e1), e1, -np.inf))
-        entry = np.where(np.isnan(entry), np.inf, entry)
         return entry, exit_
 
     def intersect(self, origin, directions):
