@@ -73,7 +73,7 @@ PROBE_VS_MATCHING = 235.6  # SourceAFIS 3.18.1, measured by the issue
 #: of earlier versions (no clarity mix, no mask, no phase-locked fit), or the default options
 #: without the phase-locked fit alone, or the print's length counted from the scan's top row
 #: instead of the estimated fingertip, or the grey print without its unsharp mask, or the
-#: albedo mixed as blended (not deshaded)
+#: albedo deshaded before mixing (``unroll.mixing.deshade_albedo``, off by default)
 BEFORE = {
     "fixed-blend": {"mix": False, "min_clarity": None, "ridge_options": {"fringe_harmonics": 0},
                     "sharpen": 0.0},
@@ -81,7 +81,7 @@ BEFORE = {
     "scan-top": {"estimate_tip": False},
     "no-sharpen": {"sharpen": 0.0},
     "local-polarity": {"polarity": "local"},
-    "no-deshade": {"deshade": False},
+    "deshade": {"deshade": True},
 }
 
 

@@ -164,7 +164,7 @@ def test_cli_unroll_records_the_fit_and_turns_it_off(tmp_path, capsys):
     manifest = json.loads((tmp_path / "scan" / "scan.json").read_text())
     assert all(c["fringe_periods_px"] == {"x": 20.0, "y": 16.25} for c in manifest["cameras"])
     for name, extra in (("fit", []), ("off", ["--no-fringe-fit"]), ("plain", ["--sharpen", "0"]),
-                        ("shaded", ["--no-deshade"])):
+                        ("deshaded", ["--deshade"])):
         assert main(["-q", "unroll", str(tmp_path / "scan"), "--out", str(tmp_path / name),
                      *extra]) == 0
     capsys.readouterr()
@@ -179,9 +179,9 @@ def test_cli_unroll_records_the_fit_and_turns_it_off(tmp_path, capsys):
     assert sharp == {"amount": 2.0, "sigma_mm": 0.075} and plain is None
     masks = [np.asarray(Image.open(tmp_path / n / "print_mask.png")) for n in ("fit", "plain")]
     np.testing.assert_array_equal(masks[0], masks[1])
-    # the albedo's shading fit is recorded (quality.mixing.shading); --no-deshade leaves it out
-    mixing = json.loads((tmp_path / "fit" / "print.json").read_text())["quality"]["mixing"]
-    shaded = json.loads((tmp_path / "shaded" / "print.json").read_text())["quality"]["mixing"]
+    # --deshade records its shading fit (quality.mixing.shading); off by default
+    mixing = json.loads((tmp_path / "deshaded" / "print.json").read_text())["quality"]["mixing"]
+    plain = json.loads((tmp_path / "fit" / "print.json").read_text())["quality"]["mixing"]
     assert mixing["shading"]["degree"] == 1 and mixing["shading"]["polarity"] in (1, -1)
     assert 0 <= mixing["shading"]["correction_rms"] <= 3.0
-    assert shaded["shading"] is None
+    assert plain["shading"] is None

@@ -58,11 +58,12 @@ def test_mix_layers_weighs_the_clearer_signal_and_finds_the_albedo_sign():
     assert corr > np.corrcoef(relief.ravel(), truth.ravel())[0, 1] + 0.3
     assert info["albedo_share"] > 0.8
     assert info["albedo_polarity"] == -1
-    # the correlation is the deshaded albedo's, which deshading gave the relief's sign
-    assert np.median(info["correlation"]) > 0.2
-    _, plain = mix_layers(relief, albedo, mask, PITCH, deshade=False)
-    assert plain["albedo_polarity"] == -1
-    assert np.median(plain["correlation"]) < -0.2
+    assert np.median(info["correlation"]) < -0.2
+    # deshaded: the same polarity; the correlation is then the deshaded albedo's, which
+    # deshading gave the relief's sign
+    _, deshaded = mix_layers(relief, albedo, mask, PITCH, deshade=True)
+    assert deshaded["albedo_polarity"] == -1
+    assert np.median(deshaded["correlation"]) > 0.2
     # relief alone: returned as it is
     alone, info = mix_layers(relief, None, mask, PITCH)
     np.testing.assert_allclose(alone, relief.astype(np.float32))
@@ -83,16 +84,15 @@ def test_mix_layers_keeps_one_polarity_where_the_relief_phase_drifts():
     albedo = truth + 0.1 * rng.standard_normal(shape)
     mask = np.ones(shape, bool)
     right = np.s_[:, 240:]
-    # without deshading: the albedo is taken as blended (deshading would bring it to the
-    # relief's drifting phase instead, tested below)
-    mixed, info = mix_layers(relief, albedo, mask, PITCH, deshade=False)
+    # (deshading would bring the albedo to the relief's drifting phase instead, tested below)
+    mixed, info = mix_layers(relief, albedo, mask, PITCH)
     assert info["albedo_polarity"] == 1
     assert np.median(info["correlation"][right]) < -0.2
     assert np.corrcoef(mixed[right].ravel(), truth[right].ravel())[0, 1] > 0.9
-    local, _ = mix_layers(relief, albedo, mask, PITCH, polarity="local", deshade=False)
+    local, _ = mix_layers(relief, albedo, mask, PITCH, polarity="local")
     assert np.corrcoef(local[right].ravel(), truth[right].ravel())[0, 1] < 0
     # a negative polarity (furrows brighter) is found over the whole print as well
-    _, info = mix_layers(relief, -albedo, mask, PITCH, deshade=False)
+    _, info = mix_layers(relief, -albedo, mask, PITCH)
     assert info["albedo_polarity"] == -1
     with pytest.raises(ValueError, match="polarity"):
         mix_layers(relief, albedo, mask, PITCH, polarity="per-pixel")
@@ -149,8 +149,8 @@ def test_deshade_albedo_brings_a_shaded_albedo_into_the_ridges_phase():
     assert _corr(out[inner], truth[inner]) > 0.9
     assert info["polarity"] == 1
     assert info["relief_correlation"][1] > info["relief_correlation"][0] + 0.2
-    mixed, mixing = mix_layers(relief, albedo, mask, PITCH)
-    plain, _ = mix_layers(relief, albedo, mask, PITCH, deshade=False)
+    mixed, mixing = mix_layers(relief, albedo, mask, PITCH, deshade=True)
+    plain, _ = mix_layers(relief, albedo, mask, PITCH)
     assert mixing["shading"]["correction_rms"] > 0.5
     assert _corr(mixed[inner], truth[inner]) > _corr(plain[inner], truth[inner]) + 0.1
     # furrows brighter: the polarity is found, the deshaded albedo positive on the crests

@@ -102,10 +102,10 @@ def add_unroll_options(p) -> None:
                    help="keep the scanner's phase-locked error (a periodic function of the "
                    "decoded fringe phase) in the ridge signal (default: fitted per camera and "
                    "taken out, docs/unroll.md)")
-    p.add_argument("--no-deshade", action="store_true",
-                   help="mix the albedo into the ridge signal as the cameras saw it, shading "
-                   "of the ridges' slopes included (default: that shading fitted against the "
-                   "relief and taken out, docs/unroll.md)")
+    p.add_argument("--deshade", action="store_true",
+                   help="take the shading of the ridges' own slopes out of the albedo (fitted "
+                   "against the relief) before mixing it in: ridges closer to the skin's, no "
+                   "matcher gain measured (docs/unroll.md; default: the albedo as seen)")
     p.add_argument("--sharpen", type=_number, default=SHARPEN, metavar="AMOUNT",
                    help="unsharp mask that gives the grey print back the ridges' edges the "
                    f"scanner's optics blurred, 0 to {MAX_SHARPEN:g} (default {SHARPEN:g}; "
@@ -138,8 +138,8 @@ def unroll_options(args: argparse.Namespace) -> dict:
     options = {"mix": not args.fixed_blend,
                "min_clarity": args.min_clarity if args.min_clarity > 0 else None,
                "sharpen": float(args.sharpen)}
-    if args.no_deshade:
-        options["deshade"] = False
+    if args.deshade:
+        options["deshade"] = True
     if args.no_fringe_fit:
         options["ridge_options"] = {"fringe_harmonics": 0}
     return options

@@ -465,7 +465,7 @@ def unroll_scans(
     estimate_tip: bool = True,
     mix: bool = True,
     polarity: str = "global",
-    deshade: bool = True,
+    deshade: bool = False,
     min_clarity: float | None = MIN_CLARITY,
     sharpen: float = SHARPEN,
 ) -> RolledPrint:
@@ -526,8 +526,9 @@ def unroll_scans(
     deshade : bool
         Take the ridges' own shading out of the albedo before mixing
         (:func:`~nail2nail.unroll.mixing.deshade_albedo`: the albedo brought into phase with
-        the relief); with `mix` only. False: the albedo as blended (earlier versions), for
-        comparison.
+        the relief); with `mix` only. False (default): the albedo as blended; deshading brings
+        the print's ridges closer to the skin's but did not raise SourceAFIS scores on
+        held-out conditions (``docs/unroll.md``).
     min_clarity : float or None
         Leave out of the print (mask) the pixels whose ridge clarity is below this
         (:func:`~nail2nail.unroll.mixing.clarity_map`, 3.2 mm blocks) or whose signal is faint
