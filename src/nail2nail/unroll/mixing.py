@@ -9,13 +9,15 @@ fixed weight. On the print grid, each signal's *ridge clarity* (the fraction of 
 spectral energy in the ring of the ridge frequency, :func:`~nail2nail.unroll.quality.
 block_quality`) is measured per region, the albedo's sign is taken from its correlation with
 the relief over the whole print (one polarity: how ridges reflect is the capture's, while the
-local correlation crosses zero wherever the two signals' ridge phases drift apart), and the two are
-averaged with weights ``q / (1 − q)``, the ridge-to-rest energy ratio each clarity implies (an
-estimate's weight in an average is its signal-to-noise ratio).
+local correlation crosses zero wherever the two signals' ridge phases drift apart), and the
+two are averaged with weights ``q / (1 − q)``, the ridge-to-rest energy ratio each clarity
+implies (an estimate's weight in an average is its signal-to-noise ratio).
 
-Before that, the albedo is *deshaded* (:func:`deshade_albedo`): what a camera records as albedo
-is reflectance × shading, and the ridges' own slopes shade them, ``∂h/∂l`` along the light's
-direction in the skin's tangent plane. That term is in quadrature with the ridges (a quarter
+On request (``mix_layers(deshade=True)``, off by default: the print's ridges come closer to the
+skin's, SourceAFIS scores do not rise, ``docs/unroll.md``) the albedo is first *deshaded*
+(:func:`deshade_albedo`): what a camera records as albedo is reflectance × shading, and the
+ridges' own slopes shade them, ``∂h/∂l`` along the light's direction in the skin's tangent
+plane. That term is in quadrature with the ridges (a quarter
 period off), as large as the reflectance contrast or larger for high ridges (a 70 µm relief of
 0.47 mm period slopes by up to 0.49), and its weight turns with the light's direction around
 the finger: added to the relief as it is, the albedo partly cancels it. For locally
