@@ -152,6 +152,9 @@ def run_finger(job: dict) -> dict:
         meta = rolled.metadata()
         result[tag] = {
             "unroll_s": round(t_unroll, 2),
+            # the one similarity the local figures are taken after (its scale: the print's
+            # global scale error, which the local scale error does not show)
+            "similarity": acc["similarity"],
             "scale_error_p95": acc["scale_error"]["p95"],
             "displacement_p95_mm": acc["displacement_mm"]["p95"],
             **body_and_cap(rolled, scans, uv, y0, acc),
