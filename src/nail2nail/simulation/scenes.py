@@ -932,8 +932,9 @@ class Finger(Scene):
         # the body's part: the cylinder's interval cut to the half-space y <= y0. A ray can
         # enter it through the plane y = y0 (or leave through it), inside the cylinder's
         # section but outside the cap's: a tapered body's grown cylinder is wider than the cap
-        # (by ax · taper · 30 mm), and a projector's ray from above that enters there, missed,
-        # started its march past the skin below the cap's base (a false shadow band there)
+        # (by ax · taper · TAPER_LENGTH_MM), and a projector's ray from above that entered
+        # there, missed, started its march past the skin below the cap's base (a false shadow
+        # band there)
         dy = d[:, 1]
         with np.errstate(divide="ignore", invalid="ignore"):
             t_plane = (self.y0 - o[1]) / dy

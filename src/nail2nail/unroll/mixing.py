@@ -17,10 +17,10 @@ On request (``mix_layers(deshade=True)``, off by default: the print's ridges com
 skin's, SourceAFIS scores do not rise, ``docs/unroll.md``) the albedo is first *deshaded*
 (:func:`deshade_albedo`): what a camera records as albedo is reflectance × shading, and the
 ridges' own slopes shade them, ``∂h/∂l`` along the light's direction in the skin's tangent
-plane. That term is in quadrature with the ridges (a quarter
-period off), as large as the reflectance contrast or larger for high ridges (a 70 µm relief of
-0.47 mm period slopes by up to 0.49), and its weight turns with the light's direction around
-the finger: added to the relief as it is, the albedo partly cancels it. For locally
+plane. That term is in quadrature with the ridges (a quarter period off), as large as the
+reflectance contrast or larger for high ridges (a 70 µm relief of 0.47 mm period slopes by up
+to 0.49), and its weight turns with the light's direction around the finger: added to the
+relief as it is, the albedo partly cancels it. For locally
 sinusoidal ridges the shading is a phase rotation, undone by adding ``K(x) · (L(x) · R a)``
 (``R``: the Riesz transform) with the light field ``K L`` smooth over the print and fitted to
 the relief by least squares.
@@ -185,7 +185,9 @@ def riesz_transform(value, mask) -> tuple[np.ndarray, np.ndarray]:
     ``R_j f = F⁻¹(−i ω_j / |ω| · F f)`` along rows (``j = 0``) and columns (``j = 1``)
     (Felsberg and Sommer, *The monogenic signal*, IEEE Trans. Signal Processing 49(12), 2001).
     For a locally sinusoidal pattern ``cos(ω·x + φ)`` it is ``(ω/|ω|) sin(ω·x + φ)``: the
-    quadrature of the ridges along their normal, whatever their orientation.
+    quadrature of the ridges along their normal, whatever their orientation. No thesis
+    equation covers it (the thesis does not unroll); frequencies are in cycles per pixel, so
+    the result is unitless and the same at any print pitch.
 
     Parameters
     ----------
@@ -196,8 +198,11 @@ def riesz_transform(value, mask) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     rows, cols : (H, W) float32
-        The two components (0 off `mask`); the grid is padded by 16 px to an FFT-friendly size
-        against wrap-around.
+        The two components along rows and columns (0 off `mask`). The grid is zero-padded by
+        16 px (to an FFT-friendly size), which keeps the opposite edges apart but does not
+        remove every edge effect: the transform's kernel decays as ``1/r²``, so within a few
+        ridge periods of the mask's edge the components are only approximately the
+        quadrature (the tests measure them 2 mm inside).
     """
     from scipy import fft
 
@@ -234,7 +239,8 @@ def deshade_albedo(relief, albedo, mask, pitch: float, *, weights=None,
     of `degree` in the print's coordinates, fitted by weighted least squares of the relief
     on ``[a, p_k(x) R_row a, p_k(x) R_col a]`` (the relief's noise is not correlated with the
     albedo, so it does not bias the fit; its ridge phase is what the albedo is brought to).
-    The result is given the albedo's local RMS back (σ 1 mm).
+    The result is given the albedo's local RMS back (σ :data:`RMS_SIGMA_MM`). The model is
+    Lambertian shading (``n · l``) of a sinusoidal relief; no thesis equation covers it.
 
     Parameters
     ----------
