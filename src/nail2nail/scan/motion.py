@@ -206,14 +206,26 @@ def _block_mean(image: np.ndarray, f: int) -> np.ndarray:
     return image[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3))
 
 
-def _correlate(a: np.ndarray, b: np.ndarray, window: np.ndarray,
+def _spectrum(image: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """2-D DFT of ``image · window``, zero-padded to sizes the FFT factors fast.
+
+    The windowed image is 0 at its border, so the padding changes no correlation near zero
+    shift; a region of, say, 454 x 227 px (a prime factor) would cost several times more."""
+    from scipy import fft
+
+    shape = [fft.next_fast_len(n) for n in image.shape]
+    return fft.fft2(image * window, s=shape)
+
+
+def _correlate(a: np.ndarray, b: np.ndarray,
                min_correlation: float = MIN_CORRELATION) -> tuple[float, float]:
-    """Shift ``(dx, dy)`` of `b` against `a`, px: cross-correlation (not whitened: a whitened
-    one weighs the static edge of the window as much as the moving texture) refined by an upsampled
-    DFT to 1/20 px (Guizar-Sicairos et al., Opt. Lett. 33(2), 156, 2008; scikit-image)."""
+    """Shift ``(dx, dy)`` of the image of spectrum `b` against that of `a` (:func:`_spectrum`),
+    px: cross-correlation (not whitened: a whitened one weighs the static edge of the window as
+    much as the moving texture) refined by an upsampled DFT to 1/20 px (Guizar-Sicairos et al.,
+    Opt. Lett. 33(2), 156, 2008; scikit-image)."""
     from skimage.registration import phase_cross_correlation
 
-    shift, error, _ = phase_cross_correlation(a * window, b * window, upsample_factor=20,
+    shift, error, _ = phase_cross_correlation(a, b, space="fourier", upsample_factor=20,
                                               normalization=None)
     # the normalised correlation at the peak: low where the two images share no texture
     # (skin without ridges, noise alone), whose "shift" is anywhere
@@ -276,8 +288,9 @@ def estimate_motion(frames, pattern_set: PatternSet, mask, *, mm_per_px: float |
         images.append(_band(_block_mean(dc, f), sigma))
     n = len(images)
     shift = np.zeros((n, 2))
+    spectra = [_spectrum(image, window) for image in images]  # each image transformed once
     for g in range(1, n):
-        shift[g] = _correlate(images[0], images[g], window)
+        shift[g] = _correlate(spectra[0], spectra[g])
     h, w = inner.shape
     region = np.full((n, tiles, tiles, 2), np.nan)
     edges_r = np.linspace(0, h, tiles + 1).astype(int)
@@ -288,9 +301,9 @@ def estimate_motion(frames, pattern_set: PatternSet, mask, *, mm_per_px: float |
             if inner[sl].sum() * f * f < MIN_REGION_PIXELS or min(inner[sl].shape) < 32:
                 continue
             region[0, i, j] = 0.0
+            spectra = [_spectrum(image[sl], window[sl]) for image in images]
             for g in range(1, n):
-                region[g, i, j] = _correlate(images[0][sl], images[g][sl], window[sl],
-                                             MIN_REGION_CORRELATION)
+                region[g, i, j] = _correlate(spectra[0], spectra[g], MIN_REGION_CORRELATION)
     region_spread = np.array([[_spread(region[:, i, j]) for j in range(tiles)]
                               for i in range(tiles)])
     # back to camera pixels

@@ -69,22 +69,49 @@ def fringe_basis(coords: Mapping[str, np.ndarray], periods: Mapping[str, float],
         ``cos`` and ``sin`` of ``2πk u / T`` for each direction and harmonic, then of ``2π u``
         (the pixel pitch); 0 where the coordinate is NaN.
     """
-    out: list[tuple[str, np.ndarray]] = []
+    labels, matrix = _basis_matrix(coords, periods, harmonics)
+    return [(label, matrix[..., j]) for j, label in enumerate(labels)]
+
+
+def _basis_matrix(coords: Mapping[str, np.ndarray], periods: Mapping[str, float],
+                  harmonics: int) -> tuple[list[str], np.ndarray]:
+    """:func:`fringe_basis` as one ``(..., terms)`` float32 array (and the terms' labels)."""
+    axes = []
     for axis in ("x", "y"):
         if axis not in periods or axis not in coords:
             continue
         u = np.asarray(coords[axis], np.float64)
         finite = np.isfinite(u)
-        if not finite.any():
-            continue
-        u = np.where(finite, u, 0.0)
-        cycles = [(f"{axis}/{k}", k * u / float(periods[axis])) for k in range(1, harmonics + 1)]
-        cycles.append((f"{axis}/pixel", u))
-        for label, c in cycles:
-            angle = 2 * np.pi * (c - np.floor(c))  # reduced first: float32 keeps its digits
-            out.append((f"cos {label}", np.where(finite, np.cos(angle), 0).astype(np.float32)))
-            out.append((f"sin {label}", np.where(finite, np.sin(angle), 0).astype(np.float32)))
-    return out
+        if finite.any():
+            axes.append((axis, np.where(finite, u, 0.0), finite))
+    shape = np.shape(axes[0][1]) if axes else np.shape(next(iter(coords.values()), ()))
+    labels: list[str] = []
+    out = np.empty((*shape, 2 * (harmonics + 1) * len(axes)), np.float32)
+    for axis, u, finite in axes:
+
+        def unit(c, finite=finite):  # e^{2πi c}: the argument reduced in float64, so that
+            # float32 keeps its digits
+            angle = (2 * np.pi * (c - np.floor(c))).astype(np.float32)
+            z = np.empty(angle.shape, np.complex64)
+            z.real, z.imag = np.cos(angle), np.sin(angle)  # float32: vectorised, 30× float64's
+            z[~finite] = 0
+            return z
+
+        # harmonics k of the fringe by powers of the first, e^{ikθ} = (e^{iθ})^k (a rounding
+        # of float32's 6e-8 per product, against two trigonometric functions per harmonic)
+        first = unit(u / float(periods[axis]))
+        z = first
+        cycles = []
+        for k in range(1, harmonics + 1):
+            if k > 1:
+                z = z * first
+            cycles.append((f"{axis}/{k}", z))
+        cycles.append((f"{axis}/pixel", unit(u)))
+        for label, z in cycles:
+            j = len(labels)
+            out[..., j], out[..., j + 1] = z.real, z.imag
+            labels += [f"cos {label}", f"sin {label}"]
+    return labels, out
 
 
 def _unit_coordinates(index: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -141,16 +168,16 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
     index = np.flatnonzero(fit_on)
     index = index[:: max(1, index.size // MAX_FIT_SAMPLES)]
     # the series at the fit's pixels only (the whole grid's basis would cost seconds)
-    basis = fringe_basis({k: np.asarray(v).reshape(-1)[index] for k, v in coords.items()},
-                         periods, harmonics)
-    n_terms = 3 * len(basis)
-    if not basis or index.size < 20 * n_terms:
+    labels, basis = _basis_matrix(
+        {k: np.asarray(v).reshape(-1)[index] for k, v in coords.items()}, periods, harmonics)
+    n_terms = 3 * len(labels)
+    if not labels or index.size < 20 * n_terms:
         return out, info
     rows, cols = np.divmod(index, w)
     r, c = _unit_coordinates(index, (h, w))
     design = np.empty((index.size, n_terms), np.float32)
-    for j, (_, v) in enumerate(basis):
-        design[:, 3 * j], design[:, 3 * j + 1], design[:, 3 * j + 2] = v, v * r, v * c
+    design[:, 0::3], design[:, 1::3], design[:, 2::3] = basis, basis * r[:, None], \
+        basis * c[:, None]
     target = out.reshape(-1, m)[index].astype(np.float64)
     # two halves of the image, a checkerboard of blocks a sixteenth of its size (several mm:
     # the ridges of one block are independent of the other half's, the scanner's error is not)
@@ -159,16 +186,17 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
     a = design.astype(np.float64)
     # normal equations of each half (n ≫ terms; 20× faster than an SVD of the design), solved
     # by least squares so that a term without support (a direction hardly varying) is harmless
-    grams = [a[sel].T @ a[sel] for sel in (~half, half)]
-    rhs = [a[sel].T @ target[sel] for sel in (~half, half)]
+    parts = [(a[sel], target[sel]) for sel in (~half, half)]
+    grams = [p.T @ p for p, _ in parts]
+    rhs = [p.T @ t for p, t in parts]
     coef, *_ = np.linalg.lstsq(grams[0] + grams[1], rhs[0] + rhs[1], rcond=1e-10)
     halves = [np.linalg.lstsq(g, b, rcond=1e-10)[0] for g, b in zip(grams, rhs, strict=True)]
     # each harmonic (its cos and sin, 6 coefficients) kept by the agreement of the halves'
     # fits, ⟨m₁, m₂⟩ / ½(|m₁|² + |m₂|²) over the fit's pixels, clipped to [0, 1]: for an error
     # E and a chance fit L in each half that estimates |E|² / (|E|² + 2|L|²), a (conservative)
     # Wiener gain; ~1 for a real error, ~0 for ridges and noise the fit picked up by chance
-    gains = np.zeros((len(basis) // 2, m))
-    for g in range(len(basis) // 2):
+    gains = np.zeros((len(labels) // 2, m))
+    for g in range(len(labels) // 2):
         cols6 = slice(6 * g, 6 * g + 6)
         m1 = design[:, cols6] @ halves[0][cols6].astype(np.float32)
         m2 = design[:, cols6] @ halves[1][cols6].astype(np.float32)
@@ -178,22 +206,19 @@ def remove_phase_locked(signals: np.ndarray, valid: np.ndarray,
         gains[g] = np.clip(np.divide(cross, power, out=np.zeros(m), where=power > 0), 0, 1)
     coef = coef * np.repeat(gains, 6, axis=0)
     model_at_fit = design @ coef.astype(np.float32)
-    info = {"terms": len(basis), "samples": int(index.size),
+    info = {"terms": len(labels), "samples": int(index.size),
             "removed_rms": [float(np.sqrt(np.mean(model_at_fit[:, k] ** 2))) for k in range(m)],
-            "gains": {basis[2 * g][0].split(" ", 1)[1]: [round(float(x), 3) for x in gains[g]]
-                      for g in range(len(basis) // 2)}}
+            "gains": {labels[2 * g].split(" ", 1)[1]: [round(float(x), 3) for x in gains[g]]
+                      for g in range(len(labels) // 2)}}
     # subtract on the valid pixels, the harmonics kept only
     kept = np.flatnonzero(valid)
     r, c = _unit_coordinates(kept, (h, w))
-    full = fringe_basis({k: np.asarray(v).reshape(-1)[kept] for k, v in coords.items()},
-                        periods, harmonics)
+    _, b = _basis_matrix({k: np.asarray(v).reshape(-1)[kept] for k, v in coords.items()},
+                         periods, harmonics)
     coef = coef.astype(np.float32)
     flat = out.reshape(-1, m)
-    for k in range(m):
-        model = np.zeros(kept.size, np.float32)
-        for j, (_, b) in enumerate(full):
-            a0, ar, ac = coef[3 * j: 3 * j + 3, k]
-            if a0 or ar or ac:
-                model += b * (a0 + ar * r + ac * c)
-        flat[kept, k] -= model
+    # Σ_j b_j (a0 + ar r + ac c) = B a0 + r (B ar) + c (B ac), B the (n, terms) basis
+    model = (b @ coef[0::3] + r[:, None] * (b @ coef[1::3])
+             + c[:, None] * (b @ coef[2::3]))
+    flat[kept] -= model
     return out, info
