@@ -211,6 +211,35 @@ def test_render_noise_free_formula(rig_quarter):
     assert np.all(frame[~g.surface] == 0)
 
 
+@pytest.mark.parametrize("blur", [{"camera_blur_px": 6.0}, {"subsurface_mm": 0.3}])
+def test_border_pixels_see_the_scene_beyond_the_sensor(rig_quarter, blur):
+    """A lens integrates the light from beyond the sensor's edge too: the outer rows and columns
+    of a camera equal the same pixels of a camera 6 px larger on each side (same optics), noise
+    off. Blurring with the edge pixels repeated instead made them differ by 9 (camera blur)
+    and 25 levels (subsurface spread)."""
+    from dataclasses import replace
+
+    photometry = Photometry(noise=False, **blur)
+    big = rig_quarter.cameras[1]
+    k = 6
+    K = big.K.copy()
+    K[0, 2] -= k
+    K[1, 2] -= k
+    small = replace(big, K=K, size=(big.size[0] - 2 * k, big.size[1] - 2 * k))
+    scene = make_scene("finger", seed=3)
+    cols = np.arange(1280)
+    pattern = np.broadcast_to(np.rint(127.5 + 127 * np.cos(2 * np.pi * cols / 20)),
+                              (1, 1040, 1280)).astype(np.uint8)
+    frames = []
+    for cam in (big, small):
+        rig = replace(rig_quarter, cameras=[cam], camera_names=["cam"], photometry=photometry)
+        frames.append(render_frames(camera_geometry(rig, scene, 0), pattern, photometry,
+                                    scale=rig.scale)[0].astype(int))
+    inner = frames[0][k:-k, k:-k]
+    assert inner.shape == frames[1].shape
+    assert np.abs(inner - frames[1]).max() <= 1  # the rays' rounding, at most a level
+
+
 def test_projector_flicker_scales_each_frame_alike_for_every_camera(rig_quarter):
     """Frame k's projected light is (1 + flicker z_k) times the steady one, the ambient term
     not; the same factors for every camera; no flicker, no factor (frames byte-identical)."""

@@ -277,7 +277,8 @@ def _moving_frames(rig: Rig, scene: Scene, camera_index: int, patterns, radiance
             signal = step if signal is None else signal + step
         assert signal is not None
         frame = expose(signal / np.float32(motion.blur_steps), rig.photometry, seed=seed,
-                       camera_index=camera_index, frame=k, scale=rig.scale)
+                       camera_index=camera_index, frame=k, scale=rig.scale,
+                       margin=cache[key].margin)
         if out is None:
             out = np.empty((len(patterns), *frame.shape), frame.dtype)
         out[k] = frame

@@ -20,7 +20,10 @@ coordinate of a pixel:
     ``electrons = s · full_well`` + shot noise ``√electrons`` + read noise,
     quantised to ``bit_depth`` bits (``round``, clipped).
 
-Pixels that see no surface stay black; shadowed pixels get the ambient term only.
+Pixels that see no surface stay black; shadowed pixels get the ambient term only. The blurs
+(subsurface, camera) are applied to an image rendered :func:`blur_margin` pixels beyond each
+side of the sensor and cropped afterwards, as a lens integrates the scene beyond the sensor's
+edge.
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ from nail2nail.scan.motion import mm_per_pixel
 from nail2nail.simulation.rig import Photometry, Rig
 from nail2nail.simulation.scenes import Scene
 
-__all__ = ["CameraGeometry", "camera_geometry", "frame_flicker", "projector_radiance",
-           "render_frames"]
+__all__ = ["CameraGeometry", "blur_margin", "camera_geometry", "frame_flicker",
+           "projector_radiance", "render_frames"]
 
 #: hit points closer than this to the projector's own first hit count as lit (mm)
 SHADOW_TOLERANCE_MM = 1e-3
@@ -77,6 +80,12 @@ class CameraGeometry:
         Scene surface parameters (finger: rolled-print ``u, v`` in mm); NaN where no surface.
     camera : Pinhole
     name : str
+    margin : int
+        Pixels rendered beyond each side of the sensor for the blurs (camera defocus,
+        subsurface spread), which reach that far into the image; :attr:`extended` holds that
+        larger geometry and the frames are cropped to the sensor after the blurs. A sensor's
+        optics integrate the light of the scene beyond its edge too: a blur with the edge
+        pixels repeated instead would bend the fringes' phase in the outer rows.
     """
 
     xyz: np.ndarray
@@ -94,6 +103,8 @@ class CameraGeometry:
     name: str = "cam0"
     specular: np.ndarray | None = None
     mm_per_px: float = float("nan")
+    margin: int = 0
+    extended: CameraGeometry | None = field(default=None, repr=False)
     _sampler: tuple | None = field(default=None, repr=False)
     _aperture: tuple | None = field(default=None, repr=False)
 
@@ -115,10 +126,23 @@ class CameraGeometry:
         return out
 
 
-def _pixel_grid(camera: Pinhole) -> np.ndarray:
+def _pixel_grid(camera: Pinhole, margin: int = 0) -> np.ndarray:
     width, height = camera.size
-    cols, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    cols, rows = np.meshgrid(np.arange(-margin, width + margin, dtype=float),
+                             np.arange(-margin, height + margin, dtype=float))
     return np.stack([cols, rows], axis=-1).reshape(-1, 2)
+
+
+def blur_margin(camera: Pinhole, photometry: Photometry, scale: float = 1.0) -> int:
+    """Pixels the camera's blurs reach into the image from beyond its edge (4 σ): the camera
+    defocus (`camera_blur_px` at full resolution, times `scale`) and the subsurface spread
+    (`subsurface_mm` over the pixel's footprint at the camera's distance from the origin,
+    the rig's working point)."""
+    sigma = photometry.camera_blur_px * scale
+    if photometry.subsurface_mm > 0:
+        footprint = float(np.linalg.norm(camera.center)) / float(camera.K[0, 0])
+        sigma += photometry.subsurface_mm / footprint
+    return int(np.ceil(4 * sigma)) if sigma > 0 else 0
 
 
 def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry:
@@ -137,9 +161,35 @@ def camera_geometry(rig: Rig, scene: Scene, camera_index: int) -> CameraGeometry
     if not 0 <= camera_index < len(rig.cameras):
         raise ValueError(f"camera_index: expected 0..{len(rig.cameras) - 1}, got {camera_index}")
     camera = rig.cameras[camera_index]
+    margin = blur_margin(camera, rig.photometry, rig.scale)
+    geometry = _geometry(rig, scene, camera_index, margin)
+    if margin == 0:
+        return geometry
+    # the sensor's own pixels; rendering uses the extended geometry, cropped after the blurs
+    inner = (slice(margin, -margin), slice(margin, -margin))
+    sensor = CameraGeometry(
+        xyz=geometry.xyz[inner], normal=geometry.normal[inner],
+        surface=geometry.surface[inner], mask=geometry.mask[inner],
+        xp=geometry.xp[inner], yp=geometry.yp[inner], xp_ideal=geometry.xp_ideal[inner],
+        yp_ideal=geometry.yp_ideal[inner], albedo=geometry.albedo[inner],
+        irradiance=geometry.irradiance[inner],
+        params={k: v[inner] for k, v in geometry.params.items()}, camera=camera,
+        name=geometry.name,
+        specular=None if geometry.specular is None else geometry.specular[inner],
+        margin=margin, extended=geometry)
+    spacing = mm_per_pixel(sensor.xyz, sensor.surface)
+    sensor.mm_per_px = float("nan") if spacing is None else spacing
+    geometry.mm_per_px = sensor.mm_per_px  # the subsurface spread's scale: the sensor's
+    return sensor
+
+
+def _geometry(rig: Rig, scene: Scene, camera_index: int, margin: int) -> CameraGeometry:
+    """:func:`camera_geometry` over the sensor and `margin` pixels beyond each side."""
+    camera = rig.cameras[camera_index]
     width, height = camera.size
+    width, height = width + 2 * margin, height + 2 * margin
     n = width * height
-    origin, dirs = camera.rays(_pixel_grid(camera))
+    origin, dirs = camera.rays(_pixel_grid(camera, margin))
     t = scene.intersect(origin, dirs)
     surface = np.isfinite(t)
     idx = np.flatnonzero(surface)
@@ -419,7 +469,7 @@ def render_frames(
             if flicker is not None:
                 rad = rad * flicker[k]
         frames[k] = expose(light.signal(rad), photometry, seed=seed, camera_index=camera_index,
-                           frame=k, scale=scale)
+                           frame=k, scale=scale, margin=light.margin)
     return frames
 
 
@@ -427,6 +477,10 @@ class _LightPlan:
     """What rendering a frame of one camera's geometry needs, computed once per geometry."""
 
     def __init__(self, geometry: CameraGeometry, photometry: Photometry, panel_shape) -> None:
+        #: pixels beyond each side of the sensor in `signal`'s images (cropped by `expose`)
+        self.margin = geometry.margin
+        if geometry.extended is not None:
+            geometry = geometry.extended
         assert geometry._sampler is not None  # set by camera_geometry
         lit, i00, stride, w = geometry._sampler
         ph, pw = panel_shape
@@ -478,7 +532,7 @@ class _LightPlan:
 
 
 def expose(image: np.ndarray, photometry: Photometry, *, seed: int | None, camera_index: int,
-           frame: int, scale: float = 1.0) -> np.ndarray:
+           frame: int, scale: float = 1.0, margin: int = 0) -> np.ndarray:
     """One camera frame from its irradiance image: the camera's blur, noise and quantisation.
 
     Parameters
@@ -492,6 +546,9 @@ def expose(image: np.ndarray, photometry: Photometry, *, seed: int | None, camer
     camera_index, frame : int
     scale : float
         Camera resolution scale (the blur is given in full-resolution px).
+    margin : int
+        Pixels beyond each side of the sensor in `image` (:attr:`CameraGeometry.margin`),
+        cropped after the blur.
 
     Returns
     -------
@@ -503,6 +560,8 @@ def expose(image: np.ndarray, photometry: Photometry, *, seed: int | None, camer
     blur = photometry.camera_blur_px * scale
     if blur > 0:
         image = ndi.gaussian_filter(image, blur, mode="nearest")
+    if margin:  # the sensor's pixels, after the blur (the noise is drawn over them only)
+        image = image[margin:-margin, margin:-margin]
     if photometry.noise and seed is not None:
         rng = np.random.default_rng([seed, camera_index, frame])
         electrons = np.maximum(image, 0) * np.float32(photometry.full_well)
