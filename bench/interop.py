@@ -27,7 +27,9 @@ options and with the fixed relief + albedo blend of earlier versions (``before``
   and mask (``unroll_matcher.truth_through_print``: perfect ridges, our map and data region)
   against the true print, as a fraction of the ceiling (what geometry and coverage cost; the
   rest, to the unrolled print's ratio, is the ridge signal's), and the print's area against
-  the ideal crop's.
+  the ideal crop's;
+- the synthetic true prints against each other: the impostor scores the print generator gives
+  before any scanning, the floor under the unrolled prints' impostors.
 
 From these: genuine and impostor distributions, FNMR at threshold 40 and at the threshold of
 FMR 10⁻³ (the impostors' 99.9th percentile), a DET plot (``--det docs/img/interop_det.png``),
@@ -242,6 +244,9 @@ def score(results: list[dict], out: Path) -> dict:
         for tag in ("default", "before"):
             for j, s in enumerate(synthetic):
                 add(d / f"print_{tag}.png", out / s["name"] / "truth.png", (tag, i, j))
+        for j, s in enumerate(synthetic):  # the generator's own impostors: truth against truth
+            if j != i:
+                add(d / "truth.png", out / s["name"] / "truth.png", ("truths", i, j))
     for k, r in enumerate(real):
         d = out / r["name"]
         for tag in ("default", "before"):
@@ -255,6 +260,13 @@ def score(results: list[dict], out: Path) -> dict:
     summary: dict = {"matcher_s": round(time.perf_counter() - t0, 1),
                      "probe_vs_matching": scores[("probe",)]}
     n = len(synthetic)
+    truths = [scores[("truths", i, j)] for i in range(n) for j in range(n) if i != j]
+    if truths:
+        # how far the synthetic prints resemble one another before any scanning: the floor
+        # under the unrolled prints' impostor scores
+        summary["truth_impostor_max"] = max(truths)
+        summary["truth_impostors_over_20"] = int(sum(t >= 20 for t in truths))
+        summary["truth_impostors"] = len(truths)
     for i, r in enumerate(synthetic):
         ceiling = scores[("ceiling", i)]
         r["ceiling"] = ceiling
@@ -337,6 +349,10 @@ def markdown(summary: dict, results: list[dict], before: str = "fixed-blend") ->
     row("impostor score, highest", "impostor_max", "{:.1f}")
     row("FNMR at 40 (FMR 0.01 %)", "fnmr_at_40")
     row("FNMR at FMR 1e-3", "fnmr_at_fmr_1e-3")
+    if "truth_impostor_max" in summary:
+        lines.append(f"\ntrue prints against each other (the generator's own impostors): highest "
+                     f"{summary['truth_impostor_max']:.1f}, {summary['truth_impostors_over_20']} "
+                     f"of {summary['truth_impostors']} at 20 or more")
     for tag in ("real_default", "real_before"):
         if tag in summary:
             s = summary[tag]

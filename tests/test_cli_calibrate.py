@@ -73,3 +73,21 @@ def test_bad_projector_distortion_in_calibration_file(tmp_path, distortion, mess
     with pytest.raises(ValueError, match=message) as info:
         load_calibration(path)
     assert "calib.json" in str(info.value)
+
+
+def test_calibrate_several_projectors_needs_the_joint_model(tmp_path, capsys):
+    """A capture of several projectors (projectors.json) is calibrated jointly or not at all;
+    a layout file that names no capture, or one outside the directory, is refused; nothing is
+    written."""
+    src = tmp_path / "target"
+    src.mkdir()
+    (src / "projectors.json").write_text(json.dumps({"captures": [{"capture": "p0"}]}))
+    out = tmp_path / "rig.json"
+    assert main(["calibrate", str(src), "-o", str(out)]) == 2
+    assert "--model joint" in capsys.readouterr().err
+    for captures, message in (([], "one or more distinct"), ([{"capture": "../x"}], "not a "
+                              "directory name"), ("p0", "not a projector layout")):
+        (src / "projectors.json").write_text(json.dumps({"captures": captures}))
+        assert main(["calibrate", str(src), "-o", str(out), "--model", "joint"]) == 2
+        assert message in capsys.readouterr().err
+    assert not any(tmp_path.glob("rig*"))

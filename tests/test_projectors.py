@@ -232,3 +232,44 @@ def test_cli_several_projectors_end_to_end(layout_capture, tmp_path, capsys):
     # a directory twice, and another rig's cameras, are refused
     assert main(["merge", scans[0], scans[0], "--out", str(tmp_path / "twice")]) == 2
     assert "given twice" in capsys.readouterr().err
+
+
+def test_cli_calibrates_several_projectors_with_shared_cameras(tmp_path, capsys):
+    """``calibrate --model joint`` on a target capture of two projectors at ±45°: one bundle,
+    one file per projector with the same cameras, each near the rig's truth (the side
+    projectors leave a camera's far side of the target dark: it finds its marks lit by both)."""
+    import json
+
+    from nail2nail.calibration.files import load_calibration
+    from nail2nail.cli import main
+
+    cap = tmp_path / "target"
+    # scale 0.5: the target's marks need about 20 px
+    assert main(["simulate", "--scene", "target", "--projectors", "pair-45", "--scale", "0.5",
+                 "--seed", "3", "--out", str(cap), "--json"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(cap), "--model", "joint", "-o", str(tmp_path / "rig.json"),
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["outputs"]) == {"p0", "p1"}
+    calibs = [load_calibration(out["outputs"][f"p{k}"]) for k in range(2)]
+    for a, b in zip(calibs[0].cameras, calibs[1].cameras, strict=True):
+        np.testing.assert_array_equal(a.camera.K, b.camera.K)
+        np.testing.assert_array_equal(a.camera.t, b.camera.t)
+    from nail2nail.scan.triangulation import reconstruct_image
+
+    for k, calib in enumerate(calibs):
+        truth = load_calibration(cap / f"p{k}" / "truth" / "calibration.json")
+        for fit in calib.cameras:
+            # every pixel this projector lights, from its true projector coordinates: the
+            # calibration's points against the true surface
+            t = read_truth(cap / f"p{k}", fit.name)
+            xyz = reconstruct_image(fit.camera, fit.projector, t["xp"], t["yp"],
+                                    projector_distortion=calib.projector_distortion)
+            err = np.linalg.norm(xyz - t["xyz"], axis=-1)[t["mask"]]
+            assert t["mask"].sum() > 1000 and np.sqrt(np.mean(err**2)) < 0.01, (k, fit.name)
+        d_fit, d_true = calib.projector_distortion, truth.projector_distortion
+        r = 600.0  # the distortion's displacement at 600 px, to a tenth of a pixel
+        assert d_fit.rho**3 * r**3 == pytest.approx(d_true.rho**3 * r**3, abs=0.1)
+        summary = out["projectors"][f"p{k}"]["cameras"]
+        assert all(s["camera_rms_px"] < 0.1 for s in summary.values())

@@ -535,6 +535,97 @@ def target_observations(
     return out
 
 
+def projector_target_observations(
+    captures,
+    *,
+    mark_diameter_px: float | None = None,
+    progress: bool = False,
+    surface_stride: int = 8,
+    refine_marks: bool = False,
+    **decode_options,
+) -> list[list[TargetObservations]]:
+    """:func:`target_observations` of a rig of several projectors: one capture of the still
+    target per projector, the cameras the same.
+
+    A side projector lights only part of the target, and a camera on the other side sees that
+    part dark: it may not find the key mark there at all. So each camera's marks are found once,
+    in the brightest of its captures at every pixel (the target's albedo lit from every side),
+    and every projector's decoded coordinates are sampled at those marks where that projector
+    lights them (marks it does not light are left out of its set).
+
+    Parameters
+    ----------
+    captures : sequence of Capture
+        Per projector, its capture of the target (same cameras, same order).
+    mark_diameter_px, progress, surface_stride, refine_marks, **decode_options
+        As :func:`target_observations`.
+
+    Returns
+    -------
+    list of list of TargetObservations
+        Per projector, one per camera (``sets[k][i]``: camera ``i`` under projector ``k``).
+
+    Raises
+    ------
+    ValueError
+        For captures whose cameras differ, or a camera whose marks cannot be identified even
+        lit by every projector.
+    """
+    captures = list(captures)
+    if not captures:
+        raise ValueError("captures: need at least one projector's capture")
+    names = list(captures[0].camera_names)
+    for capture in captures[1:]:
+        if list(capture.camera_names) != names:
+            raise ValueError(f"{capture.path}: cameras {list(capture.camera_names)}, but "
+                             f"{captures[0].path} has {names}: every projector's capture must "
+                             "have the same cameras")
+    options = {"method": "numba", **decode_options}
+    sets: list[list[TargetObservations]] = [[] for _ in captures]
+    for name in progress_bar(names, desc="target", unit="camera", enabled=progress):
+        decoded = []
+        for capture in captures:
+            _require_pattern_set(capture)
+            frames = capture.frames.get(name)
+            if frames is None:
+                frames = capture.load_frames(name, raw=True)
+                decoded.append(decode(frames, capture.pattern_set,
+                                      full_scale=2**capture.bit_depth - 1, **options))
+            else:
+                decoded.append(decode(frames, capture.pattern_set, **options))
+        diameter = mark_diameter_px
+        if diameter is None:
+            if "rig" not in captures[0].manifest:
+                raise ValueError(
+                    f"{captures[0].path}: no nominal rig in the manifest to predict the marks' "
+                    "size from; give the mark diameter in px (mark_diameter_px=, "
+                    "`nail2nail calibrate --mark-diameter-px`)")
+            diameter = nominal_diameter(_nominal_camera(captures[0], name))
+        lit = np.max([np.nan_to_num(d.albedo) for d in decoded], axis=0)
+        try:
+            marks = find_target_marks(lit, mark_diameter_px=diameter, refine=refine_marks)
+        except ValueError as exc:
+            raise ValueError(f"{', '.join(str(c.path) for c in captures)}: camera {name!r}, lit "
+                             f"by every projector: {str(exc).removeprefix('image: ')}") from exc
+        for k, d in enumerate(decoded):
+            xp = sample_bilinear(d.xp, marks.xy)
+            yp = sample_bilinear(d.yp, marks.xy)
+            ok = np.isfinite(xp) & np.isfinite(yp)
+            H, W = d.shape
+            surf_xy, surf_panel = surface_samples(d, marks.xy, diameter, stride=surface_stride)
+            sets[k].append(TargetObservations(
+                name, marks.xyz_world[ok], marks.xy[ok], np.column_stack([xp[ok], yp[ok]]),
+                size=(W, H), grid=marks.grid[ok], surface_xy_camera=surf_xy,
+                surface_xy_projector=surf_panel))
+    return sets
+
+
+def _require_pattern_set(capture) -> None:
+    if capture.pattern_set is None:
+        raise ValueError(f"{capture.path / 'capture.json'}: \"pattern_set\" is null or missing: "
+                         "the frames cannot be decoded (docs/capture-format.md)")
+
+
 def _nominal_camera(capture, name: str) -> Pinhole:
     """Camera `name` of the nominal rig in a virtual capture's manifest, as a pinhole."""
     where = f"{capture.path}: the manifest's rig"

@@ -32,6 +32,8 @@ __all__ = [
     "JointCalibration",
     "TargetObservations",
     "calibrate_from_observations",
+    "calibrate_projectors_from_observations",
+    "calibrate_projectors_joint",
     "calibrate_rig_joint",
 ]
 
@@ -232,26 +234,119 @@ def calibrate_rig_joint(
     -------
     JointCalibration
     """
-    from scipy.optimize import least_squares
-
     if not observations:
         raise ValueError("observations: need at least one camera")
+    return _bundle([observations], [projector_size], distortion=distortion,
+                   initial_rhos=[initial_rho], initial_centers=[initial_center],
+                   surface=surface, surface_weight=surface_weight, target=target)[0]
+
+
+def calibrate_projectors_joint(
+    observation_sets: list[list[TargetObservations]],
+    *,
+    projector_sizes=None,
+    distortion: bool = True,
+    initial_rhos=None,
+    initial_centers=None,
+    surface=None,
+    surface_weight: float = 30.0,
+    target=None,
+) -> list[JointCalibration]:
+    """Calibrate all cameras and **several projectors** together (one bundle adjustment).
+
+    A rig of several projectors (issue 26, :mod:`nail2nail.simulation.projectors`) captures the
+    target once per projector, the target and the cameras still. Calibrated one projector at a
+    time (:func:`calibrate_rig_joint` on each capture), every camera gets one model per
+    projector, and the scans of one camera under two projectors, which should be the same
+    points, disagree by what those models disagree. Here the cameras are one set of parameters
+    that every projector's observations constrain, and each projector has its own pinhole and
+    radial distortion (eq. 3.34): the residuals of :func:`calibrate_rig_joint` for every
+    (projector, camera) pair, minimised together. With one projector it is
+    :func:`calibrate_rig_joint`, to the last digit.
+
+    Parameters
+    ----------
+    observation_sets : list of list of TargetObservations
+        Per projector, its target capture's observations, one per camera, the cameras in the
+        same order in every set (matched by name).
+    projector_sizes : list of (2,) int, optional
+        Per projector, its panel ``(W, H)``; default 1280 × 1040 each.
+    distortion : bool
+        Estimate each projector's radial distortion ρ.
+    initial_rhos, initial_centers : list, optional
+        Per projector, the starting ρ and its centre (as :func:`calibrate_rig_joint`'s).
+    surface, surface_weight, target
+        As :func:`calibrate_rig_joint`, for every projector's observations.
+
+    Returns
+    -------
+    list of JointCalibration
+        One per projector; their ``cameras`` are the same objects (one camera model each).
+
+    Raises
+    ------
+    ValueError
+        For no projector, a set without cameras, or sets whose cameras differ.
+    """
+    sets = [list(obs) for obs in observation_sets]
+    if not sets:
+        raise ValueError("observation_sets: need at least one projector")
+    names = [o.name for o in sets[0]]
+    for k, obs in enumerate(sets):
+        if not obs:
+            raise ValueError(f"observation_sets[{k}]: need at least one camera")
+        if [o.name for o in obs] != names:
+            raise ValueError(f"observation_sets[{k}]: cameras {[o.name for o in obs]}, but "
+                             f"projector 0's are {names}: every projector's capture must list "
+                             "the same cameras in the same order")
+    n = len(sets)
+    sizes = [(1280, 1040)] * n if projector_sizes is None else list(projector_sizes)
+    rhos = [0.0] * n if initial_rhos is None else [float(r) for r in initial_rhos]
+    centers = [None] * n if initial_centers is None else list(initial_centers)
+    for label, values in (("projector_sizes", sizes), ("initial_rhos", rhos),
+                          ("initial_centers", centers)):
+        if len(values) != n:
+            raise ValueError(f"{label}: expected {n} entries (one per projector), got "
+                             f"{len(values)}")
+    return _bundle(sets, sizes, distortion=distortion, initial_rhos=rhos,
+                   initial_centers=centers, surface=surface, surface_weight=surface_weight,
+                   target=target)
+
+
+def _bundle(sets, projector_sizes, *, distortion, initial_rhos, initial_centers, surface,
+            surface_weight, target) -> list[JointCalibration]:
+    """The bundle adjustment of :func:`calibrate_projectors_joint` (`sets[k][i]`: camera ``i``
+    under projector ``k``). Parameters: every camera, then every projector, then every ρ³."""
+    from scipy.optimize import least_squares
+
+    if len(sets) == 1:  # one projector: every camera must see the target lit by it
+        for obs in sets[0]:
+            check_calibration_points(obs.xyz_world, obs.xy_camera, name=obs.name)
+            check_calibration_points(obs.xyz_world, obs.xy_projector, name=obs.name)
+    # several: a side projector lights only part of the target, and a camera may see few or
+    # none of the marks it lights; each camera starts from the set where it sees most, each
+    # projector from all its cameras' points, and a (projector, camera) pair without marks
+    # adds no residual
+    observations = [max((obs_set[i] for obs_set in sets), key=lambda o: len(o.xyz_world))
+                    for i in range(len(sets[0]))]
     for obs in observations:
         check_calibration_points(obs.xyz_world, obs.xy_camera, name=obs.name)
-        check_calibration_points(obs.xyz_world, obs.xy_projector, name=obs.name)
     cams0 = [
         pinhole_from_dlt(
             fit_projection_matrix(o.xyz_world, o.xy_camera, method="normalized"), size=o.size
         )
         for o in observations
     ]
-    xyz_all = np.concatenate([o.xyz_world for o in observations])
-    panel_all = np.concatenate([o.xy_projector for o in observations])
-    if initial_rho and initial_center is not None:
-        panel_all = ideal_from_panel(panel_all, initial_center, initial_rho)
-    proj0 = pinhole_from_dlt(
-        fit_projection_matrix(xyz_all, panel_all, method="normalized"), size=projector_size
-    )
+    projs0 = []
+    for k, (obs_set, size, rho, center) in enumerate(zip(sets, projector_sizes, initial_rhos,
+                                                         initial_centers, strict=True)):
+        xyz_all = np.concatenate([o.xyz_world for o in obs_set])
+        panel_all = np.concatenate([o.xy_projector for o in obs_set])
+        check_calibration_points(xyz_all, panel_all, name=f"projector {k}")
+        if rho and center is not None:
+            panel_all = ideal_from_panel(panel_all, center, rho)
+        projs0.append(pinhole_from_dlt(
+            fit_projection_matrix(xyz_all, panel_all, method="normalized"), size=size))
     radius = None if target is None else float(target.radius)
 
     def mark_image(cam, obs, quad):
@@ -260,48 +355,58 @@ def calibrate_rig_joint(
     def mark_point(cam, obs, quad):
         return obs.xyz_world if quad is None else _ray_cylinder(cam, obs.xy_camera, radius)
 
-    quadrature = [None] * len(observations)
+    quadratures = [[None] * len(obs_set) for obs_set in sets]
     if target is not None:
-        for i, obs in enumerate(observations):
-            if obs.grid is None:
-                raise ValueError(f"{obs.name}: target needs the marks' grid identities (grid)")
-            if len(obs.grid) != len(obs.xyz_world):
-                raise ValueError(
-                    f"{obs.name}: grid has {len(obs.grid)} rows for {len(obs.xyz_world)} points"
-                )
-            quadrature[i] = _mark_quadrature(target, obs.grid)
-    n_cam = len(observations)
+        for k, obs_set in enumerate(sets):
+            for i, obs in enumerate(obs_set):
+                if not len(obs.xyz_world):
+                    continue
+                if obs.grid is None:
+                    raise ValueError(
+                        f"{obs.name}: target needs the marks' grid identities (grid)")
+                if len(obs.grid) != len(obs.xyz_world):
+                    raise ValueError(f"{obs.name}: grid has {len(obs.grid)} rows for "
+                                     f"{len(obs.xyz_world)} points")
+                quadratures[k][i] = _mark_quadrature(target, obs.grid)
+    n_cam, n_proj = len(observations), len(sets)
     # The solver works on k = ρ³ (the model is linear in it; dρ³/dρ = 0 at ρ = 0), scaled to O(1).
     k_scale = 1e8
     x0 = np.concatenate(
-        [*(_pack(c) for c in cams0), _pack(proj0), [initial_rho**3 * k_scale] if distortion else []]
+        [*(_pack(c) for c in cams0), *(_pack(p) for p in projs0),
+         [r**3 * k_scale for r in initial_rhos] if distortion else []]
     )
 
     def split(x):
         cams = [_unpack(x[10 * i : 10 * i + 10], o.size) for i, o in enumerate(observations)]
-        proj = _unpack(x[10 * n_cam : 10 * n_cam + 10], projector_size)
-        rho = float(np.cbrt(x[-1] / k_scale)) if distortion else 0.0
-        return cams, proj, rho
+        base = 10 * n_cam
+        projs = [_unpack(x[base + 10 * k : base + 10 * k + 10], size)
+                 for k, size in enumerate(projector_sizes)]
+        rhos = ([float(np.cbrt(v / k_scale)) for v in x[base + 10 * n_proj:]] if distortion
+                else [0.0] * n_proj)
+        return cams, projs, rhos
 
     def residuals(x, with_surface=True):
-        cams, proj, rho = split(x)
+        cams, projs, rhos = split(x)
         res = []
-        for cam, obs, quad in zip(cams, observations, quadrature, strict=True):
-            res.append((mark_image(cam, obs, quad) - obs.xy_camera).ravel())
-            ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
-            res_p = proj.project(mark_point(cam, obs, quad)) - ideal
-            res.append(np.nan_to_num(res_p).ravel())
-            if with_surface and surface is not None and obs.surface_xy_camera is not None:
-                ideal_s = ideal_from_panel(obs.surface_xy_projector, proj.K[:2, 2], rho)
-                # on the camera ray (pixel centres are exact): reconstruct_points_lsq with
-                # the camera equations' weight taken to infinity, compiled
-                xyz = reconstruct_points_ray(
-                    dlt_from_pinhole(cam),
-                    dlt_from_pinhole(proj),
-                    *obs.surface_xy_camera.T,
-                    *ideal_s.T,
-                )
-                res.append(surface_weight * np.nan_to_num(surface(xyz), nan=0.0))
+        for obs_set, quads, proj, rho in zip(sets, quadratures, projs, rhos, strict=True):
+            for cam, obs, quad in zip(cams, obs_set, quads, strict=True):
+                if not len(obs.xyz_world):
+                    continue
+                res.append((mark_image(cam, obs, quad) - obs.xy_camera).ravel())
+                ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
+                res_p = proj.project(mark_point(cam, obs, quad)) - ideal
+                res.append(np.nan_to_num(res_p).ravel())
+                if with_surface and surface is not None and obs.surface_xy_camera is not None:
+                    ideal_s = ideal_from_panel(obs.surface_xy_projector, proj.K[:2, 2], rho)
+                    # on the camera ray (pixel centres are exact): reconstruct_points_lsq with
+                    # the camera equations' weight taken to infinity, compiled
+                    xyz = reconstruct_points_ray(
+                        dlt_from_pinhole(cam),
+                        dlt_from_pinhole(proj),
+                        *obs.surface_xy_camera.T,
+                        *ideal_s.T,
+                    )
+                    res.append(surface_weight * np.nan_to_num(surface(xyz), nan=0.0))
         return np.concatenate(res)
 
     # Marks first; then, from there, marks and surface together (the surface residuals alone
@@ -311,17 +416,24 @@ def calibrate_rig_joint(
     )
     if surface is not None:
         fit = least_squares(residuals, fit.x, x_scale="jac", method="lm", max_nfev=4000)
-    cams, proj, rho = split(fit.x)
-    cam_rms, proj_rms = [], []
-    for cam, obs, quad in zip(cams, observations, quadrature, strict=True):
-        res_c = mark_image(cam, obs, quad) - obs.xy_camera
-        cam_rms.append(float(np.sqrt(np.mean(res_c**2))))
-        ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
-        res_p = proj.project(mark_point(cam, obs, quad)) - ideal
-        proj_rms.append(float(np.sqrt(np.nanmean(res_p**2))))
-    dist = (ProjectorDistortion(center=(float(proj.K[0, 2]), float(proj.K[1, 2])), rho=float(rho))
-            if distortion else None)
-    return JointCalibration(cams, proj, dist, cam_rms, proj_rms)
+    cams, projs, rhos = split(fit.x)
+    out = []
+    for obs_set, quads, proj, rho in zip(sets, quadratures, projs, rhos, strict=True):
+        cam_rms, proj_rms = [], []
+        for cam, obs, quad in zip(cams, obs_set, quads, strict=True):
+            if not len(obs.xyz_world):
+                cam_rms.append(float("nan"))
+                proj_rms.append(float("nan"))
+                continue
+            res_c = mark_image(cam, obs, quad) - obs.xy_camera
+            cam_rms.append(float(np.sqrt(np.mean(res_c**2))))
+            ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
+            res_p = proj.project(mark_point(cam, obs, quad)) - ideal
+            proj_rms.append(float(np.sqrt(np.nanmean(res_p**2))))
+        dist = (ProjectorDistortion(center=(float(proj.K[0, 2]), float(proj.K[1, 2])),
+                                    rho=float(rho)) if distortion else None)
+        out.append(JointCalibration(cams, proj, dist, cam_rms, proj_rms))
+    return out
 
 
 def calibrate_from_observations(
@@ -430,3 +542,55 @@ def calibrate_from_observations(
         cameras=cameras, projector_distortion=joint.projector_distortion, extra={"model": "joint"}
     )
     return calib, summary
+
+
+def calibrate_projectors_from_observations(
+    observation_sets,
+    *,
+    projector_sizes=None,
+    surface=None,
+    initial_distortions=None,
+    target=None,
+):
+    """Calibrations of a rig of several projectors, one per projector, from one bundle.
+
+    :func:`calibrate_projectors_joint` on each projector's target observations; the result is
+    one :class:`~nail2nail.calibration.files.RigCalibration` per projector (the joint model:
+    pinhole cameras, that projector and its radial distortion), every one with the same camera
+    models, to scan that projector's captures with.
+
+    Parameters
+    ----------
+    observation_sets : list of list of TargetObservations
+        Per projector, one per camera (the same cameras in the same order).
+    projector_sizes : list of (2,) int, optional
+        Per projector, its panel ``(W, H)`` (default 1280 × 1040).
+    surface, target
+        As :func:`calibrate_from_observations` (joint model).
+    initial_distortions : list of dict, optional
+        Per projector, a starting ``{"center", "rho"}``.
+
+    Returns
+    -------
+    calibrations : list of RigCalibration
+    summaries : list of dict
+        Per projector, per camera name: ``points``, ``camera_rms_px``, ``projector_rms_px``.
+    """
+    sets = [list(obs) for obs in observation_sets]
+    inits = [d or {} for d in (initial_distortions or [None] * len(sets))]
+    joints = calibrate_projectors_joint(
+        sets, projector_sizes=projector_sizes, surface=surface, target=target,
+        initial_rhos=[float(d.get("rho", 0.0)) for d in inits],
+        initial_centers=[d.get("center") for d in inits])
+    calibrations, summaries = [], []
+    for k, (obs_set, joint) in enumerate(zip(sets, joints, strict=True)):
+        cameras = [CameraCalibration(o.name, cam, joint.projector, size=o.size)
+                   for o, cam in zip(obs_set, joint.cameras, strict=True)]
+        calibrations.append(RigCalibration(
+            cameras=cameras, projector_distortion=joint.projector_distortion,
+            extra={"model": "joint", "projectors": len(sets), "projector": k}))
+        summaries.append({o.name: {"points": len(o.xyz_world), "camera_rms_px": c_rms,
+                                   "projector_rms_px": p_rms}
+                          for o, c_rms, p_rms in zip(obs_set, joint.camera_rms_px,
+                                                     joint.projector_rms_px, strict=True)})
+    return calibrations, summaries

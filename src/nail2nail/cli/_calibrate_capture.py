@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -10,19 +11,24 @@ import numpy as np
 from nail2nail._progress import Stages
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.markers import TargetGeometry
-from nail2nail.calibration.observe import target_observations
-from nail2nail.calibration.target import calibrate_from_observations
+from nail2nail.calibration.observe import projector_target_observations, target_observations
+from nail2nail.calibration.target import (
+    calibrate_from_observations,
+    calibrate_projectors_from_observations,
+)
 from nail2nail.io._atomic import atomic_files
 from nail2nail.io._json import dumps_json
 from nail2nail.io.capture import read_capture
 from nail2nail.io.points import PointsTable, write_points
 
-__all__ = ["run_capture"]
+__all__ = ["run_capture", "run_projectors"]
 
 
 def run_capture(args: argparse.Namespace) -> int:
     if args.output is None:
         raise ValueError("calibrate CAPTURE_DIR: give the calibration file to write with -o")
+    if (args.source / "projectors.json").is_file():
+        return run_projectors(args)
     capture = read_capture(args.source)
     diameter = getattr(args, "mark_diameter_px", None)
     if diameter is None and "rig" not in capture.manifest:
@@ -70,4 +76,93 @@ def run_capture(args: argparse.Namespace) -> int:
             print(f"projector distortion: centre {np.round(d.center, 2).tolist()} px, "
                   f"rho {d.rho:.6f}")
         print(f"wrote {args.output} and {len(tables)} points tables")
+    return 0
+
+
+def _projector_captures(source: Path) -> list[tuple[str, Path]]:
+    """``[(name, capture directory)]`` of a rig of several projectors (``projectors.json``)."""
+    path = source / "projectors.json"
+    try:
+        layout = json.loads(path.read_text())
+        entries = [str(c["capture"]) for c in layout["captures"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a projector layout (expected \"captures\": "
+                         f"[{{\"capture\": DIR, ...}}, ...]): {exc}") from exc
+    if len(entries) < 1 or len(set(entries)) != len(entries):
+        raise ValueError(f"{path}: \"captures\" must name one or more distinct directories, "
+                         f"got {entries}")
+    out = []
+    for name in entries:
+        if Path(name).name != name or name in (".", ".."):
+            raise ValueError(f"{path}: capture {name!r} is not a directory name inside "
+                             f"{source}")
+        out.append((name, source / name))
+    return out
+
+
+def run_projectors(args: argparse.Namespace) -> int:
+    """A target capture of several projectors (``projectors.json``): every projector and the
+    cameras in one bundle adjustment; one calibration file per projector (``OUT_<capture>``)."""
+    if args.model != "joint":
+        raise ValueError(f"{args.source}: a capture of several projectors is calibrated with "
+                         "--model joint (the cameras shared by every projector); the DLT "
+                         "model calibrates one projector's capture at a time")
+    captures = _projector_captures(args.source)
+    output = Path(args.output)
+    out_dir = output.parent
+    files = {name: f"{output.stem}_{name}{output.suffix or '.json'}" for name, _ in captures}
+    opened = [read_capture(path) for _, path in captures]
+    diameter = getattr(args, "mark_diameter_px", None)
+    if diameter is None and "rig" not in opened[0].manifest:
+        raise ValueError(f"{captures[0][1] / 'capture.json'}: no nominal 'rig': give "
+                         "--mark-diameter-px PX (docs/capture-format.md)")
+    sets = projector_target_observations(opened, progress=True, refine_marks=True,
+                                         mark_diameter_px=diameter)
+    sizes = [tuple(c.manifest.get("projector", {}).get("size") or (1280, 1040))
+             for c in opened]
+    Stages(prefix="calibrate: ")(f"fit the joint model of {len(sets)} projectors")
+    calibs, summaries = calibrate_projectors_from_observations(
+        sets, projector_sizes=sizes, surface=TargetGeometry().signed_distance,
+        target=TargetGeometry())
+    for (_, path), calib, obs in zip(captures, calibs, sets, strict=True):
+        if not args.allow_mirrored:
+            check_handedness(calib, str(path),
+                             scene_point=np.mean([o.xyz_world.mean(axis=0) for o in obs], 0))
+        calib.extra["source"] = str(path)
+    tables = {}
+    for (name, _), obs in zip(captures, sets, strict=True):
+        for o in obs:
+            tables[(name, o.name)] = f"{output.stem}_{name}_points_{o.name}.tsv"
+    # the points tables and the calibrations, all or none; the calibrations moved in last
+    with atomic_files(out_dir, [*tables.values(), *files.values()]) as tmp:
+        for (name, _), obs in zip(captures, sets, strict=True):
+            for o in obs:
+                extra = None if o.grid is None else {"grid_row": o.grid[:, 0],
+                                                       "grid_col": o.grid[:, 1]}
+                write_points(tmp / tables[(name, o.name)], PointsTable.from_arrays(
+                    o.xyz_world, o.xy_camera, o.xy_projector, extra=extra))
+        for (name, _), calib in zip(captures, calibs, strict=True):
+            save_calibration(tmp / files[name], calib)
+    if args.json:
+        print(dumps_json({
+            "outputs": {name: str(out_dir / f) for name, f in files.items()}, "model": "joint",
+            "projectors": {name: {"cameras": summary,
+                                  "projector_distortion":
+                                      calib.to_dict()["projector_distortion"]}
+                           for (name, _), summary, calib in zip(captures, summaries, calibs,
+                                                                strict=True)},
+            "points_tables": {f"{p}/{c}": str(out_dir / f) for (p, c), f in tables.items()}},
+            indent=2))
+    else:
+        for (name, _), summary, calib in zip(captures, summaries, calibs, strict=True):
+            for cam, s in summary.items():
+                print(f"{name} {cam}: {s['points']} marks, camera rms "
+                      f"{s['camera_rms_px']:.4f} px, projector rms "
+                      f"{s['projector_rms_px']:.4f} px")
+            if calib.projector_distortion:
+                d = calib.projector_distortion
+                print(f"{name} projector distortion: centre {np.round(d.center, 2).tolist()} px, "
+                      f"rho {d.rho:.6f}")
+        print(f"wrote {', '.join(str(out_dir / f) for f in files.values())} (the cameras shared) "
+              f"and {len(tables)} points tables")
     return 0
