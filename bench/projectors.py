@@ -15,14 +15,17 @@ fraction of the true print against a re-rendered copy (issue 9's ratio), and the
 impostor score (every unrolled print against every other finger's true print).
 
 The captures are cached per finger and projector azimuth under ``--out`` (the thesis layout's
-projector is the side layouts' first one: rendered once). Calibration: the rig's truth
-(calibrating several projectors jointly is not built yet; each projector's rig is a thesis
-rig that ``nail2nail calibrate`` calibrates alone).
+projector is the side layouts' first one: rendered once). Calibration (``--calibration``): the
+rig's truth (default), or ``joint``: the cylinder target rendered under every projector of the
+layout and every projector calibrated with the cameras in one bundle
+(``calibrate_projectors_joint``, as ``nail2nail calibrate DIR --model joint`` does), made once
+per layout and cached under ``--out/calibration``.
 
 Usage::
 
     .venv/bin/python bench/projectors.py [--fingers 6] [--scale 1]
-        [--layouts thesis,pair-45,sides-60] [--out DIR] [--no-matcher] [--json]
+        [--layouts thesis,pair-45,sides-60] [--calibration truth|joint] [--out DIR]
+        [--no-matcher] [--json]
 """
 
 from __future__ import annotations
@@ -66,7 +69,40 @@ def capture_for(out: Path, rig: Rig, azimuth: float, scene, seed: int) -> Path:
     return path
 
 
-def run_layout_finger(out: Path, layout: str, seed: int, scale: float) -> dict:
+def joint_calibrations(out: Path, layout: str, scale: float) -> list:
+    """Every projector of `layout` calibrated with the cameras in one bundle, from the target
+    rendered under each (cached: ``out/calibration/<layout>_p<k>.json``)."""
+    from nail2nail.calibration.files import load_calibration, save_calibration
+    from nail2nail.calibration.markers import TargetGeometry
+    from nail2nail.calibration.observe import projector_target_observations
+    from nail2nail.calibration.target import calibrate_projectors_from_observations
+
+    rigs = projector_rigs(layout, default_rig(scale))
+    files = [out / "calibration" / f"{layout}_p{k}.json" for k in range(len(rigs))]
+    if all(f.is_file() for f in files):
+        return [load_calibration(f) for f in files]
+    captures = []
+    for k, rig in enumerate(rigs):
+        path = out / "targets" / layout / f"p{k}"
+        if not (path / "capture.json").is_file():
+            log(f"{layout}: render the target under projector {k}")
+            simulate_capture(path, "target", rig=rig, seed=7 + k)
+        captures.append(read_capture(path, load=False))
+    t0 = time.perf_counter()
+    sets = projector_target_observations(captures, refine_marks=True)
+    calibs, _ = calibrate_projectors_from_observations(
+        sets, projector_sizes=[rig.panel_size for rig in rigs],
+        surface=TargetGeometry().signed_distance, target=TargetGeometry())
+    log(f"{layout}: {len(rigs)} projectors calibrated jointly in "
+        f"{time.perf_counter() - t0:.0f} s")
+    files[0].parent.mkdir(parents=True, exist_ok=True)
+    for f, calib in zip(files, calibs, strict=True):
+        save_calibration(f, calib)
+    return calibs
+
+
+def run_layout_finger(out: Path, layout: str, seed: int, scale: float,
+                      calibrations: list | None = None) -> dict:
     base = default_rig(scale)
     rigs = projector_rigs(layout, base)
     azimuths = LAYOUTS[layout]
@@ -76,7 +112,8 @@ def run_layout_finger(out: Path, layout: str, seed: int, scale: float) -> dict:
     for k, (rig, az) in enumerate(zip(rigs, azimuths, strict=True)):
         path = capture_for(out, rig, az, scene, seed)
         capture = read_capture(path, load=False)
-        calib = RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
+        calib = (RigCalibration.from_dict(ideal_calibration(Rig.from_capture(capture)))
+                 if calibrations is None else calibrations[k])
         for i, s in enumerate(scan_capture(capture, calib)):
             scans.append(replace(s, name=f"{s.name}-p{k}") if len(rigs) > 1 else s)
             projectors.append(k)
@@ -101,7 +138,7 @@ def run_layout_finger(out: Path, layout: str, seed: int, scale: float) -> dict:
     t0 = time.perf_counter()
     rolled = unroll_scans(scans, ppi=PPI)
     t_unroll = time.perf_counter() - t0
-    prints = out / "prints" / layout
+    prints = out / "prints" / (layout if calibrations is None else f"{layout}-joint")
     prints.mkdir(parents=True, exist_ok=True)
     png = sourceafis.save_png(prints / f"seed{seed}.png", rolled.image, dpi=PPI)
     truth_dir = out / "captures" / f"seed{seed}" / f"az{azimuths[0]:+.0f}"
@@ -182,6 +219,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--fingers", type=int, default=6)
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--layouts", default="thesis,pair-45,sides-60")
+    ap.add_argument("--calibration", choices=["truth", "joint"], default="truth",
+                    help="the rig's truth, or every projector calibrated with the cameras "
+                    "from the rendered target (default: truth)")
     ap.add_argument("--out", type=Path, default=Path("bench-output/projectors"))
     ap.add_argument("--no-matcher", action="store_true")
     ap.add_argument("--json", action="store_true")
@@ -191,20 +231,25 @@ def main(argv=None) -> dict:
         if name not in LAYOUTS:
             ap.error(f"--layouts: unknown layout {name!r} (known: {', '.join(LAYOUTS)})")
     start = time.perf_counter()
-    results: dict = {"scale": args.scale, "fingers": args.fingers, "layouts": {}}
+    results: dict = {"scale": args.scale, "fingers": args.fingers,
+                     "calibration": args.calibration, "layouts": {}}
     for layout in layouts:
-        results["layouts"][layout] = [run_layout_finger(args.out, layout, seed, args.scale)
+        calibs = (joint_calibrations(args.out, layout, args.scale)
+                  if args.calibration == "joint" else None)
+        results["layouts"][layout] = [run_layout_finger(args.out, layout, seed, args.scale,
+                                                        calibs)
                                       for seed in range(args.fingers)]
     if not args.no_matcher:
         score(results)
     results["seconds"] = round(time.perf_counter() - start, 1)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "results.json").write_text(json.dumps(results, indent=1))
+    name = "results.json" if args.calibration == "truth" else f"results_{args.calibration}.json"
+    (args.out / name).write_text(json.dumps(results, indent=1))
     if args.json:
         print(json.dumps(results, indent=1))
     else:
         print("\n".join(summary(results)))
-        print(f"\n{results['seconds']:.0f} s; results in {args.out / 'results.json'}")
+        print(f"\n{results['seconds']:.0f} s; results in {args.out / name}")
     return results
 
 

@@ -33,7 +33,7 @@ from nail2nail.calibration.markers import find_target_marks
 from nail2nail.calibration.markers import mark_diameter_px as nominal_diameter
 from nail2nail.calibration.target import TargetObservations
 from nail2nail.io.capture import read_capture
-from nail2nail.scan.capture import decode_cameras
+from nail2nail.scan.capture import decode_camera
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.patterns import frame_table
 
@@ -493,46 +493,11 @@ def target_observations(
     -------
     list of TargetObservations
         One per camera (world mm, camera px, projector panel px, and the grid identities in
-        ``.grid``).
+        ``.grid``). (:func:`projector_target_observations` of this one capture.)
     """
-
-    out = []
-    for name, decoded in decode_cameras(capture, progress=progress, desc="target",
-                                        **decode_options):
-        diameter = mark_diameter_px
-        if diameter is None:
-            if "rig" not in capture.manifest:
-                raise ValueError(
-                    f"{capture.path}: no nominal rig in the manifest to predict the marks' "
-                    "size from; give the mark diameter in px (mark_diameter_px=, "
-                    "`nail2nail calibrate --mark-diameter-px`)")
-            diameter = nominal_diameter(_nominal_camera(capture, name))
-        try:
-            marks = find_target_marks(decoded.albedo, mark_diameter_px=diameter,
-                                      refine=refine_marks)
-        except ValueError as exc:  # "image: …": say which camera of which capture
-            raise ValueError(f"{capture.path}: camera {name!r}: "
-                             f"{str(exc).removeprefix('image: ')}") from exc
-        # Sampling at the centroid itself: measured against the simulator's truth, the decoded
-        # coordinates there are within 0.03 projector px (rms) of the true ones.
-        xp = sample_bilinear(decoded.xp, marks.xy)
-        yp = sample_bilinear(decoded.yp, marks.xy)
-        ok = np.isfinite(xp) & np.isfinite(yp)
-        H, W = decoded.shape
-        surf_xy, surf_panel = surface_samples(decoded, marks.xy, diameter, stride=surface_stride)
-        out.append(
-            TargetObservations(
-                name,
-                marks.xyz_world[ok],
-                marks.xy[ok],
-                np.column_stack([xp[ok], yp[ok]]),
-                size=(W, H),
-                grid=marks.grid[ok],
-                surface_xy_camera=surf_xy,
-                surface_xy_projector=surf_panel,
-            )
-        )
-    return out
+    return projector_target_observations([capture], mark_diameter_px=mark_diameter_px,
+                                         progress=progress, surface_stride=surface_stride,
+                                         refine_marks=refine_marks, **decode_options)[0]
 
 
 def projector_target_observations(
@@ -580,19 +545,9 @@ def projector_target_observations(
             raise ValueError(f"{capture.path}: cameras {list(capture.camera_names)}, but "
                              f"{captures[0].path} has {names}: every projector's capture must "
                              "have the same cameras")
-    options = {"method": "numba", **decode_options}
     sets: list[list[TargetObservations]] = [[] for _ in captures]
     for name in progress_bar(names, desc="target", unit="camera", enabled=progress):
-        decoded = []
-        for capture in captures:
-            _require_pattern_set(capture)
-            frames = capture.frames.get(name)
-            if frames is None:
-                frames = capture.load_frames(name, raw=True)
-                decoded.append(decode(frames, capture.pattern_set,
-                                      full_scale=2**capture.bit_depth - 1, **options))
-            else:
-                decoded.append(decode(frames, capture.pattern_set, **options))
+        decoded = [decode_camera(capture, name, **decode_options) for capture in captures]
         diameter = mark_diameter_px
         if diameter is None:
             if "rig" not in captures[0].manifest:
@@ -601,12 +556,15 @@ def projector_target_observations(
                     "size from; give the mark diameter in px (mark_diameter_px=, "
                     "`nail2nail calibrate --mark-diameter-px`)")
             diameter = nominal_diameter(_nominal_camera(captures[0], name))
-        lit = np.max([np.nan_to_num(d.albedo) for d in decoded], axis=0)
+        lit = decoded[0].albedo if len(decoded) == 1 else \
+            np.max([np.nan_to_num(d.albedo) for d in decoded], axis=0)
         try:
             marks = find_target_marks(lit, mark_diameter_px=diameter, refine=refine_marks)
-        except ValueError as exc:
-            raise ValueError(f"{', '.join(str(c.path) for c in captures)}: camera {name!r}, lit "
-                             f"by every projector: {str(exc).removeprefix('image: ')}") from exc
+        except ValueError as exc:  # "image: …": say which camera of which capture
+            where = (f"{captures[0].path}: camera {name!r}" if len(captures) == 1 else
+                     f"{', '.join(str(c.path) for c in captures)}: camera {name!r}, lit by "
+                     "every projector")
+            raise ValueError(f"{where}: {str(exc).removeprefix('image: ')}") from exc
         for k, d in enumerate(decoded):
             xp = sample_bilinear(d.xp, marks.xy)
             yp = sample_bilinear(d.yp, marks.xy)
@@ -618,12 +576,6 @@ def projector_target_observations(
                 size=(W, H), grid=marks.grid[ok], surface_xy_camera=surf_xy,
                 surface_xy_projector=surf_panel))
     return sets
-
-
-def _require_pattern_set(capture) -> None:
-    if capture.pattern_set is None:
-        raise ValueError(f"{capture.path / 'capture.json'}: \"pattern_set\" is null or missing: "
-                         "the frames cannot be decoded (docs/capture-format.md)")
 
 
 def _nominal_camera(capture, name: str) -> Pinhole:

@@ -60,6 +60,7 @@ __all__ = [
     "MIN_PLANE_ANGLE_DEG",
     "REFERENCE_PIXELS",
     "camera_center",
+    "decode_camera",
     "decode_cameras",
     "gradient_limit",
     "kept_fraction",
@@ -695,12 +696,24 @@ def decode_cameras(capture, *, progress: bool = False, desc: str = "decode", **d
     """
 
     _require_pattern_set(capture)
-    options = {"method": "numba", **decode_options}
     for name in progress_bar(capture.camera_names, desc=desc, unit="camera", enabled=progress):
-        if name in capture.frames:  # cached as floats in [0, 1]
-            decoded = decode(capture.frames.pop(name), capture.pattern_set, **options)
-        else:  # the frames' integer values, not cached: a quarter of the floats' memory
-            decoded = decode(capture.load_frames(name, raw=True), capture.pattern_set,
-                             full_scale=2**capture.bit_depth - 1, **options)
-        yield name, decoded
+        yield name, decode_camera(capture, name, **decode_options)
+
+
+def decode_camera(capture, name: str, **decode_options):
+    """Decode one camera of a capture (:func:`decode_cameras`' step): its frames as cached
+    (then released from the cache) or read as integers.
+
+    Raises
+    ------
+    ValueError
+        If the capture's manifest names no pattern set.
+    """
+    _require_pattern_set(capture)
+    options = {"method": "numba", **decode_options}
+    if name in capture.frames:  # cached as floats in [0, 1]
+        return decode(capture.frames.pop(name), capture.pattern_set, **options)
+    # the frames' integer values, not cached: a quarter of the floats' memory
+    return decode(capture.load_frames(name, raw=True), capture.pattern_set,
+                  full_scale=2**capture.bit_depth - 1, **options)
 
