@@ -159,7 +159,8 @@ def _mark_centroids(camera, quadrature) -> np.ndarray:
     facing = np.sum(normal * (camera.center - xyz), axis=-1)
     w = weight * np.clip(facing, 0.0, None) / p[..., 2] ** 3
     xy = camera.project(xyz)
-    return np.sum(w[..., None] * xy, axis=1) / np.sum(w, axis=1)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):  # a mark seen edge-on: NaN
+        return np.sum(w[..., None] * xy, axis=1) / np.sum(w, axis=1)[:, None]
 
 
 def _ray_cylinder(camera, xy, radius: float) -> np.ndarray:
@@ -392,7 +393,9 @@ def _bundle(sets, projector_sizes, *, distortion, initial_rhos, initial_centers,
             for cam, obs, quad in zip(cams, obs_set, quads, strict=True):
                 if not len(obs.xyz_world):
                     continue
-                res.append((mark_image(cam, obs, quad) - obs.xy_camera).ravel())
+                # a mark seen edge-on has no modelled centroid (NaN): it adds nothing, as a
+                # projector residual without a surface point does
+                res.append(np.nan_to_num(mark_image(cam, obs, quad) - obs.xy_camera).ravel())
                 ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
                 res_p = proj.project(mark_point(cam, obs, quad)) - ideal
                 res.append(np.nan_to_num(res_p).ravel())
@@ -426,14 +429,21 @@ def _bundle(sets, projector_sizes, *, distortion, initial_rhos, initial_centers,
                 proj_rms.append(float("nan"))
                 continue
             res_c = mark_image(cam, obs, quad) - obs.xy_camera
-            cam_rms.append(float(np.sqrt(np.mean(res_c**2))))
+            cam_rms.append(_rms(res_c))
             ideal = ideal_from_panel(obs.xy_projector, proj.K[:2, 2], rho)
             res_p = proj.project(mark_point(cam, obs, quad)) - ideal
-            proj_rms.append(float(np.sqrt(np.nanmean(res_p**2))))
+            proj_rms.append(_rms(res_p))
         dist = (ProjectorDistortion(center=(float(proj.K[0, 2]), float(proj.K[1, 2])),
                                     rho=float(rho)) if distortion else None)
         out.append(JointCalibration(cams, proj, dist, cam_rms, proj_rms))
     return out
+
+
+def _rms(residuals) -> float:
+    """RMS of the finite residuals (NaN when there is none)."""
+    r = np.asarray(residuals, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
 
 
 def calibrate_from_observations(
