@@ -514,9 +514,11 @@ def projector_target_observations(
 
     A side projector lights only part of the target, and a camera on the other side sees that
     part dark: it may not find the key mark there at all. So each camera's marks are found once,
-    in the brightest of its captures at every pixel (the target's albedo lit from every side),
-    and every projector's decoded coordinates are sampled at those marks where that projector
-    lights them (marks it does not light are left out of its set).
+    in the sum of its captures' mean images (the target lit from every side; the brightest
+    of them at each pixel instead leaves a seam where the light changes projector, and the
+    centre camera of the ±45° pair took a seam for the key mark), and every projector's decoded
+    coordinates are sampled at those marks where that projector lights them (marks it does not
+    light are left out of its set).
 
     Parameters
     ----------
@@ -557,7 +559,7 @@ def projector_target_observations(
                     "`nail2nail calibrate --mark-diameter-px`)")
             diameter = nominal_diameter(_nominal_camera(captures[0], name))
         lit = decoded[0].albedo if len(decoded) == 1 else \
-            np.max([np.nan_to_num(d.albedo) for d in decoded], axis=0)
+            np.sum([np.nan_to_num(d.albedo) for d in decoded], axis=0)
         try:
             marks = find_target_marks(lit, mark_diameter_px=diameter, refine=refine_marks)
         except ValueError as exc:  # "image: …": say which camera of which capture
