@@ -30,7 +30,11 @@ def add_parser(sub) -> None:
         "capture of the calibration target, write a calibration JSON and print the per-point "
         "reconstruction errors (thesis Tables 2 and 3).",
     )
-    p.add_argument("source", type=Path, help="points table (.tsv/.csv) or capture directory")
+    p.add_argument("source", type=Path,
+                   help="points table (.tsv/.csv) or capture directory; a directory with "
+                   "projectors.json (one target capture per projector) calibrates every "
+                   "projector with the cameras (--model joint), writing OUT_<capture>.json "
+                   "per projector")
     p.add_argument("-o", "--output", type=Path, help="calibration JSON to write")
     p.add_argument(
         "--use",
