@@ -351,6 +351,55 @@ def test_block_quality_only_blocks_inside_the_mask():
     assert empty["period_px"].size == 0 and np.isnan(empty["grid"]).all()
 
 
+def test_block_quality_is_its_definition_block_by_block():
+    """The ring sums taken per distinct radius equal the module docstring's definition computed
+    directly for each block: the Hann-windowed block zero-padded to twice its size (the real
+    FFT's half-plane), the
+    spectral peak in the band, the ring ±(25 % + 1 / block) around it, the ring's share of the
+    AC energy and its energy-weighted radius."""
+    rng = np.random.default_rng(5)
+    img = sinusoid((96, 96), 7.0, 20.0) + 0.8 * rng.standard_normal((96, 96))
+    n, lo, hi = 32, 4.0, 25.0
+    q = block_quality(img, np.ones(img.shape, bool), block_px=n, step_px=32,
+                      min_period_px=lo, max_period_px=hi)
+    win = np.outer(np.hanning(n), np.hanning(n))
+    # the half-plane of the real FFT, as block_quality transforms it
+    fy, fx = np.meshgrid(np.fft.fftfreq(2 * n), np.fft.rfftfreq(2 * n), indexing="ij")
+    radius = np.hypot(fy, fx)
+    for k, (r, c) in enumerate(zip(q["rows"], q["cols"], strict=True)):
+        r0, c0 = int(r - (n - 1) / 2), int(c - (n - 1) / 2)
+        b = img[r0:r0 + n, c0:c0 + n]
+        spec = np.abs(np.fft.rfft2((b - b.mean()) * win, s=(2 * n, 2 * n))) ** 2
+        band = (radius >= 1 / hi) & (radius <= 1 / lo)
+        peak = radius[np.unravel_index(np.argmax(np.where(band, spec, 0)), spec.shape)]
+        ring = (np.abs(radius - peak) <= 0.25 * peak + 1 / n) & (radius > 0)
+        clarity = spec[ring].sum() / spec[radius > 0].sum()
+        period = spec[ring].sum() / (spec[ring] * radius[ring]).sum()
+        assert q["clarity"][k] == pytest.approx(clarity, rel=1e-9)
+        assert q["period_px"][k] == pytest.approx(period, rel=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31), st.floats(0.001, 0.999), st.booleans())
+def test_weighted_quantiles_without_a_full_sort_are_the_sorted_ones(seed, q, ties):
+    """Above 4096 values the quantile's value bin is found first and only it is sorted; the
+    answer is the full sort's (the smallest value whose cumulative weight fraction reaches q),
+    with ties, zero weights and skewed values (q = 1 is left out: there the two sums' last
+    rounding decides)."""
+    from nail2nail._quantile import weighted_quantiles
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5000, 40000))
+    x = rng.lognormal(size=n)
+    if ties:
+        x = np.round(x, 1)
+    w = rng.random(n) * (rng.random(n) > 0.3)
+    order = np.argsort(x)
+    cw = np.cumsum(w[order]) / w.sum()
+    expected = x[order][min(int(np.searchsorted(cw, q)), n - 1)]
+    assert weighted_quantiles(x, w, [q])[0] == expected
+
+
 @pytest.mark.parametrize("angle", [0.0, 30.0, 77.0])
 def test_block_quality_period_and_clarity_in_large_blocks(angle):
     img = sinusoid((192, 192), 9.5, angle)

@@ -530,7 +530,11 @@ def projector_target_observations(
     Returns
     -------
     list of list of TargetObservations
-        Per projector, one per camera (``sets[k][i]``: camera ``i`` under projector ``k``).
+        Per projector, one per camera (``sets[k][i]``: camera ``i`` under projector ``k``):
+        the marks' world points (mm), their centroids (camera px, pixel-centre convention)
+        and projector ``k``'s panel coordinates there (panel px), the grid identities, and
+        the surface samples between the marks; a camera's marks are the same in every set
+        but for those the projector does not light.
 
     Raises
     ------

@@ -536,21 +536,20 @@ def calibrate_from_observations(
         initial_center=init.get("center"),
         target=target,
     )
-    cameras = [
-        CameraCalibration(o.name, cam, joint.projector, size=o.size)
-        for o, cam in zip(observations, joint.cameras, strict=True)
-    ]
-    for o, c_rms, p_rms in zip(
-        observations, joint.camera_rms_px, joint.projector_rms_px, strict=True
-    ):
-        summary[o.name] = {
-            "points": len(o.xyz_world),
-            "camera_rms_px": c_rms,
-            "projector_rms_px": p_rms,
-        }
-    calib = RigCalibration(
-        cameras=cameras, projector_distortion=joint.projector_distortion, extra={"model": "joint"}
-    )
+    return _rig_from_joint(observations, joint, {"model": "joint"})
+
+
+def _rig_from_joint(observations, joint: JointCalibration, extra: dict):
+    """The :class:`RigCalibration` of one projector's joint fit and its per-camera summary
+    (``points``, ``camera_rms_px``, ``projector_rms_px``)."""
+    cameras = [CameraCalibration(o.name, cam, joint.projector, size=o.size)
+               for o, cam in zip(observations, joint.cameras, strict=True)]
+    summary = {o.name: {"points": len(o.xyz_world), "camera_rms_px": c_rms,
+                        "projector_rms_px": p_rms}
+               for o, c_rms, p_rms in zip(observations, joint.camera_rms_px,
+                                          joint.projector_rms_px, strict=True)}
+    calib = RigCalibration(cameras=cameras, projector_distortion=joint.projector_distortion,
+                           extra=extra)
     return calib, summary
 
 
@@ -594,13 +593,8 @@ def calibrate_projectors_from_observations(
         initial_centers=[d.get("center") for d in inits])
     calibrations, summaries = [], []
     for k, (obs_set, joint) in enumerate(zip(sets, joints, strict=True)):
-        cameras = [CameraCalibration(o.name, cam, joint.projector, size=o.size)
-                   for o, cam in zip(obs_set, joint.cameras, strict=True)]
-        calibrations.append(RigCalibration(
-            cameras=cameras, projector_distortion=joint.projector_distortion,
-            extra={"model": "joint", "projectors": len(sets), "projector": k}))
-        summaries.append({o.name: {"points": len(o.xyz_world), "camera_rms_px": c_rms,
-                                   "projector_rms_px": p_rms}
-                          for o, c_rms, p_rms in zip(obs_set, joint.camera_rms_px,
-                                                     joint.projector_rms_px, strict=True)})
+        calib, summary = _rig_from_joint(
+            obs_set, joint, {"model": "joint", "projectors": len(sets), "projector": k})
+        calibrations.append(calib)
+        summaries.append(summary)
     return calibrations, summaries

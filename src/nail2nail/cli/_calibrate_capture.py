@@ -30,13 +30,7 @@ def run_capture(args: argparse.Namespace) -> int:
     if (args.source / "projectors.json").is_file():
         return run_projectors(args)
     capture = read_capture(args.source)
-    diameter = getattr(args, "mark_diameter_px", None)
-    if diameter is None and "rig" not in capture.manifest:
-        raise ValueError(
-            f"{args.source / 'capture.json'}: no nominal 'rig', so the marks' size in the images "
-            "is unknown: give --mark-diameter-px PX (the image diameter of a 1.2 mm mark, about "
-            "focal length in px x 1.2 / distance to the target in mm) or add a nominal 'rig' "
-            "(docs/capture-format.md)")
+    diameter = _mark_diameter(args, capture, args.source)
     joint = args.model == "joint"
     # the joint model predicts each mark's projected disc on the cylinder: it takes the marks
     # re-measured against their local background (unbiased centroids)
@@ -57,10 +51,7 @@ def run_capture(args: argparse.Namespace) -> int:
     # the points tables and the calibration, all or none; the calibration moved in last
     with atomic_files(out_dir, [*names.values(), Path(args.output).name]) as tmp:
         for obs in observations:
-            extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
-                                                     "grid_col": obs.grid[:, 1]}
-            write_points(tmp / names[obs.name], PointsTable.from_arrays(
-                obs.xyz_world, obs.xy_camera, obs.xy_projector, extra=extra))
+            write_points(tmp / names[obs.name], _points_table(obs))
         save_calibration(tmp / Path(args.output).name, calib)
     if args.json:
         print(dumps_json({"output": str(args.output), "model": args.model, "cameras": summary,
@@ -77,6 +68,27 @@ def run_capture(args: argparse.Namespace) -> int:
                   f"rho {d.rho:.6f}")
         print(f"wrote {args.output} and {len(tables)} points tables")
     return 0
+
+
+def _mark_diameter(args: argparse.Namespace, capture, source: Path) -> float | None:
+    """``--mark-diameter-px``, or None to take it from the capture's nominal rig; refused
+    when there is neither."""
+    diameter = getattr(args, "mark_diameter_px", None)
+    if diameter is None and "rig" not in capture.manifest:
+        raise ValueError(
+            f"{source / 'capture.json'}: no nominal 'rig', so the marks' size in the images "
+            "is unknown: give --mark-diameter-px PX (the image diameter of a 1.2 mm mark, about "
+            "focal length in px x 1.2 / distance to the target in mm) or add a nominal 'rig' "
+            "(docs/capture-format.md)")
+    return diameter
+
+
+def _points_table(obs) -> PointsTable:
+    """A camera's target observations as the points table written beside a calibration (with
+    the marks' grid identities where known)."""
+    extra = None if obs.grid is None else {"grid_row": obs.grid[:, 0],
+                                             "grid_col": obs.grid[:, 1]}
+    return PointsTable.from_arrays(obs.xyz_world, obs.xy_camera, obs.xy_projector, extra=extra)
 
 
 def _projector_captures(source: Path) -> list[tuple[str, Path]]:
@@ -112,10 +124,7 @@ def run_projectors(args: argparse.Namespace) -> int:
     out_dir = output.parent
     files = {name: f"{output.stem}_{name}{output.suffix or '.json'}" for name, _ in captures}
     opened = [read_capture(path) for _, path in captures]
-    diameter = getattr(args, "mark_diameter_px", None)
-    if diameter is None and "rig" not in opened[0].manifest:
-        raise ValueError(f"{captures[0][1] / 'capture.json'}: no nominal 'rig': give "
-                         "--mark-diameter-px PX (docs/capture-format.md)")
+    diameter = _mark_diameter(args, opened[0], captures[0][1])
     sets = projector_target_observations(opened, progress=True, refine_marks=True,
                                          mark_diameter_px=diameter)
     sizes = [tuple(c.manifest.get("projector", {}).get("size") or (1280, 1040))
@@ -137,10 +146,7 @@ def run_projectors(args: argparse.Namespace) -> int:
     with atomic_files(out_dir, [*tables.values(), *files.values()]) as tmp:
         for (name, _), obs in zip(captures, sets, strict=True):
             for o in obs:
-                extra = None if o.grid is None else {"grid_row": o.grid[:, 0],
-                                                       "grid_col": o.grid[:, 1]}
-                write_points(tmp / tables[(name, o.name)], PointsTable.from_arrays(
-                    o.xyz_world, o.xy_camera, o.xy_projector, extra=extra))
+                write_points(tmp / tables[(name, o.name)], _points_table(o))
         for (name, _), calib in zip(captures, calibs, strict=True):
             save_calibration(tmp / files[name], calib)
     if args.json:

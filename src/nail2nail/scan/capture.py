@@ -704,6 +704,22 @@ def decode_camera(capture, name: str, **decode_options):
     """Decode one camera of a capture (:func:`decode_cameras`' step): its frames as cached
     (then released from the cache) or read as integers.
 
+    Parameters
+    ----------
+    capture : Capture
+        From :func:`nail2nail.io.capture.read_capture` (``load=False`` is fine).
+    name : str
+        One of ``capture.camera_names``.
+    **decode_options
+        Passed to :func:`nail2nail.scan.decoding.decode` (``method="numba"`` unless given).
+
+    Returns
+    -------
+    Decoded
+        Projector panel coordinates ``xp, yp`` (H, W) in panel px (NaN where invalid), the
+        quality images (``albedo``, ``modulation``: fractions of full scale), ``mask`` and
+        ``reason``.
+
     Raises
     ------
     ValueError
