@@ -34,7 +34,8 @@ from nail2nail.scan.capture import scan_capture
 from nail2nail.scan.patterns import default_pattern_set
 from nail2nail.simulation.rig import Rig, ideal_calibration
 
-OFF = {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None}
+OFF = {"max_view_angle_deg": None, "max_incidence_deg": None, "min_relative_modulation": None,
+       "outlier_mm": None}
 FUSE_OFF = {**OFF, "spike_mm": None, "surface_mm": None}
 
 
@@ -79,7 +80,7 @@ def main() -> None:
         print(f"\n== finger, scale {args.scale}, calibration: {name} ==")
         print(f"{'pair':<5}{'before: median / p95 / max µm':>32}{'>50 µm':>8}"
               f"{'after: median / p95 / max µm':>31}{'>50 µm':>8}  rejected (view angle / "
-              f"modulation / outlier)")
+              f"incidence / modulation / outlier)")
         for i, j in ((0, 1), (1, 2)):
             m = correspond(scans[i], scans[j])
             stats = m.statistics()
@@ -87,7 +88,7 @@ def main() -> None:
             r = stats["rejected"]
             print(f"{i}-{j:<3}{um(stats['before_rejection']):>32}{np.sum(before > 0.05):>8}"
                   f"{um(stats):>31}{np.sum(m.distance_mm > 0.05):>8}  {r['view_angle']} / "
-                  f"{r['modulation']} / {r['outlier']} of {before.size}")
+                  f"{r['incidence']} / {r['modulation']} / {r['outlier']} of {before.size}")
         for label, options in (("with rejection", {}), ("without", FUSE_OFF)):
             start = time.perf_counter()
             sup = fuse_scans(scans, **options)

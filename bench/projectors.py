@@ -1,8 +1,8 @@
 """Issue 26's evidence: rigs with more than one projector, nail edge to nail edge.
 
 For each projector layout (``nail2nail.simulation.projectors.LAYOUTS``: the thesis rig, then
-side projectors) and N synthetic fingers (seeds 0..N−1, the default simulator), the finger is
-captured once per projector (the projectors shown in turn, 24 frames each), every
+side projectors) and N synthetic fingers (seeds seed0 … seed0 + N − 1, the default simulator),
+the finger is captured once per projector (the projectors shown in turn, 24 frames each), every
 ``(camera, projector)`` capture scanned with its true calibration, all scans fused
 (``fuse_scans(projectors=…, cameras=…)``: pairs of one projector merged in its projector
 space, pairs of one camera at the same pixel) and the finger unrolled from all of them.
@@ -217,6 +217,8 @@ def summary(results: dict) -> list[str]:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fingers", type=int, default=6)
+    ap.add_argument("--seed0", type=int, default=0,
+                    help="the fingers' seeds are seed0, seed0 + 1, … (default: 0)")
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--layouts", default="thesis,pair-45,sides-60")
     ap.add_argument("--calibration", choices=["truth", "joint"], default="truth",
@@ -231,14 +233,15 @@ def main(argv=None) -> dict:
         if name not in LAYOUTS:
             ap.error(f"--layouts: unknown layout {name!r} (known: {', '.join(LAYOUTS)})")
     start = time.perf_counter()
-    results: dict = {"scale": args.scale, "fingers": args.fingers,
+    results: dict = {"scale": args.scale, "fingers": args.fingers, "seed0": args.seed0,
                      "calibration": args.calibration, "layouts": {}}
     for layout in layouts:
         calibs = (joint_calibrations(args.out, layout, args.scale)
                   if args.calibration == "joint" else None)
         results["layouts"][layout] = [run_layout_finger(args.out, layout, seed, args.scale,
                                                         calibs)
-                                      for seed in range(args.fingers)]
+                                      for seed in range(args.seed0,
+                                                        args.seed0 + args.fingers)]
     if not args.no_matcher:
         score(results)
     results["seconds"] = round(time.perf_counter() - start, 1)

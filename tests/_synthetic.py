@@ -152,6 +152,7 @@ def scan_from_camera(
         modulation=modulation,
         mask=mask,
         camera_center=np.asarray(center, dtype=np.float64),
+        projector_center=np.asarray(projector.center, dtype=np.float64),
     )
 
 

@@ -17,7 +17,9 @@ from _synthetic import synthetic_scans
 from nail2nail._interpolate import bilinear
 from nail2nail.merge import (
     DROP_REASONS,
+    REJECT_REASONS,
     correspond,
+    incidence_cosine,
     merge_statistics,
     nearest_bruteforce,
     nearest_kdtree,
@@ -390,7 +392,8 @@ def test_restrict_pairs_is_the_narrower_search(noisy, border, stride, hole, outl
         _same_pairs(narrow.rejected, direct.rejected)
         np.testing.assert_array_equal(narrow.rejected.reason, direct.rejected.reason)
     else:  # only the outlier verdicts may differ
-        for key in ("parent_border", "child_border", "residual", "view_angle", "modulation"):
+        for key in ("parent_border", "child_border", "residual", "view_angle", "incidence",
+                    "modulation"):
             assert narrow.dropped[key] == direct.dropped[key], key
         a, b = narrow.all_pairs(), direct.all_pairs()
         assert {tuple(x) for x in a.parent_rc} == {tuple(x) for x in b.parent_rc}
@@ -418,7 +421,7 @@ def test_write_merge_reads_the_fusions_pairs(noisy, tmp_path):
     for key, stats in own["merge"].items():
         got = one["merge"][key]
         for reason in ("parent_border", "child_border", "residual", "view_angle",
-                       "modulation"):
+                       "incidence", "modulation"):
             assert got["dropped"][reason] == stats["dropped"][reason], (key, reason)
         assert got["before_rejection"]["pairs"] == stats["before_rejection"]["pairs"]
         assert abs(got["pairs"] - stats["pairs"]) <= 0.002 * stats["pairs"] + 2
@@ -440,47 +443,58 @@ def _corrupt_edge(scan, *, band_px=3, offset_mm=0.2):
 
 def test_issue9_corrupted_mask_edge_pairs_are_rejected(noisy):
     child, _ = _corrupt_edge(noisy[1])
-    plain = correspond(noisy[0], child, max_view_angle_deg=None, min_relative_modulation=None,
-                       outlier_mm=None)
+    plain = correspond(noisy[0], child, max_view_angle_deg=None, max_incidence_deg=None,
+                       min_relative_modulation=None, outlier_mm=None)
     assert plain.rejected is None and plain.dropped["outlier"] == 0
     assert plain.distance_mm.max() > 0.1  # the corrupted points are paired without the tests
     m = correspond(noisy[0], child)
     # every pair more than the outlier floor (25 µm) off its neighbours is rejected
     assert m.distance_mm.max() < 0.035
     assert m.n_pairs > 0.8 * plain.n_pairs
-    assert m.rejected.n_pairs == sum(m.dropped[k] for k in ("view_angle", "modulation",
-                                                            "outlier"))
-    assert set(m.rejected.reason) <= {"view_angle", "modulation", "outlier"}
+    assert REJECT_REASONS == ("view_angle", "incidence", "modulation", "outlier")
+    assert m.rejected.n_pairs == sum(m.dropped[k] for k in REJECT_REASONS)
+    assert set(m.rejected.reason) <= set(REJECT_REASONS)
     assert m.dropped["outlier"] > 0
     # nothing is hidden: the statistics before rejection hold every pair found
     stats = m.statistics()
     assert stats["before_rejection"]["pairs"] == plain.n_pairs
     assert stats["before_rejection"]["distance_mm"]["max"] == pytest.approx(
         plain.distance_mm.max())
-    assert stats["rejected"] == {k: m.dropped[k] for k in ("view_angle", "modulation",
-                                                           "outlier")}
+    assert stats["rejected"] == {k: m.dropped[k] for k in REJECT_REASONS}
     assert m.n_sampled == m.n_pairs + sum(m.dropped.values())
 
 
 def test_issue9_rejection_tests_by_reason(clean):
     # grazing views: the cylinder's silhouette seen by the side cameras
-    wide = correspond(clean[0], clean[1], max_view_angle_deg=None, min_relative_modulation=None,
-                      outlier_mm=None)
-    m = correspond(clean[0], clean[1], max_view_angle_deg=60.0, min_relative_modulation=None,
-                   outlier_mm=None)
+    off = {"max_view_angle_deg": None, "max_incidence_deg": None,
+           "min_relative_modulation": None, "outlier_mm": None}
+    wide = correspond(clean[0], clean[1], **off)
+    m = correspond(clean[0], clean[1], **{**off, "max_view_angle_deg": 60.0})
     assert m.dropped["view_angle"] > 0 and m.dropped["modulation"] == 0
     assert m.n_pairs + m.dropped["view_angle"] == wide.n_pairs
+    # grazing light: the projector lights the cylinder's sides at a glancing angle
+    m = correspond(clean[0], clean[1], **{**off, "max_incidence_deg": 50.0})
+    assert m.dropped["incidence"] > 0 and m.dropped["view_angle"] == 0
+    assert m.n_pairs + m.dropped["incidence"] == wide.n_pairs
+    angle = np.degrees(np.arccos(incidence_cosine(clean[0], smooth_px=2.0)))
+    r, c = m.parent_rc.T
+    assert angle[r, c].max() < 50.0 + 1.0  # bilinear in the child, nearest here
     # a stripe of weak fringes (a tenth of the modulation) in the child
     stripe = (np.arange(SIZE[0]) >= 40) & (np.arange(SIZE[0]) < 50)
     weak = replace(clean[1], modulation=clean[1].modulation * np.where(
         stripe, 0.1, 1.0).astype(np.float32))
-    m = correspond(clean[0], weak, max_view_angle_deg=None, outlier_mm=None)
+    m = correspond(clean[0], weak, max_view_angle_deg=None, max_incidence_deg=None,
+                   outlier_mm=None)
     assert m.dropped["modulation"] > 0
     assert m.n_pairs + m.dropped["modulation"] == wide.n_pairs
     col = m.child_rc[:, 1]
     assert not np.any((col >= 40) & (col <= 49))  # none in the stripe (bilinear at its rim)
     with pytest.raises(ValueError, match="max_view_angle_deg"):
         correspond(clean[0], clean[1], max_view_angle_deg=120)
+    with pytest.raises(ValueError, match="max_incidence_deg"):
+        correspond(clean[0], clean[1], max_incidence_deg=0)
+    with pytest.raises(ValueError, match="projector_center"):
+        incidence_cosine(replace(clean[0], projector_center=None))
     with pytest.raises(ValueError, match="outlier_mm"):
         correspond(clean[0], clean[1], outlier_mm=-1)
 

@@ -102,12 +102,14 @@ def reference_grid_normals(xyz, *, camera_center=None):
     return normal.astype(np.float32)
 
 
-def reference_view_cosine(scan, *, normals=None, smooth_px=0.0):
+def reference_view_cosine(scan, *, normals=None, smooth_px=0.0, center=None):
+    """The view cosine; with `center`, the cosine towards that point (the incidence)."""
     valid = valid_mask(scan)
     if normals is None:
         normals = reference_grid_normals(scan.xyz, camera_center=scan.camera_center)
     normals = np.asarray(normals, dtype=np.float64)
-    view = np.asarray(scan.camera_center, dtype=np.float64) - np.asarray(scan.xyz, np.float64)
+    center = scan.camera_center if center is None else center
+    view = np.asarray(center, dtype=np.float64) - np.asarray(scan.xyz, np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         view /= np.linalg.norm(view, axis=-1, keepdims=True)
         cos = np.clip(np.nan_to_num(np.einsum("...k,...k->...", normals, view)), 0, 1)
@@ -140,7 +142,8 @@ def reference_without_jumps(scan, valid, max_jump_px):
 
 def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border_px=2,
                          max_jump_px=2.0, refine=True, method="kdtree",
-                         max_view_angle_deg=70.0, min_relative_modulation=1 / 3,
+                         max_view_angle_deg=70.0, max_incidence_deg=65.0,
+                         min_relative_modulation=1 / 3,
                          outlier_mm=0.025, outlier_mad=4.0, outlier_block_px=32):
     """The correspondence before issue 11: every image per call, float64 copies."""
     parent_valid, child_valid = valid_mask(parent), valid_mask(child)
@@ -185,15 +188,20 @@ def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border
     reason = np.full(n, -1, dtype=np.int8)
     pr, pc = pairs["parent_rc"].T
     cr, cc = pairs["child_rc"].T
-    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
+    for code, limit in enumerate((max_view_angle_deg, max_incidence_deg,
+                                  min_relative_modulation)):
         if limit is None or n == 0:
             continue
-        threshold = np.cos(np.radians(limit)) if code == 0 else limit
+        threshold = np.cos(np.radians(limit)) if code < 2 else limit
         ok = np.ones(n, dtype=bool)
         for scan, (r, c) in ((parent, (pr, pc)), (child, (cr, cc))):
             if code == 0 and scan.camera_center is None:
                 continue
+            if code == 1 and scan.projector_center is None:
+                continue
             image = (reference_view_cosine(scan, smooth_px=2.0) if code == 0
+                     else reference_view_cosine(scan, smooth_px=2.0,
+                                                center=scan.projector_center) if code == 1
                      else _relative_modulation(scan))
             ok &= bilinear(image, r.astype(np.float64), c.astype(np.float64))[0] >= threshold
         reason[(reason < 0) & ~ok] = code
@@ -202,7 +210,7 @@ def reference_correspond(parent, child, *, stride=1, max_residual_px=0.5, border
         distance = np.linalg.norm(pairs["xyz_parent"] - pairs["xyz_child"], axis=-1)
         out = local_outliers(pr[live], pc[live], distance[live], block_px=outlier_block_px,
                              floor_mm=outlier_mm, k_mad=outlier_mad)
-        reason[np.flatnonzero(live)[out]] = 2
+        reason[np.flatnonzero(live)[out]] = 3
     for code, name in enumerate(REJECT_REASONS):
         dropped[name] = int(np.count_nonzero(reason == code))
     return pairs, reason, dropped, n_sampled
@@ -517,7 +525,8 @@ def test_fused_pairs_distance_is_numpy_norm(holed, monkeypatch):
         return local_outliers(rows, cols, distance, **kwargs)
 
     monkeypatch.setattr(mc, "local_outliers", spy)
-    m = correspond(holed[0], holed[1], max_view_angle_deg=None, min_relative_modulation=None)
+    m = correspond(holed[0], holed[1], max_view_angle_deg=None, max_incidence_deg=None,
+                   min_relative_modulation=None)
     both = m.all_pairs()  # kept, then rejected: back to the parent's row-major order
     order = np.lexsort(both.parent_rc.T[::-1])
     norm = np.linalg.norm(both.xyz_parent - both.xyz_child, axis=-1)[order]
@@ -577,7 +586,9 @@ def _assert_matches_reference(m: Correspondence, ref) -> None:
     {"refine": False, "max_residual_px": 5.0},
     {"border_px": 1, "max_jump_px": 0.8},
     {"max_view_angle_deg": 55.0, "min_relative_modulation": 0.9},
-    {"max_view_angle_deg": None, "min_relative_modulation": None, "outlier_mm": None},
+    {"max_incidence_deg": 45.0, "max_view_angle_deg": None},
+    {"max_view_angle_deg": None, "max_incidence_deg": None, "min_relative_modulation": None,
+     "outlier_mm": None},
 ])
 def test_correspond_gives_the_reference_results(holed, options):
     for i, j in ((0, 1), (1, 2), (2, 1), (0, 2)):
@@ -624,13 +635,13 @@ def test_cache_is_reused_and_gives_the_uncached_results(holed):
 
 def test_fusion_call_with_a_quality_dict_still_works(holed):
     # fuse_scans' call: every option by keyword, its own view cosine through `quality`
-    quality = {id(s): [view_cosine(s, smooth_px=2.0), None] for s in holed}
+    quality = {id(s): [view_cosine(s, smooth_px=2.0), None, None] for s in holed}
     kwargs = {"stride": 1, "max_residual_px": 0.5, "border_px": 1, "max_jump_px": 2.0,
               "refine": True, "method": "kdtree", "workers": -1, "max_view_angle_deg": 70.0,
-              "min_relative_modulation": 1 / 3, "outlier_mm": 0.025, "outlier_mad": 4.0,
-              "outlier_block_px": 32}
+              "max_incidence_deg": 65.0, "min_relative_modulation": 1 / 3, "outlier_mm": 0.025,
+              "outlier_mad": 4.0, "outlier_block_px": 32}
     a = _correspond(holed[0], holed[1], **kwargs, quality=quality)
-    assert quality[id(holed[1])][1] is not None  # filled, as before
+    assert all(v is not None for v in quality[id(holed[1])])  # filled, as before
     b = _correspond(holed[0], holed[1], **{**kwargs, "method": "grid"}, quality=quality,
                     cache=CorrespondenceCache())
     _assert_matches_reference(a, reference_correspond(holed[0], holed[1], border_px=1))

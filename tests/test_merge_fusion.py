@@ -217,7 +217,7 @@ def _corrupted(scans):
 def test_issue9_corrupted_points_do_not_reach_the_fused_surface(scans):
     bad, (_, (sr, sc)) = _corrupted(scans)
     off = {"spike_mm": None, "surface_mm": None, "max_view_angle_deg": None,
-           "min_relative_modulation": None, "outlier_mm": None}
+           "max_incidence_deg": None, "min_relative_modulation": None, "outlier_mm": None}
     dirty = fuse_scans(bad, **off)
     assert np.abs(_radial_error(dirty.vertices)).max() > 0.1  # what fusing them blindly does
     sup = fuse_scans(bad)

@@ -148,14 +148,18 @@ def vectors_in_frame(vectors, transform) -> np.ndarray:
 
 
 def scan_in_frame(scan, transform):
-    """A :class:`~nail2nail.scan.results.Scan` with ``xyz`` and ``camera_center`` mapped by
-    `transform` (the other images are frame-free); the identity returns `scan` itself."""
+    """A :class:`~nail2nail.scan.results.Scan` with ``xyz``, ``camera_center`` and
+    ``projector_center`` mapped by `transform` (the other images are frame-free); the identity
+    returns `scan` itself."""
     T = _check_transform(transform)
     if np.array_equal(T, np.eye(4)):
         return scan
-    center = (None if scan.camera_center is None
-              else points_in_frame(np.asarray(scan.camera_center, dtype=float), T))
-    return replace(scan, xyz=points_in_frame(scan.xyz, T), camera_center=center)
+
+    def moved(point):
+        return None if point is None else points_in_frame(np.asarray(point, dtype=float), T)
+
+    return replace(scan, xyz=points_in_frame(scan.xyz, T), camera_center=moved(scan.camera_center),
+                   projector_center=moved(scan.projector_center))
 
 
 def superscan_in_frame(superscan, transform):

@@ -69,8 +69,9 @@ def save_scan_npz(path: str | os.PathLike, scan: Scan, *, compress: bool | int =
             arrays.update(_pack(key, np.asarray(getattr(scan, key)), mask))
     else:  # left to the reader to refuse, as before
         arrays.update({key: getattr(scan, key) for key in _ARRAYS})
-    if scan.camera_center is not None:
-        arrays["camera_center"] = np.asarray(scan.camera_center, dtype=float)
+    for key in ("camera_center", "projector_center"):
+        if getattr(scan, key) is not None:
+            arrays[key] = np.asarray(getattr(scan, key), dtype=float)
     if scan.reason is not None:
         arrays["reason"] = np.asarray(scan.reason)
     levels: bool | int | dict[str, int] = compress
@@ -131,6 +132,7 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     arrays: dict[str, Any] = {key: _unpack(data, key, mask, path) for key in _ARRAYS[:-1]}
     arrays["mask"] = mask
     center = data.get("camera_center")
+    projector = data.get("projector_center")
     name = str(data["name"]) if "name" in data else path.stem
     shape = mask.shape
     for key in _ARRAYS[:-1]:
@@ -138,10 +140,11 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
         if arrays[key].shape != want or not np.issubdtype(arrays[key].dtype, np.floating):
             raise ValueError(f"{path}: {key} must be a float array of shape {want} (mask "
                              f"{shape}), got {arrays[key].dtype} {arrays[key].shape}")
-    if center is not None and (center.shape != (3,)
-                               or not np.issubdtype(center.dtype, np.floating)):
-        raise ValueError(f"{path}: camera_center must be 3 floats, got {center.dtype} "
-                         f"{center.shape}")
+    for key, value in (("camera_center", center), ("projector_center", projector)):
+        if value is not None and (value.shape != (3,)
+                                  or not np.issubdtype(value.dtype, np.floating)):
+            raise ValueError(f"{path}: {key} must be 3 floats, got {value.dtype} "
+                             f"{value.shape}")
     if "name" in data and (data["name"].shape != () or data["name"].dtype.kind != "U"):
         raise ValueError(f"{path}: name must be a string, got {data['name'].dtype} "
                          f"{data['name'].shape}")
@@ -149,7 +152,8 @@ def load_scan_npz(path: str | os.PathLike) -> Scan:
     if reason is not None and (reason.shape != shape or reason.dtype != np.uint8):
         raise ValueError(f"{path}: reason must be a uint8 array of shape {shape} (mask "
                          f"{shape}), got {reason.dtype} {reason.shape}")
-    return Scan(name=name, camera_center=center, reason=reason, **arrays)
+    return Scan(name=name, camera_center=center, projector_center=projector,
+                reason=reason, **arrays)
 
 
 def _describe(array: np.ndarray) -> str:
@@ -264,8 +268,9 @@ def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
 
             write_scan_ply(out / f"{scan.name}.ply", scan)
             entry["ply"] = f"{scan.name}.ply"
-        if scan.camera_center is not None:
-            entry["camera_center"] = np.asarray(scan.camera_center).tolist()
+        for key in ("camera_center", "projector_center"):
+            if getattr(scan, key) is not None:
+                entry[key] = np.asarray(getattr(scan, key)).tolist()
         if scan.motion is not None:
             entry["motion"] = scan.motion
         if scan.fringe_periods:

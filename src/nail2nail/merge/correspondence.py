@@ -15,19 +15,21 @@ valid region, when the child position lies at the border of the child's valid re
 the projector-coordinate residual after refinement exceeds the decoding noise. The counts per
 reason are kept in :attr:`Correspondence.dropped`.
 
-A pair that is found may still be wrong: at a grazing view or a shadow border a camera's
-projector coordinates are biased (blur spreads a pixel over much surface, and the fringe signal
-is weak), which shifts its point along the surface. Such pairs are *rejected* (kept apart in
+A pair that is found may still be wrong: at a grazing view or a shadow border a camera's projector
+coordinates are biased (blur spreads a pixel over much surface, and the fringe signal is weak),
+which shifts its point along the surface. Such pairs are *rejected* (kept apart in
 :attr:`Correspondence.rejected`, with the reason): either camera views the point beyond
-`max_view_angle_deg`, either camera's fringe modulation there is below a fraction of its
-median, or the pair's distance is an outlier among the pairs around it (above their median by
-more than ``max(outlier_mm, outlier_mad × MAD)``). The statistics report the merge error of the
-kept pairs and of all pairs before rejection.
+`max_view_angle_deg`, the projector's light meets the surface beyond `max_incidence_deg` from its
+normal (it stretches the fringes over the surface, and a phase error with them), either camera's
+fringe modulation there is below a fraction of its median, or the pair's distance is an outlier
+among the pairs around it (above their median by more than ``max(outlier_mm, outlier_mad × MAD)``).
+The statistics report the merge error of the kept pairs and of all pairs before rejection.
 
 :func:`nearest_bruteforce` is the appendix's search (vectorised over the child for each parent
 pixel), kept as the reference the grid and k-d tree searches are tested against. What
-:func:`correspond` derives from a scan (masks, view cosine, modulation, search grid) can be kept
-across calls in a :class:`CorrespondenceCache`: matching one scan several times, pass one.
+:func:`correspond` derives from a scan (masks, view and incidence cosines, modulation, search grid)
+can be kept across calls in a :class:`CorrespondenceCache`: matching one scan several times, pass
+one.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ __all__ = [
     "CorrespondenceCache",
     "correspond",
     "grid_normals",
+    "incidence_cosine",
     "nearest_bruteforce",
     "nearest_grid",
     "nearest_kdtree",
@@ -65,9 +68,10 @@ __all__ = [
 ]
 
 #: Reasons a pair found in projector space is rejected as unreliable, in the order tested
-#: (:func:`correspond`): a grazing view, a weak fringe signal, a distance far above its
-#: neighbours'. Rejected pairs are kept apart in :attr:`Correspondence.rejected`.
-REJECT_REASONS = ("view_angle", "modulation", "outlier")
+#: (:func:`correspond`): a grazing view, grazing projector light, a weak fringe signal, a
+#: distance far above its neighbours'. Rejected pairs are kept apart in
+#: :attr:`Correspondence.rejected`.
+REJECT_REASONS = ("view_angle", "incidence", "modulation", "outlier")
 #: Reasons a sampled parent pixel gets no (kept) correspondence, in the order they are tested.
 DROP_REASONS = ("parent_border", "child_border", "residual", *REJECT_REASONS)
 
@@ -76,6 +80,13 @@ _NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
 
 
 # -- input checks ----------------------------------------------------------------------------
+def _check_angles(max_view_angle_deg, max_incidence_deg) -> None:
+    for value, label in ((max_view_angle_deg, "max_view_angle_deg"),
+                         (max_incidence_deg, "max_incidence_deg")):
+        if value is not None and not 0 < value <= 90:
+            raise ValueError(f"{label}: expected a number in (0, 90] or None, got {value}")
+
+
 def _check_scan(scan, name: str) -> Scan:
     if not isinstance(scan, Scan):
         raise TypeError(
@@ -370,9 +381,52 @@ def view_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarr
     return _view_cosine(scan, valid_mask(scan), normals=normals, smooth_px=smooth_px)
 
 
-def _view_cosine(scan: Scan, valid: np.ndarray, *, normals=None, smooth_px: float = 0.0):
-    """:func:`view_cosine` of a checked scan with a camera centre, its valid mask given."""
-    center = np.asarray(scan.camera_center, dtype=np.float64).reshape(3)
+def incidence_cosine(scan: Scan, *, normals=None, smooth_px: float = 0.0) -> np.ndarray:
+    """Cosine of the angle of incidence of the projector's light at each pixel: its normal
+    against the ray to the projector.
+
+    Grazing light stretches the fringes over the surface by 1 / cos: a phase error of the
+    same size on the panel moves the point farther along the surface, and the points of two
+    cameras paired through the projector's coordinates lie farther apart (the merge's tail on
+    the far sides of a finger lit from one side).
+
+    Parameters
+    ----------
+    scan : Scan
+        Needs ``projector_center``.
+    normals : (H, W, 3) float, optional
+        Surface normals (:func:`grid_normals` if omitted).
+    smooth_px : float
+        Gaussian smoothing (σ, px) over the valid pixels, as :func:`view_cosine`'s.
+
+    Returns
+    -------
+    (H, W) float64
+        In ``[0, 1]``; 0 on invalid pixels and where the normal is undefined.
+
+    Raises
+    ------
+    ValueError
+        If `scan` has no ``projector_center``, or `normals` is not ``(H, W, 3)``.
+    """
+    _check_scan(scan, "scan")
+    if scan.projector_center is None:
+        raise ValueError(f"scan {scan.name!r}: projector_center is needed for the angle of "
+                         "incidence")
+    return _view_cosine(scan, valid_mask(scan), normals=normals, smooth_px=smooth_px,
+                        center=scan.projector_center)
+
+
+def _view_cosine(scan: Scan, valid: np.ndarray, *, normals=None, smooth_px: float = 0.0,
+                 center=None):
+    """:func:`view_cosine` of a checked scan with a camera centre, its valid mask given; with
+    `center`, the cosine of the ray to that point instead (:func:`incidence_cosine`). The
+    normals, computed here when not given, face the camera (the projector without one: a lit
+    point faces both)."""
+    center = np.asarray(scan.camera_center if center is None else center,
+                        dtype=np.float64).reshape(3)
+    orient = (center if scan.camera_center is None
+              else np.asarray(scan.camera_center, dtype=np.float64).reshape(3))
     xyz = _float_image(scan.xyz)
     if normals is None:
         # normals on the valid pixels' box widened by one pixel: a valid pixel's normal reads
@@ -381,7 +435,7 @@ def _view_cosine(scan: Scan, valid: np.ndarray, *, normals=None, smooth_px: floa
         box = _valid_box(valid, 1)
         if box is not None:
             inside = np.ascontiguousarray(xyz[box])
-            cos[box] = _cosine_kernel(_normals_kernel(inside, center, True), inside, center,
+            cos[box] = _cosine_kernel(_normals_kernel(inside, orient, True), inside, center,
                                       np.ascontiguousarray(valid[box]))
     else:
         normals = _float_image(normals)
@@ -597,6 +651,7 @@ class _ScanImages:
         self._pixels: dict[tuple[float, int, int], tuple[int, np.ndarray, np.ndarray]] = {}
         self._grid: _ProjectorGrid | None = None
         self._cosine: np.ndarray | None = None
+        self._incidence: np.ndarray | None = None
         self._modulation: np.ndarray | None = None
 
     def inner(self, max_jump_px: float, border_px: int) -> np.ndarray:
@@ -640,6 +695,17 @@ class _ScanImages:
                                  "viewing angle")
             self._cosine = _view_cosine(self.scan, self.valid, smooth_px=2.0)
         return self._cosine
+
+    def incidence(self) -> np.ndarray:
+        """(H, W) float64 :func:`incidence_cosine` smoothed over 2 px."""
+        if self._incidence is None:
+            _check_scan(self.scan, "scan")
+            if self.scan.projector_center is None:
+                raise ValueError(f"scan {self.scan.name!r}: projector_center is needed for "
+                                 "the angle of incidence")
+            self._incidence = _view_cosine(self.scan, self.valid, smooth_px=2.0,
+                                           center=self.scan.projector_center)
+        return self._incidence
 
     def modulation(self) -> np.ndarray:
         """(H, W) float64 relative modulation (:func:`_relative_modulation`)."""
@@ -1360,6 +1426,7 @@ def correspond(
     method: str = "grid",
     workers: int = -1,
     max_view_angle_deg: float | None = 70.0,
+    max_incidence_deg: float | None = 65.0,
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
     outlier_mad: float = 4.0,
@@ -1379,13 +1446,16 @@ def correspond(
     valid region, so no pair interpolates across one.
 
     The pairs found are then tested, and the unreliable ones rejected (kept apart in
-    :attr:`Correspondence.rejected`): ``"view_angle"``, either camera views the point at more
-    than `max_view_angle_deg` from its normal (:func:`view_cosine`, smoothed over 2 px; needs
-    the scans' ``camera_center``); ``"modulation"``, either camera's fringe modulation there is
-    below `min_relative_modulation` × its median over its valid pixels (the phase noise grows as
+    :attr:`Correspondence.rejected`): ``"view_angle"``, either camera views the point at more than
+    `max_view_angle_deg` from its normal (:func:`view_cosine`, smoothed over 2 px; needs the scans'
+    ``camera_center``); ``"incidence"``, the projector's light meets the point at more than
+    `max_incidence_deg` from its normal in either scan (:func:`incidence_cosine`, smoothed over 2
+    px; needs ``projector_center``; the fringes stretch over the surface as 1 / cos, and with them
+    the along-surface error of a point); ``"modulation"``, either camera's fringe modulation there
+    is below `min_relative_modulation` × its median over its valid pixels (the phase noise grows as
     1 / modulation); ``"outlier"``, the pair's distance is an outlier among its neighbours'
-    (:func:`local_outliers` with `outlier_block_px`, `outlier_mm`, `outlier_mad`). ``None``
-    skips a test.
+    (:func:`local_outliers` with `outlier_block_px`, `outlier_mm`, `outlier_mad`). ``None`` skips a
+    test.
 
     Parameters
     ----------
@@ -1412,6 +1482,11 @@ def correspond(
     max_view_angle_deg : float or None
         Largest viewing angle (between the normal and the ray to the camera) of a kept pair in
         either camera, degrees.
+    max_incidence_deg : float or None
+        Largest angle of incidence (between the normal and the ray to the projector) of a kept
+        pair in either scan, degrees. The default, 65°, was chosen on two fingers of the
+        two-side-projector rigs, where the far side's pairs under 65–80° made the tail of the
+        merge (``docs/projectors.md``).
     min_relative_modulation : float or None
         Smallest modulation of a kept pair in either camera, as a fraction of that camera's
         median modulation.
@@ -1456,7 +1531,8 @@ def correspond(
     return _correspond(
         parent, child, stride=stride, max_residual_px=max_residual_px, border_px=border_px,
         max_jump_px=max_jump_px, refine=refine, method=method, workers=workers,
-        max_view_angle_deg=max_view_angle_deg, min_relative_modulation=min_relative_modulation,
+        max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
+        min_relative_modulation=min_relative_modulation,
         outlier_mm=outlier_mm, outlier_mad=outlier_mad, outlier_block_px=outlier_block_px,
         cache=cache,
     )
@@ -1470,6 +1546,7 @@ def same_pixel_pairs(
     border_px: int = 2,
     max_jump_px: float = 2.0,
     max_view_angle_deg: float | None = 70.0,
+    max_incidence_deg: float | None = 65.0,
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
     outlier_mad: float = 4.0,
@@ -1484,15 +1561,15 @@ def same_pixel_pairs(
     error of the pair (and their mean a better point). The pixels are those of the parent's
     inner region (`border_px`, `max_jump_px` as :func:`correspond`) on the `stride` grid that
     are in the child's inner region too (else ``"child_border"``); the pairs are then tested as
-    :func:`correspond`'s (``view_angle``, ``modulation``, ``outlier``). ``residual_px`` is 0:
+    :func:`correspond`'s (:data:`REJECT_REASONS`). ``residual_px`` is 0:
     there is no search.
 
     Parameters
     ----------
     parent, child : Scan
         Of the same camera (same image size), from two projectors.
-    stride, border_px, max_jump_px, max_view_angle_deg, min_relative_modulation, outlier_mm,
-    outlier_mad, outlier_block_px, cache
+    stride, border_px, max_jump_px, max_view_angle_deg, max_incidence_deg,
+    min_relative_modulation, outlier_mm, outlier_mad, outlier_block_px, cache
         As :func:`correspond`.
     quality : dict, optional
         As :func:`_correspond`'s (the fusion's cached view cosines).
@@ -1524,6 +1601,7 @@ def same_pixel_pairs(
     if np.shape(parent.mask) != np.shape(child.mask):
         raise ValueError(f"child: {np.shape(child.mask)} pixels, the parent's camera has "
                          f"{np.shape(parent.mask)} (same_pixel_pairs pairs scans of one camera)")
+    _check_angles(max_view_angle_deg, max_incidence_deg)
     stride = as_int(stride, "stride", minimum=1)
     border_px = as_int(border_px, "border_px", minimum=1)
     if cache is None:
@@ -1549,15 +1627,15 @@ def same_pixel_pairs(
                 "unpaired_reason": np.ones(lone.shape[0], dtype=np.int8)}
     return _tested(parent, child, pairs, None, dropped, unpaired, n_sampled=n_sampled,
                    stride=stride, shapes=(np.shape(parent.mask), np.shape(child.mask)),
-                   max_view_angle_deg=max_view_angle_deg,
+                   max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                    outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
                    cache=cache)
 
 
 def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, stride, shapes,
-            max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad,
-            outlier_block_px, quality, cache) -> Correspondence:
+            max_view_angle_deg, max_incidence_deg, min_relative_modulation, outlier_mm,
+            outlier_mad, outlier_block_px, quality, cache) -> Correspondence:
     """The pairs found (`pairs`: the :class:`Correspondence` arrays; `distance` their world
     distances or None) tested for reliability and split into the kept and the rejected ones
     (:func:`correspond`'s tests); `dropped` gets the rejection counts."""
@@ -1565,24 +1643,27 @@ def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, str
     n = pairs["parent_rc"].shape[0]
     reason = np.full(n, -1, dtype=np.int8)
     pr, pc = pairs["parent_rc"].T
-    tests = any(v is not None for v in (max_view_angle_deg, min_relative_modulation, outlier_mm))
+    limits = (max_view_angle_deg, max_incidence_deg, min_relative_modulation)
+    tests = any(v is not None for v in (*limits, outlier_mm))
     if quality is None:
         quality = {}
 
     def images(scan, k):
-        slot = quality.setdefault(id(scan), [None, None])
+        slot = quality.setdefault(id(scan), [None, None, None])
         if slot[k] is None:
             entry = cache._entry(scan)
-            slot[k] = entry.cosine() if k == 0 else entry.modulation()
+            slot[k] = (entry.cosine, entry.incidence, entry.modulation)[k]()
         return slot[k]
 
-    for code, limit in ((0, max_view_angle_deg), (1, min_relative_modulation)):
+    # an angle test skips a scan without the centre it needs (a mat5 set)
+    needs = ("camera_center", "projector_center", None)
+    for code, limit in enumerate(limits):
         if limit is None or n == 0:
             continue
-        threshold = np.cos(np.radians(limit)) if code == 0 else limit
+        threshold = np.cos(np.radians(limit)) if needs[code] else limit
         ok = np.ones(n, dtype=bool)
         for scan, rc in ((parent, pairs["parent_rc"]), (child, pairs["child_rc"])):
-            if code == 0 and scan.camera_center is None:
+            if needs[code] and getattr(scan, needs[code]) is None:
                 continue
             _bilinear_at_least(images(scan, code), rc, float(threshold), ok)
         reason[(reason < 0) & ~ok] = code
@@ -1593,7 +1674,7 @@ def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, str
         outliers = local_outliers(pr[live], pc[live], distance[live],
                                   block_px=outlier_block_px, floor_mm=outlier_mm,
                                   k_mad=outlier_mad)
-        reason[np.flatnonzero(live)[outliers]] = 2
+        reason[np.flatnonzero(live)[outliers]] = REJECT_REASONS.index("outlier")
     for code, name in enumerate(REJECT_REASONS):
         dropped[name] = int(np.count_nonzero(reason == code))
 
@@ -1775,13 +1856,14 @@ def _relative_modulation_kernel(modulation, valid):
 
 
 def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_px, refine,
-                method="grid", workers=-1, max_view_angle_deg=70.0,
+                method="grid", workers=-1, max_view_angle_deg=70.0, max_incidence_deg=65.0,
                 min_relative_modulation=1 / 3, outlier_mm=0.025, outlier_mad=4.0,
                 outlier_block_px=32, quality=None, cache=None) -> Correspondence:
-    """:func:`correspond`; `quality` maps ``id(scan)`` to its ``[view cosine, relative
-    modulation]`` images (None: not yet computed; filled here), so a caller matching one scan
-    many times computes them once. `cache` (:class:`CorrespondenceCache`) keeps those and the
-    rest of what is derived from a scan (masks, search grid) across calls."""
+    """:func:`correspond`; `quality` maps ``id(scan)`` to its ``[view cosine, incidence
+    cosine, relative modulation]`` images (None: not yet computed; filled here), so a caller
+    matching one scan many times computes them once. `cache` (:class:`CorrespondenceCache`)
+    keeps those and the rest of what is derived from a scan (masks, search grid) across
+    calls."""
     _check_scan(parent, "parent")
     _check_scan(child, "child")
     stride = as_int(stride, "stride", minimum=1)
@@ -1795,9 +1877,7 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
                          (outlier_mm, "outlier_mm")):
         if value is not None and (not np.isfinite(value) or value < 0):
             raise ValueError(f"{label}: expected a non-negative number or None, got {value}")
-    if max_view_angle_deg is not None and not 0 < max_view_angle_deg <= 90:
-        raise ValueError(f"max_view_angle_deg: expected a number in (0, 90] or None, "
-                         f"got {max_view_angle_deg}")
+    _check_angles(max_view_angle_deg, max_incidence_deg)
     if method not in ("grid", "kdtree", "bruteforce"):
         raise ValueError(f"method: expected 'grid', 'kdtree' or 'bruteforce', got {method!r}")
     if cache is None:
@@ -1879,7 +1959,7 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
 
     return _tested(parent, child, pairs, distance, dropped, unpaired, n_sampled=n_sampled,
                    stride=stride, shapes=(parent_valid.shape, child_valid.shape),
-                   max_view_angle_deg=max_view_angle_deg,
+                   max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                    outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
                    cache=cache)

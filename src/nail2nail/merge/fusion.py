@@ -1162,6 +1162,7 @@ def fuse_scans(
     spike_mm: float | None = 0.05,
     surface_mm: float | None = 0.05,
     max_view_angle_deg: float | None = 70.0,
+    max_incidence_deg: float | None = 65.0,
     min_relative_modulation: float | None = 1 / 3,
     outlier_mm: float | None = 0.025,
     outlier_mad: float = 4.0,
@@ -1176,7 +1177,8 @@ def fuse_scans(
        (:func:`nail2nail.merge.correspond`, every pixel; with several projectors, the pairs
        of one projector so, the pairs of one camera under two projectors at the same pixel,
        :func:`nail2nail.merge.same_pixel_pairs`), with the unreliable pairs rejected
-       (a view beyond `max_view_angle_deg`, modulation below `min_relative_modulation` of the
+       (a view beyond `max_view_angle_deg`, the projector's light beyond `max_incidence_deg`
+       from the normal, modulation below `min_relative_modulation` of the
        camera's median, a distance that is a local outlier: `outlier_mm`, `outlier_mad`).
     2. Ownership (duplicates removed): a pixel is dropped as a duplicate when another camera has
        a correspondence for it (kept or rejected: a rejected pair is still the same surface
@@ -1226,7 +1228,7 @@ def fuse_scans(
         Spike threshold of step 0, mm; None skips it.
     surface_mm : float or None
         Off-surface threshold of step 4, mm; None skips it.
-    max_view_angle_deg, min_relative_modulation, outlier_mm, outlier_mad :
+    max_view_angle_deg, max_incidence_deg, min_relative_modulation, outlier_mm, outlier_mad :
         The rejection tests, passed to :func:`~nail2nail.merge.correspond`; None skips one.
     projectors, cameras : sequence of int, optional
         A rig of several projectors (:mod:`nail2nail.simulation.projectors`): per scan, the
@@ -1293,7 +1295,10 @@ def fuse_scans(
     feathers = [_feather(v, feather_px) for v in valid]
     weights = [_view_weights(s, v, nm, f, use_modulation=True, smooth_px=0.0)
                for s, v, nm, f in zip(scans, valid, normals0, feathers, strict=True)]
-    quality = {id(s): [_view_cosine(s, v, normals=nm, smooth_px=2.0), None]
+    quality = {id(s): [_view_cosine(s, v, normals=nm, smooth_px=2.0),
+                       None if s.projector_center is None or max_incidence_deg is None
+                       else _view_cosine(s, v, normals=nm, smooth_px=2.0,
+                                         center=s.projector_center), None]
                for s, v, nm in zip(scans, valid, normals0, strict=True)
                if s.camera_center is not None}
     scores = []  # view_weights(use_modulation=False, smooth_px=2) from the cached cosine
@@ -1305,7 +1310,7 @@ def fuse_scans(
 
     # pairs that share a projector match in its space (the thesis's merge), pairs that share
     # a camera at the same pixel; others have no correspondence of their own
-    tests = {"max_view_angle_deg": max_view_angle_deg,
+    tests = {"max_view_angle_deg": max_view_angle_deg, "max_incidence_deg": max_incidence_deg,
              "min_relative_modulation": min_relative_modulation, "outlier_mm": outlier_mm,
              "outlier_mad": outlier_mad, "outlier_block_px": 32, "quality": quality,
              "cache": cache}
@@ -1473,6 +1478,7 @@ def fuse_scans(
         fused_scans.append(Scan(
             name=s.name, xyz=xyz, xp=xp_out, yp=yp_out, albedo=s.albedo, intensity=intensity,
             modulation=s.modulation, mask=mask, camera_center=s.camera_center,
+            projector_center=s.projector_center,
         ))
         fused_normals.append(nm)
         n_views.append(views)

@@ -304,6 +304,7 @@ def _scan_fast(frames, pattern_set, camera: CameraCalibration, *, projector_dist
         modulation=decoded.modulation,
         mask=decoded.mask,
         camera_center=camera_center(camera.camera),
+        projector_center=camera_center(camera.projector),
         reason=decoded.reason,
     )
 
@@ -379,6 +380,7 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
         modulation=modulation,
         mask=mask,
         camera_center=camera_center(camera.camera),
+        projector_center=camera_center(camera.projector),
         reason=reason,
     )
 

@@ -218,6 +218,10 @@ class Scan:
         Valid pixels.
     camera_center : (3,) float64 or None
         Optical centre in world mm (for viewing angles).
+    projector_center : (3,) float64 or None
+        The projector's optical centre in world mm (for the angle of incidence of its light,
+        :func:`nail2nail.merge.incidence_cosine`); None when not known (a mat5 set, an older
+        scan file).
     reason : (H, W) uint8 or None
         Why each pixel was left out, :class:`Reason` bits (0 where the decoder and the
         triangulation kept it; a pixel with reason 0 outside `mask` was cut by a user mask);
@@ -246,6 +250,7 @@ class Scan:
     reason: np.ndarray | None = field(default=None)
     motion: dict | None = field(default=None)
     fringe_periods: dict | None = field(default=None)
+    projector_center: np.ndarray | None = field(default=None)
 
     @property
     def shape(self) -> tuple[int, int]:
