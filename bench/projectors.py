@@ -18,13 +18,18 @@ The captures are cached per finger and projector azimuth under ``--out`` (the th
 projector is the side layouts' first one: rendered once). Calibration (``--calibration``): the
 rig's truth (default), or ``joint``: the cylinder target rendered under every projector of the
 layout and every projector calibrated with the cameras in one bundle
-(``calibrate_projectors_joint``, as ``nail2nail calibrate DIR --model joint`` does), made once
-per layout and cached under ``--out/calibration``.
+(``calibrate_projectors_joint``, as ``nail2nail calibrate DIR --model joint`` does), or
+``board``: the circle board in 8 poses, each captured under every projector, and every
+projector calibrated with the cameras in one bundle (``calibrate_board``, thesis projector
+model, as ``nail2nail calibrate-board`` does); made once per layout and cached under
+``--out/calibration``. The board calibration's world is cam0's frame: it is moved into the
+rig's world by the true pose of cam0 (one known transform) so that the fused vertices can be
+compared with the true surface; its own error of cam0's pose stays in that figure.
 
 Usage::
 
     .venv/bin/python bench/projectors.py [--fingers 6] [--scale 1]
-        [--layouts thesis,pair-45,sides-60] [--calibration truth|joint] [--out DIR]
+        [--layouts thesis,pair-45,sides-60] [--calibration truth|joint|board] [--out DIR]
         [--no-matcher] [--json]
 """
 
@@ -101,8 +106,54 @@ def joint_calibrations(out: Path, layout: str, scale: float) -> list:
     return calibs
 
 
+def board_calibrations(out: Path, layout: str, scale: float, poses: int = 8) -> list:
+    """Every projector of `layout` calibrated with the cameras from board poses captured under
+    each (``calibrate_board``), moved into the rig's world frame (cached:
+    ``out/calibration/<layout>_board_p<k>.json``)."""
+    from nail2nail.calibration.board import calibrate_board
+    from nail2nail.calibration.boards import default_board
+    from nail2nail.calibration.files import CameraCalibration, load_calibration, save_calibration
+    from nail2nail.calibration.observe import board_views
+    from nail2nail.simulation.board_poses import simulate_board_captures
+
+    base = default_rig(scale)
+    rigs = projector_rigs(layout, base)
+    files = [out / "calibration" / f"{layout}_board_p{k}.json" for k in range(len(rigs))]
+    if all(f.is_file() for f in files):
+        return [load_calibration(f) for f in files]
+    root = out / "boards" / layout
+    board = default_board("circles")
+    if not (root / "board-poses.json").is_file():
+        log(f"{layout}: render the board in {poses} poses under every projector")
+        simulate_board_captures(root, poses, board=board, rig=base, seed=21,
+                                projectors=layout if len(rigs) > 1 else None)
+    dirs = sorted(p for p in root.iterdir() if p.is_dir())
+    t0 = time.perf_counter()
+    captures = board_views(dirs, board)
+    result = calibrate_board(captures.views, board.object_points(), captures.camera_sizes,
+                             projector_size=captures.projector_size, projector_model="thesis")
+    log(f"{layout}: {len(rigs)} projectors calibrated on the board in "
+        f"{time.perf_counter() - t0:.0f} s; camera rms {result.camera_rms_px}, projector "
+        f"rms {result.projector_rms_by_projector_px}")
+    # cam0's frame -> the rig's world: X_dev = R_d (R0 X_w + t0) + t_d
+    R0, t0_ = base.cameras[0].R, base.cameras[0].t
+
+    def in_world(m):
+        return replace(m, R=m.R @ R0, t=m.R @ t0_ + m.t)
+
+    calibs = []
+    for calib in result.rig_calibrations().values():
+        calib.cameras = [CameraCalibration(c.name, in_world(c.camera), in_world(c.projector),
+                                           size=c.size) for c in calib.cameras]
+        calibs.append(calib)
+    files[0].parent.mkdir(parents=True, exist_ok=True)
+    for f, calib in zip(files, calibs, strict=True):
+        save_calibration(f, calib)
+    return calibs
+
+
 def run_layout_finger(out: Path, layout: str, seed: int, scale: float,
-                      calibrations: list | None = None) -> dict:
+                      calibrations: list | None = None, kind: str = "joint") -> dict:
     base = default_rig(scale)
     rigs = projector_rigs(layout, base)
     azimuths = LAYOUTS[layout]
@@ -138,7 +189,7 @@ def run_layout_finger(out: Path, layout: str, seed: int, scale: float,
     t0 = time.perf_counter()
     rolled = unroll_scans(scans, ppi=PPI)
     t_unroll = time.perf_counter() - t0
-    prints = out / "prints" / (layout if calibrations is None else f"{layout}-joint")
+    prints = out / "prints" / (layout if calibrations is None else f"{layout}-{kind}")
     prints.mkdir(parents=True, exist_ok=True)
     png = sourceafis.save_png(prints / f"seed{seed}.png", rolled.image, dpi=PPI)
     truth_dir = out / "captures" / f"seed{seed}" / f"az{azimuths[0]:+.0f}"
@@ -221,9 +272,9 @@ def main(argv=None) -> dict:
                     help="the fingers' seeds are seed0, seed0 + 1, … (default: 0)")
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--layouts", default="thesis,pair-45,sides-60")
-    ap.add_argument("--calibration", choices=["truth", "joint"], default="truth",
+    ap.add_argument("--calibration", choices=["truth", "joint", "board"], default="truth",
                     help="the rig's truth, or every projector calibrated with the cameras "
-                    "from the rendered target (default: truth)")
+                    "from the rendered target (joint) or board poses (board); default: truth")
     ap.add_argument("--out", type=Path, default=Path("bench-output/projectors"))
     ap.add_argument("--no-matcher", action="store_true")
     ap.add_argument("--json", action="store_true")
@@ -236,10 +287,10 @@ def main(argv=None) -> dict:
     results: dict = {"scale": args.scale, "fingers": args.fingers, "seed0": args.seed0,
                      "calibration": args.calibration, "layouts": {}}
     for layout in layouts:
-        calibs = (joint_calibrations(args.out, layout, args.scale)
-                  if args.calibration == "joint" else None)
+        calibs = {"joint": joint_calibrations, "board": board_calibrations}.get(
+            args.calibration, lambda *a: None)(args.out, layout, args.scale)
         results["layouts"][layout] = [run_layout_finger(args.out, layout, seed, args.scale,
-                                                        calibs)
+                                                        calibs, args.calibration)
                                       for seed in range(args.seed0,
                                                         args.seed0 + args.fingers)]
     if not args.no_matcher:

@@ -549,3 +549,119 @@ def test_fixed_aspect_ratio_and_principal_point():
         assert (model.K[0, 2], model.K[1, 2]) == ((w - 1) / 2, (h - 1) / 2)
         assert f"{name}.f" in result.parameter_std and f"{name}.cx" not in result.parameter_std
     assert result.poses_needed() >= result.n_poses == 5
+
+
+# ------------------------------------------------------------------------------------------------
+# Several projectors in one bundle (issue 26)
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("model", ["thesis", "opencv"])
+def test_two_projectors_in_one_bundle_recover_the_rig(model):
+    """Exact projections of the same board poses under the pair-45 rig's two projectors: both
+    projectors and the shared cameras come back, each projector's calibration with the same
+    cameras; the camera points of a pose are counted once."""
+    from nail2nail.simulation.projectors import projector_rigs
+
+    base = default_rig(0.5, projector_distortion="thesis" if model == "thesis" else "none")
+    rigs = projector_rigs("pair-45", base)
+    obj = grid_points()
+    views = []
+    for k, rig in enumerate(rigs):
+        mine, _ = synthetic_views(rig, obj, n_poses=6, seed=11)  # the same poses for both
+        views += [BoardView(v.camera, v.pose, v.ids, v.xy_camera, v.xy_projector,
+                            projector=f"p{k}") for v in mine]
+    sizes = dict(zip(base.camera_names, (c.size for c in base.cameras), strict=True))
+    result = calibrate_board(views, obj, sizes, projector_model=model)
+    assert result.projector_names == ["p0", "p1"]
+    assert max(result.camera_rms_px.values()) < 1e-4 and result.projector_rms_px < 1e-4
+    assert len(result.views_used) == 6 * len(base.cameras)  # (camera, pose), once each
+    calibs = result.rig_calibrations()
+    assert list(calibs) == ["p0", "p1"]
+    for k, rig in enumerate(rigs):
+        fitted = dict(result.__dict__, projector=result.projectors[f"p{k}"])
+        errors = relative_pose_errors(type(result)(**fitted), rig)
+        for name, err in errors.items():
+            assert err["focal"] < 1e-6 and err["principal_point"] < 1e-6, (k, name, err)
+            assert err["rotation_deg"] < 1e-5 and err["position_mm"] < 1e-4, (k, name, err)
+        cal = calibs[f"p{k}"]
+        assert cal.cameras[0].projector is result.projectors[f"p{k}"]
+        assert cal.cameras[1].camera is result.cameras[1]  # the cameras shared
+        if model == "thesis":
+            assert cal.projector_distortion.rho == pytest.approx(rig.projector_distortion.rho,
+                                                                 rel=1e-6)
+    assert set(result.summary()["projector_rms_by_projector_px"]) == {"p0", "p1"}
+    with pytest.raises(ValueError, match="projector"):
+        result.rig_calibration(projector="p2")
+
+
+def test_a_projector_named_like_a_camera_is_refused(rig_thesis):
+    obj = grid_points()
+    views, _ = synthetic_views(rig_thesis, obj, n_poses=4)
+    views = [BoardView(v.camera, v.pose, v.ids, v.xy_camera, v.xy_projector, projector="cam1")
+             for v in views]
+    sizes = dict(zip(rig_thesis.camera_names, (c.size for c in rig_thesis.cameras),
+                     strict=True))
+    with pytest.raises(ValueError, match="named like a camera"):
+        calibrate_board(views, obj, sizes)
+
+
+@pytest.fixture(scope="module")
+def two_projector_poses(tmp_path_factory):
+    """Five poses of the circle board under the pair-45 rig's two projectors (scale 0.25)."""
+    from nail2nail.cli import main
+
+    root = tmp_path_factory.mktemp("board2")
+    assert main(["simulate", "--scene", "board", "--board", "circles", "--poses", "5",
+                 "--projectors", "pair-45", "--scale", str(SCALE), "--out",
+                 str(root / "poses")]) == 0
+    return sorted(p for p in (root / "poses").iterdir() if p.is_dir())
+
+
+def test_cli_calibrate_board_of_two_projectors(two_projector_poses, tmp_path, capsys):
+    """``calibrate-board`` on poses of two projectors: one file per projector, the same
+    cameras in both, each projector where the truth has it (distances between the optical
+    centres within 0.3 mm, 0.1 % of the rig) and its distortion ρ within 2e-5 of −0.004."""
+    from nail2nail.cli import main
+    from nail2nail.scan.capture import camera_center
+
+    poses = two_projector_poses
+    assert json.loads((poses[0] / "projectors.json").read_text())["layout"] == "pair-45"
+    out = tmp_path / "rig.json"
+    args = ["calibrate-board", *map(str, poses), "--board", "circles", "--rows", "11",
+            "--cols", "8", "--spacing", "2.5", "--projector-model", "thesis", "-o", str(out),
+            "--json"]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["outputs"]) == {"p0", "p1"} and not out.exists()
+    assert set(report["projector_rms_by_projector_px"]) == {"p0", "p1"}
+    fit = [load_calibration(tmp_path / f"rig_p{k}.json") for k in (0, 1)]
+    truth = [load_calibration(poses[0] / f"p{k}" / "truth" / "calibration.json") for k in (0, 1)]
+    for a, b in zip(fit[0].cameras, fit[1].cameras, strict=True):
+        np.testing.assert_array_equal(a.camera.K, b.camera.K)  # one set of cameras
+        np.testing.assert_array_equal(a.camera.R, b.camera.R)
+
+    def centres(calibs):
+        cams = [camera_center(c.camera) for c in calibs[0].cameras]
+        return cams, [camera_center(c.cameras[0].projector) for c in calibs]
+
+    (cf, pf), (ct, pt) = centres(fit), centres(truth)
+    assert abs(np.linalg.norm(pf[0] - pf[1]) - np.linalg.norm(pt[0] - pt[1])) < 0.3
+    for k in (0, 1):
+        for i in range(3):
+            assert abs(np.linalg.norm(pf[k] - cf[i]) - np.linalg.norm(pt[k] - ct[i])) < 0.3
+        assert fit[k].projector_distortion.rho == pytest.approx(-0.004, abs=2e-5)
+        assert fit[k].extra["projector"] == f"p{k}"
+
+
+def test_cli_calibrate_board_refuses_poses_of_other_projectors(two_projector_poses,
+                                                               board_captures, tmp_path,
+                                                               capsys):
+    from nail2nail.cli import main
+
+    _, one_projector, _, _ = board_captures
+    out = tmp_path / "rig.json"
+    args = ["calibrate-board", *map(str, two_projector_poses[:3]), str(one_projector[0]),
+            "--board", "circles", "--rows", "11", "--cols", "8", "--spacing", "2.5", "-o",
+            str(out)]
+    assert main(args) == 2
+    assert "every pose is captured under the same projectors" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

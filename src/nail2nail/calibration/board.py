@@ -30,6 +30,13 @@ The result is a :class:`BoardCalibration` whose :meth:`~BoardCalibration.rig_cal
 :class:`nail2nail.calibration.files.RigCalibration` of pinhole models (the same projector for
 every camera).
 
+A rig of several projectors (``docs/projectors.md``) is calibrated in the same bundle: each pose
+is captured once per projector, each :class:`BoardView` names the projector whose coordinates
+it carries (:attr:`BoardView.projector`), every projector is a device of its own (its
+intrinsics, lens and pose; the thesis model: each its own ρ) and the cameras are one set of
+parameters for all of them (:meth:`BoardCalibration.rig_calibrations`: one
+``RigCalibration`` per projector, the same cameras).
+
 References
 ----------
 D. Moreno and G. Taubin, "Simple, accurate, and robust projector-camera calibration", 3DIMPVT
@@ -117,6 +124,9 @@ class BoardView:
     xy_projector : (N, 2) float64 or None
         Projector panel coordinates ``(xp, yp)`` of each feature, px, NaN where none could be
         measured; ``None`` when the view gives no projector points.
+    projector : str
+        The projector whose coordinates `xy_projector` are (a rig of several projectors: the
+        capture's name, ``"p0"``, ``"p1"`` …); ``"projector"`` for the one projector.
     """
 
     camera: str
@@ -124,6 +134,7 @@ class BoardView:
     ids: np.ndarray
     xy_camera: np.ndarray
     xy_projector: np.ndarray | None = None
+    projector: str = "projector"
 
     def __post_init__(self):
         self.ids = np.asarray(self.ids, dtype=int).reshape(-1)
@@ -154,15 +165,17 @@ class BoardCalibration:
         Camera models, poses ``T_cam_world``.
     projector : Pinhole
         The projector (ideal coordinates with the thesis model, panel coordinates with OpenCV's
-        distortion in ``dist``).
-    projector_distortion : dict or None
-        ``{"center": [x, y], "rho": ρ}`` of the thesis model (eq. 3.34), else ``None``.
+        distortion in ``dist``); with several projectors, the first of :attr:`projectors`.
+    projector_distortion : ProjectorDistortion or None
+        ``{"center": [x, y], "rho": ρ}`` of the thesis model (eq. 3.34), else ``None``; with
+        several projectors, the first's.
     board_poses : dict of int to (4, 4) float64
         ``T_world_board`` of every pose used.
     camera_rms_px : dict of str to float
         RMS reprojection residual of each camera, px (both coordinates together).
     projector_rms_px : float
-        RMS residual of the projector points, panel px (ideal px with the thesis model).
+        RMS residual of the projector points, panel px (ideal px with the thesis model); every
+        projector's together.
     projector_rms_by_camera_px : dict of str to float
         The same, over the projector points measured through each camera.
     pose_rms_px : dict of int to dict
@@ -180,6 +193,15 @@ class BoardCalibration:
         unit, degrees, mm), from the Jacobian at the solution.
     n_poses : int
         Board poses in the fit.
+    projector_names : list of str
+        The projectors (:attr:`BoardView.projector`), in the order first met; ``["projector"]``
+        for one.
+    projectors : dict of str to Pinhole
+        Each projector's model, as :attr:`projector`.
+    projector_distortions : dict of str to ProjectorDistortion or None
+        Each projector's thesis distortion, as :attr:`projector_distortion`.
+    projector_rms_by_projector_px : dict of str to float
+        RMS residual of each projector's points, panel px.
     """
 
     camera_names: list
@@ -198,16 +220,36 @@ class BoardCalibration:
     projector_model: str = "opencv"
     parameter_std: dict = field(default_factory=dict)
     n_poses: int = 0
+    projector_names: list = field(default_factory=lambda: ["projector"])
+    projectors: dict = field(default_factory=dict)
+    projector_distortions: dict = field(default_factory=dict)
+    projector_rms_by_projector_px: dict = field(default_factory=dict)
 
-    def rig_calibration(self, *, extra: dict | None = None) -> RigCalibration:
+    def rig_calibration(self, *, extra: dict | None = None,
+                        projector: str | None = None) -> RigCalibration:
         """The calibration as a :class:`~nail2nail.calibration.files.RigCalibration` (pinhole
-        cameras, the same projector for every camera)."""
-        cameras = [CameraCalibration(name, cam, self.projector, size=cam.size)
-                   for name, cam in zip(self.camera_names, self.cameras, strict=True)]
+        cameras, the same projector for every camera): of `projector` (a name of
+        :attr:`projector_names`; the first by default)."""
+        name = self.projector_names[0] if projector is None else projector
+        if name not in self.projector_names:
+            raise ValueError(f"projector: expected one of {self.projector_names}, got {name!r}")
+        model = self.projectors.get(name, self.projector)
+        cameras = [CameraCalibration(cam_name, cam, model, size=cam.size)
+                   for cam_name, cam in zip(self.camera_names, self.cameras, strict=True)]
+        rms = self.projector_rms_by_projector_px.get(name, self.projector_rms_px)
         info = {"model": "board", "projector_model": self.projector_model, "world": self.world,
-                "camera_rms_px": self.camera_rms_px, "projector_rms_px": self.projector_rms_px}
-        return RigCalibration(cameras=cameras, projector_distortion=self.projector_distortion,
+                "camera_rms_px": self.camera_rms_px, "projector_rms_px": rms}
+        if len(self.projector_names) > 1:
+            info["projector"] = name
+        return RigCalibration(cameras=cameras,
+                              projector_distortion=self.projector_distortions.get(
+                                  name, self.projector_distortion),
                               extra={**info, **(extra or {})})
+
+    def rig_calibrations(self, *, extra: dict | None = None) -> dict[str, RigCalibration]:
+        """Every projector's :meth:`rig_calibration`, by name (the same cameras in each)."""
+        return {name: self.rig_calibration(extra=extra, projector=name)
+                for name in self.projector_names}
 
     def poses_needed(self, *, focal: float = 1e-3, principal_point_px: float = 1.0) -> int:
         """Poses for every device's focal length within `focal` (fraction) and principal point
@@ -216,7 +258,7 @@ class BoardCalibration:
         least the poses used."""
         need = float(self.n_poses)
         models = dict(zip(self.camera_names, self.cameras, strict=True))
-        models["projector"] = self.projector
+        models.update(self.projectors or {"projector": self.projector})
         for name, model in models.items():
             f = float(model.K[1, 1])
             for key, target in (("f", focal * f), ("fx", focal * f), ("fy", focal * f),
@@ -234,12 +276,18 @@ class BoardCalibration:
             "camera_rms_px": self.camera_rms_px,
             "projector_rms_px": self.projector_rms_px,
             "projector_rms_by_camera_px": self.projector_rms_by_camera_px,
+            **({"projector_rms_by_projector_px": self.projector_rms_by_projector_px}
+               if len(self.projector_names) > 1 else {}),
             "poses": {str(k): v for k, v in self.pose_rms_px.items()},
             "views_used": [list(v) for v in self.views_used],
             "views_refused": [list(v) for v in self.views_refused],
             "points_dropped": self.points_dropped,
             "projector_distortion": (None if self.projector_distortion is None
                                      else self.projector_distortion.to_dict()),
+            **({"projector_distortions": {
+                k: None if v is None else v.to_dict()
+                for k, v in self.projector_distortions.items()}}
+               if len(self.projector_names) > 1 else {}),
             "parameter_std": self.parameter_std,
             "n_poses": self.n_poses,
             "poses_needed": self.poses_needed(),
@@ -426,12 +474,15 @@ def calibrate_board(
     views : list of BoardView
         Every camera's view of every pose (a pose a camera does not see is simply absent).
         Views with fewer than :data:`MIN_FEATURES` features are refused (listed in the result).
+        With several projectors, a view per camera, pose and projector
+        (:attr:`BoardView.projector`): each projector is fitted as a device of its own, the
+        cameras' points of a pose are taken from the first projector's view of it.
     object_points : (M, 3) float
         The board's features in the board frame (``z = 0``), mm; ``BoardView.ids`` index them.
     camera_sizes : dict of str to (2,) int
         Image ``(W, H)`` of each camera; its order is the order of the cameras in the result.
-    projector_size : (2,) int
-        Projector panel ``(W, H)``, px.
+    projector_size : (2,) int, or dict of str to (2,) int
+        Projector panel ``(W, H)``, px; per projector name when they differ.
     projector_model : {"opencv", "thesis"}
         The projector's lens: OpenCV's ``(k1, k2, p1, p2, k3)`` in the panel coordinates, or
         the thesis's radial model (eq. 3.34, ``docs/conventions.md``), its centre the principal
@@ -496,28 +547,57 @@ def calibrate_board(
     thesis = projector_model == "thesis"
     used, refused = _usable_views(views, obj, camera_sizes)
     poses = sorted({v.pose for v in used})
+    projectors = list(dict.fromkeys(v.projector for v in used if v.xy_projector is not None))
+    projectors = projectors or ["projector"]
+    if set(projectors) & set(names) or "board" in projectors:
+        raise ValueError(f"views: a projector is named like a camera or 'board' "
+                         f"({projectors}); name them apart")
+    panels = _projector_sizes(projector_size, projectors)
 
-    # 1. Zhang's method per camera, then for the projector on its points of every pose
+    # 1. Zhang's method per camera, then for each projector on its points of every pose
     fixed = {"fix_aspect_ratio": bool(fix_aspect_ratio),
              "fix_principal_point": bool(fix_principal_point)}
-    init, T_dev_board = _initial_devices(used, obj, camera_sizes, projector_size, poses,
+    init, T_dev_board = _initial_devices(used, obj, camera_sizes, panels, poses,
                                          camera_distortion=camera_distortion, **fixed)
     # 2. the rig
-    devices = [*names, "projector"]
+    devices = [*names, *projectors]
     T_dev_world, T_world_board = _initial_poses(
         T_dev_board, devices, poses, ("board", poses[0]) if world == "board" else world)
     # 3. bundle adjustment, then again with each group of points weighted by its noise
     free_dist = {n: list(camera_terms) for n in names}
-    free_dist["projector"] = [] if thesis else list(projector_terms)
-    sizes = {**camera_sizes, "projector": tuple(projector_size)}
-    problem = _BundleAdjustment(devices, poses, world, free_dist, thesis, sizes=sizes, **fixed)
+    free_dist.update({p: [] if thesis else list(projector_terms) for p in projectors})
+    sizes = {**camera_sizes, **panels}
+    problem = _BundleAdjustment(devices, poses, world, free_dist, thesis, sizes=sizes,
+                                projectors=projectors, **fixed)
     x0 = problem.start(init, T_dev_world, T_world_board)
-    blocks = _observation_blocks(used, devices, names, obj, poses)
+    blocks = _observation_blocks(used, devices, names, obj, poses, projectors)
     x = problem.solve(x0, blocks).x
     blocks, dropped = problem.reweighted(x, blocks, outlier_sigma)
     fit = problem.solve(x, blocks)
-    return _board_result(problem, fit, blocks, names, camera_sizes, projector_size, used,
+    return _board_result(problem, fit, blocks, names, camera_sizes, panels, used,
                          refused, dropped, world, projector_model)
+
+
+def _projector_sizes(projector_size, projectors: list) -> dict:
+    """Each projector's panel ``(W, H)`` from one size for all or a dict by name."""
+    if isinstance(projector_size, dict):
+        missing = [p for p in projectors if p not in projector_size]
+        if missing:
+            raise ValueError(f"projector_size: no panel size for projector {missing[0]!r}")
+        return {p: tuple(int(v) for v in projector_size[p]) for p in projectors}
+    return {p: tuple(int(v) for v in projector_size) for p in projectors}
+
+
+def _camera_views(used: list) -> list:
+    """One view per (camera, pose): the first (with several projectors a pose is seen once per
+    projector, and its camera points once)."""
+    seen: set = set()
+    out = []
+    for v in used:
+        if (v.camera, v.pose) not in seen:
+            seen.add((v.camera, v.pose))
+            out.append(v)
+    return out
 
 
 def _usable_views(views, obj: np.ndarray, camera_sizes: dict) -> tuple[list, list]:
@@ -538,16 +618,17 @@ def _usable_views(views, obj: np.ndarray, camera_sizes: dict) -> tuple[list, lis
     return used, refused
 
 
-def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_size, poses,
+def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, panels: dict, poses,
                      *, camera_distortion: str, fix_aspect_ratio: bool,
                      fix_principal_point: bool) -> tuple[dict, dict]:
-    """Zhang's method (:func:`calibrate_device`) per camera, then for the projector on its
-    board points of every pose (averaged over the cameras that measured them):
-    ``(models by device, T_device_board by (device, pose))``."""
+    """Zhang's method (:func:`calibrate_device`) per camera, then for each projector (`panels`:
+    its panel size by name) on its board points of every pose (averaged over the cameras that
+    measured them): ``(models by device, T_device_board by (device, pose))``."""
     T_dev_board: dict = {}
     init: dict = {}
+    camera_views = _camera_views(used)
     for name in camera_sizes:
-        mine = [v for v in used if v.camera == name]
+        mine = [v for v in camera_views if v.camera == name]
         model, T, _ = calibrate_device([obj[v.ids] for v in mine], [v.xy_camera for v in mine],
                                        camera_sizes[name], name=f"camera {name}",
                                        distortion=camera_distortion,
@@ -555,15 +636,16 @@ def _initial_devices(used: list, obj: np.ndarray, camera_sizes: dict, projector_
                                        fix_principal_point=fix_principal_point)
         init[name] = model
         T_dev_board.update({(name, v.pose): t for v, t in zip(mine, T, strict=True)})
-    by_pose = projector_points_by_pose(used, poses)
-    proj_obj = [obj[ids] for ids, _ in by_pose.values()]
-    proj_img = [xy for _, xy in by_pose.values()]
-    proj_poses = list(by_pose)
-    model, T, _ = calibrate_device(proj_obj, proj_img, projector_size, name="projector",
-                                   fix_aspect_ratio=fix_aspect_ratio,
-                                   fix_principal_point=fix_principal_point)
-    init["projector"] = model
-    T_dev_board.update({("projector", p): t for p, t in zip(proj_poses, T, strict=True)})
+    for projector, panel in panels.items():
+        by_pose = projector_points_by_pose([v for v in used if v.projector == projector], poses)
+        proj_obj = [obj[ids] for ids, _ in by_pose.values()]
+        proj_img = [xy for _, xy in by_pose.values()]
+        proj_poses = list(by_pose)
+        model, T, _ = calibrate_device(proj_obj, proj_img, panel, name=projector,
+                                       fix_aspect_ratio=fix_aspect_ratio,
+                                       fix_principal_point=fix_principal_point)
+        init[projector] = model
+        T_dev_board.update({(projector, p): t for p, t in zip(proj_poses, T, strict=True)})
     return init, T_dev_board
 
 
@@ -604,15 +686,17 @@ def projector_points_by_pose(views: list, poses) -> dict:
 
 
 def _observation_blocks(used: list, devices: list, names: list, obj: np.ndarray,
-                        poses: list) -> list[dict]:
+                        poses: list, projectors: list) -> list[dict]:
     """Per device: pose index per point, board point, measurement, camera of origin, weight."""
     pose_index = {p: i for i, p in enumerate(poses)}
+    camera_views = _camera_views(used)
     blocks = []
     for dev in devices:
-        if dev == "projector":
-            mine = [(v, v.xy_projector) for v in used if v.xy_projector is not None]
+        if dev in projectors:
+            mine = [(v, v.xy_projector) for v in used
+                    if v.xy_projector is not None and v.projector == dev]
         else:
-            mine = [(v, v.xy_camera) for v in used if v.camera == dev]
+            mine = [(v, v.xy_camera) for v in camera_views if v.camera == dev]
         pi, ids, meas, cam = [], [], [], []
         for v, xy in mine:
             ok = np.all(np.isfinite(xy), axis=1)
@@ -632,9 +716,10 @@ class _BundleAdjustment:
     the world device's (or the first board pose's) pose is fixed."""
 
     def __init__(self, devices: list, poses: list, world: str, free_dist: dict,
-                 thesis: bool, *, sizes: dict, fix_aspect_ratio: bool = False,
-                 fix_principal_point: bool = False) -> None:
+                 thesis: bool, *, sizes: dict, projectors=("projector",),
+                 fix_aspect_ratio: bool = False, fix_principal_point: bool = False) -> None:
         self.devices, self.poses, self.world = devices, poses, world
+        self.projectors = list(projectors)
         self.free_dist, self.thesis = free_dist, thesis
         self.fix_aspect_ratio, self.fix_principal_point = fix_aspect_ratio, fix_principal_point
         # OpenCV's principal point without a guess (CALIB_FIX_PRINCIPAL_POINT)
@@ -659,7 +744,7 @@ class _BundleAdjustment:
                 add((dev, "f"), [m.K[0, 0], m.K[1, 1]])
             if not self.fix_principal_point:
                 add((dev, "c"), [m.K[0, 2], m.K[1, 2]])
-            if dev == "projector" and self.thesis:
+            if dev in self.projectors and self.thesis:
                 # OpenCV's k1 on normalised panel coordinates is -ρ³ f² of eq. 3.34 to first
                 # order
                 add((dev, "k"), [-m.dist[0] / (m.K[0, 0] * m.K[1, 1]) * _K_SCALE])
@@ -708,9 +793,9 @@ class _BundleAdjustment:
             dist[self.free_dist[dev]] = x[self.layout[dev, "dist"]]
         return dist
 
-    def projector_rho(self, x) -> float:
-        """The thesis projector's ρ (eq. 3.34)."""
-        return float(np.cbrt(x[self.layout["projector", "k"]][0] / _K_SCALE))
+    def projector_rho(self, x, projector: str = "projector") -> float:
+        """A thesis projector's ρ (eq. 3.34)."""
+        return float(np.cbrt(x[self.layout[projector, "k"]][0] / _K_SCALE))
 
     def block_residuals(self, x, block, R_wb, t_wb, dev_pose) -> np.ndarray:
         """Reprojection residuals ``(N, 2)`` of one device's block, px."""
@@ -719,8 +804,8 @@ class _BundleAdjustment:
         xyz_world = np.einsum("nij,nj->ni", R_wb[block["pose"]], block["xyz"]) + t_wb[block["pose"]]
         xyz_dev = xyz_world @ R.T + t
         intr = self.intrinsics(x, dev)
-        if dev == "projector" and self.thesis:
-            ideal = ideal_from_panel(block["meas"], intr[2:4], self.projector_rho(x))
+        if dev in self.projectors and self.thesis:
+            ideal = ideal_from_panel(block["meas"], intr[2:4], self.projector_rho(x, dev))
             return _project(intr, np.zeros(5), xyz_dev) - ideal
         return _project(intr, self.distortion(x, dev), xyz_dev) - block["meas"]
 
@@ -759,7 +844,7 @@ class _BundleAdjustment:
             elif what == "dist":
                 names = [DISTORTION_TERMS[i] for i in self.free_dist[who]]
             elif what == "k":  # k = ρ³ K_SCALE: dρ = dk / (3 ρ² K_SCALE)
-                rho = self.projector_rho(fit.x)
+                rho = self.projector_rho(fit.x, who)
                 values = values / (3 * rho**2 * _K_SCALE) if rho else values * np.inf
                 names = ["rho"]
             else:  # pose
@@ -797,33 +882,39 @@ def _rms(r: np.ndarray) -> float:
 
 
 def _board_result(problem: _BundleAdjustment, fit, blocks: list, names: list,
-                  camera_sizes: dict, projector_size, used: list, refused: list, dropped: int,
+                  camera_sizes: dict, panels: dict, used: list, refused: list, dropped: int,
                   world: str, projector_model: str) -> BoardCalibration:
     """The :class:`BoardCalibration` of the fit (``least_squares``'s result): models, poses,
     RMS, the parameters' standard deviations."""
     x = fit.x
     R_wb, t_wb, dev_pose = problem.unpack(x)
+    projectors = problem.projectors
     models = {}
     for dev in problem.devices:
         intr = problem.intrinsics(x, dev)
         K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]])
-        size = projector_size if dev == "projector" else camera_sizes[dev]
+        size = panels[dev] if dev in projectors else camera_sizes[dev]
         R, t = dev_pose[dev]
         models[dev] = Pinhole(K=K, R=R, t=t, dist=problem.distortion(x, dev), size=size)
-    pdist = None
+    pdist: dict = dict.fromkeys(projectors)
     if problem.thesis:
-        intr = problem.intrinsics(x, "projector")
-        pdist = ProjectorDistortion(center=(float(intr[2]), float(intr[3])),
-                                    rho=problem.projector_rho(x))
+        for dev in projectors:
+            intr = problem.intrinsics(x, dev)
+            pdist[dev] = ProjectorDistortion(center=(float(intr[2]), float(intr[3])),
+                                             rho=problem.projector_rho(x, dev))
     res = {b["device"]: problem.block_residuals(x, b, R_wb, t_wb, dev_pose) for b in blocks}
     bmap = {b["device"]: b for b in blocks}
+    # every projector's points together (one projector: its own)
+    proj_res = np.concatenate([res[p] for p in projectors])
+    proj_pose = np.concatenate([bmap[p]["pose"] for p in projectors])
+    proj_camera = np.concatenate([bmap[p]["camera"] for p in projectors])
     pose_rms = {}
     T_board = {}
     for pose, i in problem.pose_index.items():
         pose_rms[pose] = {
             "camera": {n: _rms(res[n][bmap[n]["pose"] == i]) for n in names
                        if np.any(bmap[n]["pose"] == i)},
-            "projector": _rms(res["projector"][bmap["projector"]["pose"] == i]),
+            "projector": _rms(proj_res[proj_pose == i]),
         }
         T_pose = np.eye(4)
         T_pose[:3, :3], T_pose[:3, 3] = R_wb[i], t_wb[i]
@@ -831,20 +922,23 @@ def _board_result(problem: _BundleAdjustment, fit, blocks: list, names: list,
     return BoardCalibration(
         camera_names=names,
         cameras=[models[n] for n in names],
-        projector=models["projector"],
-        projector_distortion=pdist,
+        projector=models[projectors[0]],
+        projector_distortion=pdist[projectors[0]],
         board_poses=T_board,
         camera_rms_px={n: _rms(res[n]) for n in names},
-        projector_rms_px=_rms(res["projector"]),
+        projector_rms_px=_rms(proj_res),
         projector_rms_by_camera_px={
-            n: _rms(res["projector"][bmap["projector"]["camera"] == j])
-            for j, n in enumerate(names)},
+            n: _rms(proj_res[proj_camera == j]) for j, n in enumerate(names)},
         pose_rms_px=pose_rms,
-        views_used=[(v.camera, v.pose) for v in used],
-        views_refused=[(v.camera, v.pose) for v in refused],
+        views_used=list(dict.fromkeys((v.camera, v.pose) for v in used)),
+        views_refused=list(dict.fromkeys((v.camera, v.pose) for v in refused)),
         points_dropped=dropped,
         world=world,
         projector_model=projector_model,
         parameter_std=problem.parameter_std(fit),
         n_poses=len(problem.poses),
+        projector_names=list(projectors),
+        projectors={p: models[p] for p in projectors},
+        projector_distortions=pdist,
+        projector_rms_by_projector_px={p: _rms(res[p]) for p in projectors},
     )

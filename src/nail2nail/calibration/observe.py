@@ -32,7 +32,7 @@ from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.calibration.markers import find_target_marks
 from nail2nail.calibration.markers import mark_diameter_px as nominal_diameter
 from nail2nail.calibration.target import TargetObservations
-from nail2nail.io.capture import read_capture
+from nail2nail.io.capture import projector_captures, read_capture
 from nail2nail.scan.capture import decode_camera
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.patterns import frame_table
@@ -154,10 +154,10 @@ class BoardCaptures:
         One per camera and pose where the board was found.
     camera_sizes : dict of str to (int, int)
         Image ``(W, H)`` per camera, in the order the cameras were first met.
-    projector_size : (int, int)
-        Panel ``(W, H)``.
+    projector_size : (int, int), or dict of str to (int, int)
+        Panel ``(W, H)``; with several projectors, per projector name.
     poses : list of str
-        The capture directories, in pose order (``BoardView.pose`` indexes them).
+        The pose directories, in pose order (``BoardView.pose`` indexes them).
     refused : list of dict
         ``{"pose", "camera", "reason"}`` of each view skipped (board not found, ...).
     """
@@ -178,23 +178,63 @@ def _white_frame(pattern_set) -> int | None:
     return None
 
 
-def check_poses(capture_dirs) -> tuple[dict[str, tuple[int, int]], tuple[int, ...]]:
+def check_poses(capture_dirs) -> tuple[dict[str, tuple[int, int]], tuple | dict]:
     """Check board pose captures from their manifests and first frames' headers (cheap), before
     any is decoded: each with a pattern set coding both projector directions, one projector
-    panel, and one image size per camera across the poses.
+    panel, and one image size per camera across the poses. A pose of a rig of several
+    projectors is a directory with ``projectors.json`` (:func:`board_views`); every pose must
+    then name the same projectors, and each projector's captures are checked as above.
 
     Returns
     -------
     sizes : dict of str to (int, int)
         Image ``(width, height)`` per camera name.
-    projector_size : tuple of int
-        The projector panel ``(width, height)``.
+    projector_size : tuple of int, or dict of str to tuple of int
+        The projector panel ``(width, height)``; per projector name with several.
 
     Raises
     ------
     ValueError
-        Naming the pose: no pattern set, one direction only, another panel or image size.
+        Naming the pose: no pattern set, one direction only, another panel or image size,
+        other projectors than the first pose's.
     """
+    jobs, names = _pose_captures(capture_dirs)
+    sizes: dict[str, tuple[int, int]] = {}
+    panels: dict[str, tuple[int, ...]] = {}
+    for name in names:
+        cams, panels[name] = _check_captures([path for _, n, path in jobs if n == name])
+        for cam, size in cams.items():
+            if sizes.setdefault(cam, size) != size:
+                raise ValueError(f"projector {name}'s captures: camera {cam} has "
+                                 f"{size[0]}x{size[1]} images, {sizes[cam][0]}x"
+                                 f"{sizes[cam][1]} under another projector")
+    return sizes, panels[names[0]] if len(names) == 1 else panels
+
+
+def _pose_captures(capture_dirs) -> tuple[list[tuple[int, str, str]], list[str]]:
+    """``([(pose, projector, capture directory)], projector names)`` of board pose
+    directories: a capture each (projector ``"projector"``), or a capture of several
+    projectors each (``projectors.json``), the same projectors in every pose."""
+    if not capture_dirs:
+        raise ValueError("capture_dirs: need at least one pose capture")
+    jobs: list[tuple[int, str, str]] = []
+    names: list[str] | None = None
+    for k, d in enumerate(capture_dirs):
+        layout = projector_captures(d)
+        mine = [("projector", os.fspath(d))] if layout is None else [
+            (name, os.fspath(path)) for name, path in layout]
+        if names is None:
+            names = [n for n, _ in mine]
+        elif [n for n, _ in mine] != names:
+            raise ValueError(f"{d}: projectors {[n for n, _ in mine]}, the first pose's are "
+                             f"{names}; every pose is captured under the same projectors")
+        jobs.extend((k, n, path) for n, path in mine)
+    assert names is not None
+    return jobs, names
+
+
+def _check_captures(capture_dirs) -> tuple[dict[str, tuple[int, int]], tuple[int, ...]]:
+    """:func:`check_poses` of one projector's captures."""
     sizes: dict[str, tuple[int, int]] = {}
     panel: tuple[int, ...] | None = None
     for path in capture_dirs:
@@ -228,8 +268,11 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
     Parameters
     ----------
     capture_dirs : sequence of path-like
-        One capture directory per pose, each with a pattern set coding both projector
-        directions.
+        One directory per pose: a capture with a pattern set coding both projector directions,
+        or, for a rig of several projectors, a directory with ``projectors.json`` and one such
+        capture per projector (:func:`nail2nail.io.capture.projector_captures`; every pose
+        with the same projectors). Each view is labelled with its projector
+        (:attr:`BoardView.projector`: ``"projector"``, or the capture's name).
     board : nail2nail.calibration.boards.Board
     window_px : float, optional
         Half-size of the local homography's window (:func:`projector_points`), camera px; by
@@ -247,66 +290,105 @@ def board_views(capture_dirs, board, *, window_px: float | None = None, edge_px:
     ------
     ValueError
         A capture that cannot be read, has no pattern set or codes one direction only, a
-        camera whose image size differs between poses, or captures of different projectors.
+        camera whose image size differs between poses, captures of different projectors (one
+        projector's panel changing between poses), or poses of different projectors.
 
     Warns
     -----
     UserWarning
         For each camera and pose where the board is not found (the view is skipped).
     """
-    import cv2
-
-    if not capture_dirs:
-        raise ValueError("capture_dirs: need at least one pose capture")
-    sizes, projector_size = check_poses(capture_dirs)  # before any pose is decoded
-    object_xy = board.object_points()[:, :2]
+    sizes, panels = check_poses(capture_dirs)  # before any pose is decoded
+    jobs, names = _pose_captures(capture_dirs)
     views: list[BoardView] = []
     refused: list = []
-    poses: list = []
-    jobs = [(k, os.fspath(d)) for k, d in enumerate(capture_dirs)]
-    for k, path in progress_bar(jobs, desc="poses", unit="pose", enabled=progress):
-        capture = read_capture(path, load=False)
-        ps = capture.pattern_set
-        assert ps is not None  # check_poses
-        white = _white_frame(ps)
-        poses.append(path)
-        pose_views = []
-        for name in capture.camera_names:
-            frames = capture.load_frames(name, raw=True)
-            decoded = decode(frames, ps, full_scale=2**capture.bit_depth - 1,
-                             **{"method": "numba", **(decode_options or {})})
-            image = decoded.albedo if white is None else frames[white]
-            del frames
-            found = detect_board(image, board)
-            if found is None:
-                reason = "board not found"
-                refused.append({"pose": path, "camera": name, "reason": reason})
-                warnings.warn(f"{path}: camera {name}: {reason}; view skipped", stacklevel=2)
-                continue
-            ids, xy = found
-            half = window_px
-            if half is None:
-                hom, _ = cv2.findHomography(object_xy[ids], xy, 0)
-                # px per mm at the board's centre: the square root of the local area ratio
-                centre = object_xy[ids].mean(axis=0)
-                J = _homography_jacobian(hom, centre)
-                half = max(8.0, 0.5 * board.spacing * np.sqrt(abs(np.linalg.det(J))))
-            mask = decoded.mask
-            if edge_px:
-                mask = mask & ~_near_dark(decoded.albedo, edge_px)
-            xy_p = projector_points(xy, decoded.xp, decoded.yp, mask, window_px=half)
-            pose_views.append(BoardView(name, k, ids, xy, xy_p))
-        if board.half_turn_symmetric:
-            pose_views, unoriented = agree_on_half_turn(pose_views, board)
-            for v in unoriented:
-                reason = ("a board symmetric under a half turn, and no projector points to "
-                          "label it like the other cameras")
-                refused.append({"pose": path, "camera": v.camera, "reason": reason})
-                warnings.warn(f"{path}: camera {v.camera}: {reason}; view skipped",
-                              stacklevel=2)
+    by_pose: dict[int, list[BoardView]] = {}
+    for k, name, path in progress_bar(jobs, desc="poses", unit="capture", enabled=progress):
+        found, rejected = _capture_board_views(path, k, name, board, window_px=window_px,
+                                               edge_px=edge_px, decode_options=decode_options)
+        refused.extend(rejected)
+        by_pose.setdefault(k, []).extend(found)
+    for k in sorted(by_pose):
+        pose_views = by_pose[k]
+        if board.half_turn_symmetric and len(names) > 1:
+            pose_views = _agree_across_projectors(pose_views, board)
         views.extend(pose_views)
-    return BoardCaptures(views=views, camera_sizes=sizes, projector_size=projector_size,
-                         poses=poses, refused=refused)
+    return BoardCaptures(views=views, camera_sizes=sizes, projector_size=panels,
+                         poses=[os.fspath(d) for d in capture_dirs], refused=refused)
+
+
+def _capture_board_views(path: str, k: int, projector: str, board, *, window_px, edge_px,
+                         decode_options) -> tuple[list[BoardView], list[dict]]:
+    """:func:`board_views` of one capture (pose `k`, lit by `projector`): its views and the
+    refused ones (warned)."""
+    import cv2
+
+    capture = read_capture(path, load=False)
+    ps = capture.pattern_set
+    assert ps is not None  # check_poses
+    white = _white_frame(ps)
+    object_xy = board.object_points()[:, :2]
+    pose_views, refused = [], []
+    for name in capture.camera_names:
+        frames = capture.load_frames(name, raw=True)
+        decoded = decode(frames, ps, full_scale=2**capture.bit_depth - 1,
+                         **{"method": "numba", **(decode_options or {})})
+        image = decoded.albedo if white is None else frames[white]
+        del frames
+        found = detect_board(image, board)
+        if found is None:
+            reason = "board not found"
+            refused.append({"pose": path, "camera": name, "reason": reason})
+            warnings.warn(f"{path}: camera {name}: {reason}; view skipped", stacklevel=3)
+            continue
+        ids, xy = found
+        half = window_px
+        if half is None:
+            hom, _ = cv2.findHomography(object_xy[ids], xy, 0)
+            # px per mm at the board's centre: the square root of the local area ratio
+            centre = object_xy[ids].mean(axis=0)
+            J = _homography_jacobian(hom, centre)
+            half = max(8.0, 0.5 * board.spacing * np.sqrt(abs(np.linalg.det(J))))
+        mask = decoded.mask
+        if edge_px:
+            mask = mask & ~_near_dark(decoded.albedo, edge_px)
+        xy_p = projector_points(xy, decoded.xp, decoded.yp, mask, window_px=half)
+        pose_views.append(BoardView(name, k, ids, xy, xy_p, projector=projector))
+    if board.half_turn_symmetric:
+        pose_views, unoriented = agree_on_half_turn(pose_views, board)
+        for v in unoriented:
+            reason = ("a board symmetric under a half turn, and no projector points to "
+                      "label it like the other cameras")
+            refused.append({"pose": path, "camera": v.camera, "reason": reason})
+            warnings.warn(f"{path}: camera {v.camera}: {reason}; view skipped", stacklevel=3)
+    return pose_views, refused
+
+
+def _agree_across_projectors(views: list[BoardView], board) -> list[BoardView]:
+    """One pose's views under several projectors, a half-turn symmetric board labelled as the
+    first projector's view of the same camera labels it: the affine map from board to camera
+    coordinates is ``A`` for one labelling and ``-A`` for the other, and one camera sees the
+    board in the same place under every projector."""
+    obj = board.object_points()[:, :2]
+
+    def camera_map(v: BoardView) -> np.ndarray:
+        design = np.column_stack([obj[v.ids], np.ones(len(v.ids))])
+        coef, *_ = np.linalg.lstsq(design, v.xy_camera, rcond=None)
+        return coef[:2].T
+
+    reference: dict[str, np.ndarray] = {}
+    out = []
+    for v in views:
+        m = camera_map(v)
+        ref = reference.setdefault(v.camera, m)
+        if float(np.sum(m * ref)) < 0:
+            ids = half_turn_ids(board, v.ids)
+            order = np.argsort(ids)
+            xy_p = None if v.xy_projector is None else v.xy_projector[order]
+            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p,
+                          projector=v.projector)
+        out.append(v)
+    return out
 
 
 def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], list]:
@@ -365,7 +447,8 @@ def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], 
             ids = half_turn_ids(board, v.ids)
             order = np.argsort(ids)
             xy_p = None if v.xy_projector is None else v.xy_projector[order]
-            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p)
+            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p,
+                          projector=v.projector)
         out.append(v)
     return out, unoriented
 

@@ -21,7 +21,7 @@ from nail2nail.calibration.boards import BOARD_KINDS, Board
 from nail2nail.calibration.files import check_handedness, save_calibration
 from nail2nail.calibration.observe import board_views, check_poses
 from nail2nail.cli._options import as_option_error
-from nail2nail.io._atomic import check_output_file
+from nail2nail.io._atomic import atomic_files, check_output_file
 from nail2nail.io._json import dumps_json
 
 __all__ = ["add_parser", "run"]
@@ -38,11 +38,15 @@ def add_parser(sub) -> None:
         "coordinates (Moreno & Taubin 2012), then a joint bundle adjustment. Writes a "
         "calibration of pinhole models (one projector for every camera) and prints the RMS "
         "reprojection errors per camera, of the projector and per pose. A pose where a camera "
-        "does not find the board is skipped for that camera with a warning.",
+        "does not find the board is skipped for that camera with a warning. A rig of several "
+        "projectors: each POSE_DIR holds projectors.json and a capture per projector (as "
+        "`nail2nail simulate --scene board --poses N --projectors LAYOUT` writes them); every "
+        "projector is fitted with the cameras in the one bundle and -o OUT.json becomes "
+        "OUT_<capture>.json per projector (the same cameras).",
     )
     p.add_argument("poses", type=Path, nargs="+", metavar="POSE_DIR",
                    help=f"capture directory of one board pose (at least {MIN_VIEWS}, each "
-                   "given once)")
+                   "given once), or a directory with projectors.json and a capture per projector")
     p.add_argument("--board", required=True, choices=BOARD_KINDS, help="board kind")
     p.add_argument("--rows", required=True, type=int,
                    help="squares (checkerboard, ChArUco) or circles along the board's y")
@@ -147,13 +151,22 @@ def run(args: argparse.Namespace) -> int:
         world=args.world, camera_distortion=args.camera_distortion,
         projector_lens=args.projector_lens, fix_aspect_ratio=args.fix_aspect_ratio,
         fix_principal_point=args.fix_principal_point)
-    calib = result.rig_calibration(extra={
-        "board": board.to_dict(), "poses": [str(p) for p in captures.poses]})
+    extra = {"board": board.to_dict(), "poses": [str(p) for p in captures.poses]}
+    several = len(result.projector_names) > 1
+    output = Path(args.output)
+    # one file per projector of a rig of several (OUT_<capture>.json, the same cameras)
+    outputs = ({name: output.with_name(f"{output.stem}_{name}{output.suffix or '.json'}")
+                for name in result.projector_names} if several
+               else {result.projector_names[0]: output})
+    calibs = result.rig_calibrations(extra=extra)
     if not args.allow_mirrored:
         centre = np.mean([T[:3, 3] for T in result.board_poses.values()], axis=0)
-        check_handedness(calib, str(args.output), scene_point=centre)
+        for name, calib in calibs.items():
+            check_handedness(calib, str(outputs[name]), scene_point=centre)
     try:
-        save_calibration(args.output, calib)
+        with atomic_files(output.parent, [f.name for f in outputs.values()]) as tmp:
+            for name, calib in calibs.items():
+                save_calibration(tmp / outputs[name].name, calib)
     except OSError as exc:  # named by the user's path, not the temporary file beside it
         raise ValueError(f"-o/--output: {args.output}: cannot write "
                          f"({exc.strerror or exc})") from exc
@@ -166,24 +179,29 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         summary.pop("views_used")
         summary.pop("views_refused")
-        print(dumps_json({"output": str(args.output), **summary, "poses": poses,
+        files = ({"outputs": {k: str(v) for k, v in outputs.items()}} if several
+                 else {"output": str(args.output)})
+        print(dumps_json({**files, **summary, "poses": poses,
                           "views_used": used, "views_refused": refused}, indent=2))
         return 0
     for name, rms in result.camera_rms_px.items():
         n = sum(1 for c, _ in result.views_used if c == name)
         print(f"{name}: {n} poses, RMS {rms:.4f} px, projector points through it RMS "
               f"{result.projector_rms_by_camera_px[name]:.4f} px")
-    print(f"projector ({args.projector_model}): RMS {result.projector_rms_px:.4f} px")
-    if result.projector_distortion:
-        d = result.projector_distortion
-        print(f"projector distortion: centre {np.round(d.center, 2).tolist()} px, "
-              f"rho {d.rho:.6f}")
+    for name in result.projector_names:
+        label = "projector" if not several else f"projector {name}"
+        rms = result.projector_rms_by_projector_px.get(name, result.projector_rms_px)
+        print(f"{label} ({args.projector_model}): RMS {rms:.4f} px")
+        d = result.projector_distortions.get(name)
+        if d:
+            print(f"{label} distortion: centre {np.round(d.center, 2).tolist()} px, "
+                  f"rho {d.rho:.6f}")
     for pose, r in poses.items():
         cams = ", ".join(f"{c} {v:.4f}" for c, v in r["camera"].items())
         print(f"pose {pose}: cameras {cams} px; projector {r['projector']:.4f} px")
     for cam, pose, why in refused:
         print(f"refused: {cam} in {pose} ({why})")
-    for device in [*result.camera_names, "projector"]:
+    for device in [*result.camera_names, *result.projector_names]:
         stds = {k.split(".", 1)[1]: v for k, v in result.parameter_std.items()
                 if k.split(".", 1)[0] == device and k.split(".", 1)[1] in
                 ("f", "fx", "fy", "cx", "cy", *DISTORTION_TERMS, "rho")}
@@ -195,5 +213,7 @@ def run(args: argparse.Namespace) -> int:
               f"above 1 px (one standard deviation): about {needed} poses would meet both")
     if result.points_dropped:
         print(f"{result.points_dropped} outlying point(s) dropped before the final fit")
-    print(f"wrote {args.output} (world frame: {result.world})")
+    shared = " (the cameras shared)" if several else ""
+    print(f"wrote {', '.join(str(f) for f in outputs.values())}{shared} (world frame: "
+          f"{result.world})")
     return 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from nail2nail.calibration.target import (
 )
 from nail2nail.io._atomic import atomic_files
 from nail2nail.io._json import dumps_json
-from nail2nail.io.capture import read_capture
+from nail2nail.io.capture import projector_captures, read_capture
 from nail2nail.io.points import PointsTable, write_points
 
 __all__ = ["run_capture", "run_projectors"]
@@ -91,27 +90,6 @@ def _points_table(obs) -> PointsTable:
     return PointsTable.from_arrays(obs.xyz_world, obs.xy_camera, obs.xy_projector, extra=extra)
 
 
-def _projector_captures(source: Path) -> list[tuple[str, Path]]:
-    """``[(name, capture directory)]`` of a rig of several projectors (``projectors.json``)."""
-    path = source / "projectors.json"
-    try:
-        layout = json.loads(path.read_text())
-        entries = [str(c["capture"]) for c in layout["captures"]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: not a projector layout (expected \"captures\": "
-                         f"[{{\"capture\": DIR, ...}}, ...]): {exc}") from exc
-    if len(entries) < 1 or len(set(entries)) != len(entries):
-        raise ValueError(f"{path}: \"captures\" must name one or more distinct directories, "
-                         f"got {entries}")
-    out = []
-    for name in entries:
-        if Path(name).name != name or name in (".", ".."):
-            raise ValueError(f"{path}: capture {name!r} is not a directory name inside "
-                             f"{source}")
-        out.append((name, source / name))
-    return out
-
-
 def run_projectors(args: argparse.Namespace) -> int:
     """A target capture of several projectors (``projectors.json``): every projector and the
     cameras in one bundle adjustment; one calibration file per projector (``OUT_<capture>``)."""
@@ -119,7 +97,8 @@ def run_projectors(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.source}: a capture of several projectors is calibrated with "
                          "--model joint (the cameras shared by every projector); the DLT "
                          "model calibrates one projector's capture at a time")
-    captures = _projector_captures(args.source)
+    captures = projector_captures(args.source)
+    assert captures is not None  # run_capture's test
     output = Path(args.output)
     out_dir = output.parent
     files = {name: f"{output.stem}_{name}{output.suffix or '.json'}" for name, _ in captures}

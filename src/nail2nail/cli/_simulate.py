@@ -97,7 +97,8 @@ def add_parser(sub) -> None:
     p.add_argument("--projectors", choices=list(LAYOUTS), default=None, metavar="LAYOUT",
                    help="a rig of several projectors (nail2nail.simulation.projectors): one "
                    "capture of the scene per projector, shown in turn, written as OUT/p0, "
-                   "OUT/p1 … (each a capture directory with its truth) and OUT/projectors.json; "
+                   "OUT/p1 … (each a capture directory with its truth) and OUT/projectors.json "
+                   "(with --poses: each OUT/poseKK so); "
                    f"layouts: {', '.join(f'{k} {LAYOUTS[k]}' for k in LAYOUTS)} (azimuths "
                    "about the finger's axis, degrees; the thesis rig's projector is at 0)")
     p.add_argument("--no-truth", action="store_true", help="do not write truth/")
@@ -144,9 +145,6 @@ def run(args: argparse.Namespace) -> int:
     if args.patterns:  # a `nail2nail patterns` directory carries its pattern set (any scheme)
         patterns, names, pattern_set = read_pattern_dir(args.patterns)
     start = time.perf_counter()
-    if args.projectors is not None and args.poses is not None:
-        raise ValueError("--projectors: not with --poses (simulate each projector's board "
-                         "series with its own rig)")
     if args.poses is not None:
         return _run_poses(args, board, rig, patterns, names, start, pattern_set)
     scene = args.scene
@@ -279,7 +277,8 @@ def _run_poses(args, board, rig, patterns, names, start, pattern_set) -> int:
         args.out, args.poses, board=board, rig=rig, scale=args.scale,
         projector_distortion=args.projector_distortion, seed=args.seed, patterns=patterns,
         pattern_set=pattern_set, pattern_names=names, write_truth=not args.no_truth,
-        progress=True)
+        progress=True, projectors=None if args.projectors is None
+        or len(LAYOUTS[args.projectors]) == 1 else args.projectors)
     elapsed = time.perf_counter() - start
     if args.json:
         print(dumps_json({"out": str(args.out), "scene": "board", "board": summary["board"],

@@ -37,6 +37,7 @@ __all__ = [
     "CAPTURE_FORMAT",
     "Capture",
     "frame_intensities",
+    "projector_captures",
     "read_capture",
     "read_frame",
     "read_truth",
@@ -47,6 +48,52 @@ __all__ = [
 CAPTURE_FORMAT = "nail2nail-capture"
 BIT_DEPTHS = (8, 10, 12, 16)
 MANIFEST = "capture.json"
+#: The file that makes a directory a capture of several projectors (``docs/projectors.md``).
+PROJECTORS = "projectors.json"
+
+
+def projector_captures(source) -> list[tuple[str, Path]] | None:
+    """The captures of a rig of several projectors, one per projector, from ``projectors.json``.
+
+    Parameters
+    ----------
+    source : path-like
+        A directory; a capture of several projectors holds ``projectors.json`` (``{"captures":
+        [{"capture": "p0", ...}, ...]}``, as ``nail2nail simulate --projectors`` writes it)
+        and one capture directory per projector beside it.
+
+    Returns
+    -------
+    list of (str, Path) or None
+        ``(name, directory)`` per projector, in the file's order; None when `source` holds no
+        ``projectors.json`` (a capture of one projector).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: not a layout, no capture or a repeated one, a name that is not a
+        directory inside `source`.
+    """
+    source = Path(source)
+    path = source / PROJECTORS
+    if not path.is_file():
+        return None
+    try:
+        layout = read_json(path)
+        entries = [str(c["capture"]) for c in layout["captures"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a projector layout (expected \"captures\": "
+                         f"[{{\"capture\": DIR, ...}}, ...]): {exc}") from exc
+    if len(entries) < 1 or len(set(entries)) != len(entries):
+        raise ValueError(f"{path}: \"captures\" must name one or more distinct directories, "
+                         f"got {entries}")
+    out = []
+    for name in entries:
+        if Path(name).name != name or name in (".", ".."):
+            raise ValueError(f"{path}: capture {name!r} is not a directory name inside "
+                             f"{source}")
+        out.append((name, source / name))
+    return out
 
 
 @dataclass

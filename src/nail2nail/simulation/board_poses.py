@@ -14,6 +14,7 @@ from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.io._atomic import atomic_directory, check_output_directory
 from nail2nail.io._json import write_json
 from nail2nail.simulation.capture import _configure_rig, simulate, write_capture
+from nail2nail.simulation.projectors import LAYOUTS, projector_rigs
 from nail2nail.simulation.rig import Rig, default_rig
 from nail2nail.simulation.scenes import (
     BoardScene,
@@ -110,6 +111,7 @@ def board_poses(
     max_obliquity_deg: float = 65.0,
     spin_deg: float = 10.0,
     shift_mm: tuple[float, float, float] = (2.0, 2.0, 3.0),
+    projectors: str | None = None,
 ) -> list[tuple[float, float, float, float, float, float]]:
     """`n` well-spread board poses in front of a rig, each seen whole by every camera.
 
@@ -137,6 +139,9 @@ def board_poses(
         Smallest and largest tilt, degrees.
     max_obliquity_deg, spin_deg, shift_mm
         See above.
+    projectors : str, optional
+        A layout of several projectors (:data:`nail2nail.simulation.projectors.LAYOUTS`):
+        every pose is checked against each projector of it (seen whole, not too obliquely).
 
     Returns
     -------
@@ -162,6 +167,7 @@ def board_poses(
         raise ValueError(f"tilt_deg: expected 0 <= low <= high < 80 degrees, got {tilt_deg!r}")
     rig = rig or default_rig()
     board = board or _default_board()
+    rigs = [rig] if projectors is None else projector_rigs(projectors, rig)
     centre = rig_working_point(rig)
     rng = np.random.default_rng(seed)
     poses = []
@@ -183,12 +189,14 @@ def board_poses(
             tx, ty, tz = (float(v) for v in centre + shift)
             pose = (rx, ry, rz, tx, ty, tz)
             scene = BoardScene(board=board, pose=pose)
-            if board_pose_checks(scene, rig, max_obliquity_deg=max_obliquity_deg)["ok"]:
+            if all(board_pose_checks(scene, r, max_obliquity_deg=max_obliquity_deg)["ok"]
+                   for r in rigs):
                 found = (round(rx, 6), round(ry, 6), round(rz, 6), round(tx, 6), round(ty, 6),
                          round(tz, 6))
                 break
         if found is None:
-            raise ValueError(f"board: no pose {k} found in which every camera and the projector "
+            who = "the projector" if projectors is None else "every projector"
+            raise ValueError(f"board: no pose {k} found in which every camera and {who} "
                              f"see the whole {board.size_mm[0]:g} x {board.size_mm[1]:g} mm "
                              "board; use a smaller board")
         poses.append(found)
@@ -221,6 +229,7 @@ def simulate_board_captures(
     write_truth: bool = True,
     poses: list | None = None,
     progress: bool = False,
+    projectors: str | None = None,
 ) -> dict:
     """Simulate `n` captures of a board at :func:`board_poses` into ``OUT/pose00`` … .
 
@@ -231,7 +240,10 @@ def simulate_board_captures(
     ``OUT/board-poses.json`` lists them (board, rig, poses; not named ``pose…`` so that
     ``OUT/pose*`` lists the captures only). `OUT` is written as a whole
     (:func:`nail2nail.io._atomic.atomic_directory`, marker ``board-poses.json``). Pose ``k``
-    renders with noise seed ``seed + k``.
+    renders with noise seed ``seed + k``. With `projectors`, each ``poseKK`` is a capture of
+    several projectors instead: ``projectors.json`` and one capture per projector, ``p0``,
+    ``p1`` … (projector ``j`` rendered with noise seed ``seed + k + 1000 j``), as ``nail2nail
+    simulate --projectors`` writes a finger's.
 
     Parameters
     ----------
@@ -248,6 +260,8 @@ def simulate_board_captures(
         Explicit poses instead of :func:`board_poses`.
     progress : bool
         Show a progress bar of the poses on stderr (a terminal only: :mod:`nail2nail._progress`).
+    projectors : str, optional
+        A layout of several projectors (:data:`nail2nail.simulation.projectors.LAYOUTS`).
 
     Returns
     -------
@@ -258,18 +272,32 @@ def simulate_board_captures(
     check_output_directory(out_dir, marker="board-poses.json")
     rig = _configure_rig(rig, scale=scale, projector_distortion=projector_distortion)
     board = board or _default_board()
+    if projectors is not None and projectors not in LAYOUTS:
+        raise ValueError(f"projectors: expected one of {', '.join(LAYOUTS)}, got {projectors!r}")
+    rigs = [rig] if projectors is None else projector_rigs(projectors, rig)
     if poses is None:
-        poses = board_poses(n, rig, board=board, seed=seed)
+        poses = board_poses(n, rig, board=board, seed=seed, projectors=projectors)
     entries = []
     with atomic_directory(out_dir, marker="board-poses.json") as tmp:
         for k, pose in enumerate(progress_bar(poses, desc="simulate", unit="pose",
                                               enabled=progress)):
             scene = cast(BoardScene, make_scene("board", rig=rig, board=board, pose=tuple(pose)))
-            sim = simulate(scene, rig=rig, patterns=patterns, pattern_set=pattern_set,
-                           seed=seed + k)
             name = f"pose{k:02d}"
-            write_capture(Path(tmp) / name, sim, seed=seed + k, pattern_names=pattern_names,
-                          write_truth=write_truth)
+            captures = []
+            for j, projector_rig in enumerate(rigs):
+                where = Path(tmp) / name if projectors is None else Path(tmp) / name / f"p{j}"
+                sim = simulate(scene, rig=projector_rig, patterns=patterns,
+                               pattern_set=pattern_set, seed=seed + k + 1000 * j)
+                manifest = write_capture(where, sim, seed=seed + k + 1000 * j,
+                                         pattern_names=pattern_names, write_truth=write_truth)
+                captures.append({"capture": f"p{j}", "azimuth_deg": LAYOUTS[projectors][j]
+                                 if projectors else 0.0, "n_frames": manifest["n_frames"]})
+            if projectors is not None:
+                frames = sum(c["n_frames"] for c in captures)
+                write_json(Path(tmp) / name / "projectors.json", {
+                    "format": "nail2nail-projectors", "version": 1, "layout": projectors,
+                    "scene": "board", "captures": captures, "n_frames": frames,
+                    "capture_s_at_120_fps": round(frames / 120.0, 4)})
             checks = board_pose_checks(scene, rig)
             entries.append({"capture": name, "pose": list(scene.pose),
                             "R_world_board": scene.R_world_board.tolist(),
@@ -277,6 +305,7 @@ def simulate_board_captures(
                             "obliquity_deg": checks["obliquity_deg"]})
         summary = {"format": "nail2nail-board-poses", "version": 1,
                    "created_by": "nail2nail simulate", "board": board.to_dict(),
-                   "rig": rig.to_dict(), "seed": seed, "poses": entries}
+                   "rig": rig.to_dict(), "seed": seed, "poses": entries,
+                   **({"projectors": projectors} if projectors is not None else {})}
         write_json(Path(tmp) / "board-poses.json", summary)
     return summary
