@@ -234,6 +234,48 @@ def test_cli_several_projectors_end_to_end(layout_capture, tmp_path, capsys):
     assert "given twice" in capsys.readouterr().err
 
 
+def test_cli_process_of_several_projectors(layout_capture, tmp_path, capsys):
+    """``nail2nail process`` on a capture of two projectors: rig.json stands for rig_p0.json and
+    rig_p1.json; one scan directory holds all six scans with their projector and camera, which
+    ``merge`` reads back to the same pairs; the print comes from all of them. Without the
+    per-projector files the job is refused and nothing written."""
+    import json
+    import shutil
+
+    from nail2nail.cli import main
+    from nail2nail.io.scans import load_scan_dirs
+
+    cap = layout_capture
+    for k in range(2):
+        shutil.copy(cap / f"p{k}" / "truth" / "calibration.json", tmp_path / f"rig_p{k}.json")
+    job = tmp_path / "job"
+    assert main(["process", str(cap), "--calib", str(tmp_path / "rig.json"), "--out", str(job),
+                 "--no-wsq", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["projectors"] == ["p0", "p1"]
+    assert summary["calibration"] == [str(tmp_path / f"rig_p{k}.json") for k in range(2)]
+    assert set(summary["merge"]) == {"0-1", "1-2", "3-4", "4-5", "0-3", "1-4", "2-5"}
+    for key, m in summary["merge"].items():
+        assert m["pairs"] > 0 and m["distance_mm"]["median"] < 0.01, key
+    scans, projectors, cameras = load_scan_dirs([job / "scans"])
+    assert [s.name for s in scans] == [f"cam{i}-p{k}" for k in range(2) for i in range(3)]
+    assert projectors == [0, 0, 0, 1, 1, 1] and cameras == [0, 1, 2, 0, 1, 2]
+    assert all(s.projector_center is not None for s in scans)
+    assert (job / "print" / "print.json").is_file()
+    assert main(["merge", str(job / "scans"), "--no-figures", "--out", str(tmp_path / "m"),
+                 "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)["merge"]
+    assert {k: v["pairs"] for k, v in again.items()} == {
+        k: v["pairs"] for k, v in summary["merge"].items()}
+    assert main(["report", str(job)]) == 0
+    capsys.readouterr()
+    (tmp_path / "rig_p1.json").unlink()
+    assert main(["process", str(cap), "--calib", str(tmp_path / "rig.json"), "--out",
+                 str(tmp_path / "job2")]) == 2
+    assert "rig_p1.json not found" in capsys.readouterr().err
+    assert not (tmp_path / "job2").exists()
+
+
 def test_cli_calibrates_several_projectors_with_shared_cameras(tmp_path, capsys):
     """``calibrate --model joint`` on a target capture of two projectors at ±45°: one bundle,
     one file per projector with the same cameras, each near the rig's truth (the side
@@ -273,3 +315,28 @@ def test_cli_calibrates_several_projectors_with_shared_cameras(tmp_path, capsys)
         assert d_fit.rho**3 * r**3 == pytest.approx(d_true.rho**3 * r**3, abs=0.1)
         summary = out["projectors"][f"p{k}"]["cameras"]
         assert all(s["camera_rms_px"] < 0.1 for s in summary.values())
+
+
+def test_scan_directory_of_several_projectors_records_both_indices(two_projectors, tmp_path):
+    import json
+
+    from nail2nail.io.scans import load_scan_dirs, save_scans
+
+    _, scans, projectors, cameras, _ = two_projectors
+    with pytest.raises(ValueError, match="give both or neither"):
+        save_scans(tmp_path / "a", scans, mat5=False, ply=False, projectors=projectors)
+    with pytest.raises(ValueError, match="one each per scan"):
+        save_scans(tmp_path / "a", scans, mat5=False, ply=False, projectors=projectors[:2],
+                   cameras=cameras[:2])
+    save_scans(tmp_path / "s", scans, mat5=False, ply=False, projectors=projectors,
+               cameras=cameras)
+    assert load_scan_dirs([tmp_path / "s"])[1:] == (projectors, cameras)
+    manifest = json.loads((tmp_path / "s" / "scan.json").read_text())
+    del manifest["cameras"][2]["camera_index"]
+    (tmp_path / "s" / "scan.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="for every camera or for none"):
+        load_scan_dirs([tmp_path / "s"])
+    manifest["cameras"][2]["camera_index"] = -1
+    (tmp_path / "s" / "scan.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="non-negative integer"):
+        load_scan_dirs([tmp_path / "s"])

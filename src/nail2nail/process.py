@@ -14,12 +14,20 @@ Output directory (written as a whole, :func:`nail2nail.io._atomic.atomic_directo
     OUT/merge/          merge.json, the mapping files, super.ply and the super mat5 (figures
                         with ``figures=True``)
     OUT/print/          the rolled-equivalent print (``nail2nail unroll``), unless ``unroll=False``
+
+A capture of a rig of several projectors (a directory with ``projectors.json``,
+``docs/projectors.md``) is processed as a whole: each projector's capture scanned with its own
+calibration (``rig_<capture>.json`` beside the ``rig.json`` given, as ``nail2nail calibrate``
+writes them, or a list), every scan into ``OUT/scans`` (named ``<camera>-p<k>``, each with its
+projector and camera index), merged and fused together and unrolled from all of them.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 from nail2nail._progress import Stages
 from nail2nail._timing import StepClock
@@ -27,7 +35,7 @@ from nail2nail.calibration.files import load_calibration
 from nail2nail.frames import frame_transform
 from nail2nail.io._atomic import atomic_directory, check_output_directory, relocate_paths
 from nail2nail.io._json import write_json
-from nail2nail.io.capture import read_capture
+from nail2nail.io.capture import projector_captures, read_capture
 from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
 from nail2nail.io.scans import save_scans
 from nail2nail.merge.report import parse_pairs, write_merge
@@ -83,9 +91,12 @@ def process_capture(
     ----------
     capture : Capture or path-like
         A capture (:func:`nail2nail.io.capture.read_capture`, ``load=False`` saves memory) or
-        its directory.
-    calibration : RigCalibration or path-like
-        The rig's calibration, or its JSON file.
+        its directory; or the directory of a capture of several projectors
+        (``projectors.json``).
+    calibration : RigCalibration or path-like, or a sequence of them
+        The rig's calibration, or its JSON file. For a capture of several projectors, one per
+        projector in ``projectors.json``'s order, or one path ``DIR/NAME.json`` standing for
+        ``DIR/NAME_<capture>.json`` of each (what ``nail2nail calibrate`` writes).
     out : path-like
         Output directory, replaced as a whole once the job is complete; a non-empty directory
         without ``process.json`` is refused before any work.
@@ -93,7 +104,9 @@ def process_capture(
         Scanning options (:func:`nail2nail.scan.capture.scan_capture`).
     pairs : list of (int, int) or str, optional
         Camera pairs of the merge report, as scan indices or as ``"0-1,1-2"``
-        (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …``.
+        (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …`` (with
+        several projectors, the neighbouring cameras of each projector and the neighbouring
+        projectors of each camera).
     figures : bool
         Write the merge figures (off by default: the job's own output is the data).
     mat5 : bool
@@ -159,28 +172,54 @@ def process_capture(
 
     say = Stages(enabled=progress, prefix="process: ")  # stderr, a terminal only, not quiet
 
-    if isinstance(calibration, (str, os.PathLike)):
-        calibration_name = str(calibration)
-        calibration = load_calibration(calibration, allow_mirrored=allow_mirrored)
-    transform = frame_transform(calibration, frame)
-    if isinstance(capture, (str, os.PathLike)):
-        capture = read_capture(capture, load=False)
+    layout = (projector_captures(capture) if isinstance(capture, (str, os.PathLike))
+              else None)
+    if layout is None:
+        captures = [(None, capture)]
+        calibrations = [(calibration_name, calibration)]
+    else:
+        captures = list(layout)
+        calibrations = _projector_calibrations(calibration, [n for n, _ in layout], capture)
+    loaded = []
+    for name, calib in calibrations:
+        if isinstance(calib, (str, os.PathLike)):
+            name, calib = str(calib), load_calibration(calib, allow_mirrored=allow_mirrored)
+        loaded.append((name, calib))
+    transform = frame_transform(loaded[0][1], frame)  # the cameras are the projectors' own
 
     say("scan")
     scan_parts: dict[str, float] = {}
+    scans, projectors, cameras = [], [], []
+    camera_index: dict[str, int] = {}
     with times.stage("scan"):
-        scans = scan_capture(capture, calibration, use=use, max_gradient=max_gradient,
-                             min_modulation=min_modulation, allow_mirrored=allow_mirrored,
-                             calibration_name=calibration_name, timings=scan_parts,
-                             masks=masks, progress=progress, **(decode_options or {}))
+        for k, ((_, source), (name, calib)) in enumerate(zip(captures, loaded, strict=True)):
+            opened = (read_capture(source, load=False)
+                      if isinstance(source, (str, os.PathLike)) else source)
+            parts: dict[str, float] = {}
+            mine = scan_capture(opened, calib, use=use, max_gradient=max_gradient,
+                                min_modulation=min_modulation, allow_mirrored=allow_mirrored,
+                                calibration_name=name, timings=parts, masks=masks,
+                                progress=progress, **(decode_options or {}))
+            for key, value in parts.items():
+                scan_parts[key] = scan_parts.get(key, 0.0) + value
+            for scan in mine:  # cameras matched by name across the projectors
+                cameras.append(camera_index.setdefault(str(scan.name), len(camera_index)))
+                projectors.append(k)
+                scans.append(scan if layout is None
+                             else replace(scan, name=f"{scan.name}-p{k}"))
+    capture_path = capture if layout is not None else opened.path
+    several = layout is not None
     if len(scans) < 2:
-        raise ValueError(f"{capture.path}: need at least two cameras to merge, got "
+        raise ValueError(f"{capture_path}: need at least two cameras to merge, got "
                          f"{len(scans)}")
-    if pairs is None or isinstance(pairs, str):
+    if isinstance(pairs, str):
         pairs = parse_pairs(pairs, len(scans))
+    elif pairs is None and not several:
+        pairs = parse_pairs(None, len(scans))
     summary: dict = {
-        "capture": str(capture.path),
-        "calibration": calibration_name,
+        "capture": str(capture_path),
+        "calibration": loaded[0][0] if not several else [n for n, _ in loaded],
+        **({"projectors": [n for n, _ in captures]} if several else {}),
         "out": str(out),
         "frame": frame,
         "T_frame_world": transform.tolist(),
@@ -198,15 +237,19 @@ def process_capture(
         say("write the scans")
         with times.stage("write_scans"):
             save_scans(tmp / "scans", scans, mat5=mat5, ply=ply,
-                       extra={"capture": str(capture.path), "calibration": calibration_name},
-                       frame=frame, transform=transform)
+                       extra={"capture": str(capture_path),
+                              "calibration": summary["calibration"]},
+                       frame=frame, transform=transform,
+                       **({"projectors": projectors, "cameras": cameras} if several else {}))
         say("merge and fuse the super scan")
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
                                  seamless_mesh=seamless_mesh,
                                  transform=transform, progress=progress,
-                                 final_dir=out / "merge")  # the job directory once renamed
+                                 final_dir=out / "merge",  # the job directory once renamed
+                                 **({"projectors": projectors, "cameras": cameras}
+                                    if several else {}))
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
@@ -236,3 +279,28 @@ def process_capture(
 def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
 
+
+def _projector_calibrations(calibration, names: list[str], capture) -> list[tuple[str, object]]:
+    """``[(name for errors, RigCalibration or path)]`` per projector of a capture of several:
+    a sequence as given, or a path ``DIR/STEM.SUFFIX`` for ``DIR/STEM_<name>.SUFFIX`` each."""
+    if isinstance(calibration, (str, os.PathLike)):
+        path = Path(calibration)
+        files = [path.with_name(f"{path.stem}_{n}{path.suffix or '.json'}") for n in names]
+        missing = [f for f in files if not f.is_file()]
+        if missing:
+            raise ValueError(f"{capture}: a capture of {len(names)} projectors "
+                             f"({', '.join(names)}) is scanned with one calibration per "
+                             f"projector; {missing[0]} not "
+                             f"found (--calib {path} stands for "
+                             f"{', '.join(f.name for f in files)}, as `nail2nail calibrate` "
+                             "writes them)")
+        return [(str(f), f) for f in files]
+    if isinstance(calibration, (list, tuple)):
+        if len(calibration) != len(names):
+            raise ValueError(f"calibration: {len(calibration)} given for a capture of "
+                             f"{len(names)} projectors ({', '.join(names)})")
+        return [(str(c) if isinstance(c, (str, os.PathLike)) else f"calibration of {n}", c)
+                for n, c in zip(names, calibration, strict=True)]
+    raise ValueError(f"{capture}: a capture of {len(names)} projectors needs one calibration "
+                     "per projector (a list, or the path of rig.json standing for "
+                     "rig_<capture>.json)")

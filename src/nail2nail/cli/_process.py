@@ -35,8 +35,13 @@ def add_parser(sub) -> None:
         "write OUT/scans, OUT/merge, OUT/print and OUT/process.json (the summary, with the "
         "seconds of every stage and the peak memory).",
     )
-    p.add_argument("capture", type=Path, help="capture directory (capture.json)")
-    p.add_argument("--calib", type=Path, required=True, help="calibration JSON")
+    p.add_argument("capture", type=Path,
+                   help="capture directory (capture.json), or a capture of several projectors "
+                   "(projectors.json and a capture per projector; docs/projectors.md)")
+    p.add_argument("--calib", type=Path, required=True,
+                   help="calibration JSON; for a capture of several projectors, DIR/NAME.json "
+                   "stands for DIR/NAME_<capture>.json of each (as `nail2nail calibrate` and "
+                   "`calibrate-board` write them)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     add_process_options(p)
     p.add_argument("--report", action="store_true",

@@ -221,7 +221,7 @@ def _pixels(array: np.ndarray, tail: tuple[int, ...]) -> np.ndarray:
 def save_scans(
     out_dir: str | os.PathLike, scans: list[Scan], *, mat5: bool = True, ply: bool = True,
     extra: dict | None = None, compress: bool | int = False, frame: str = "world",
-    transform=None,
+    transform=None, projectors=None, cameras=None,
 ) -> dict:
     """Write a scan directory and return its manifest (also written as ``scan.json``).
 
@@ -235,11 +235,20 @@ def save_scans(
     earlier scan directory there is replaced only once the new one is complete; a non-empty
     directory without ``scan.json`` is refused. The scans are written in threads, one scan
     each (numpy and file writes release the GIL); `compress` as for :func:`save_scan_npz`.
+
+    A rig of several projectors writes all its scans into one directory: `projectors` and
+    `cameras` (lists of int, one per scan, as :func:`nail2nail.merge.fusion.fuse_scans` takes
+    them) are recorded per camera entry (``"projector_index"``, ``"camera_index"``) and
+    :func:`load_scan_dirs` returns them.
     """
     out = Path(out_dir)
     for i, scan in enumerate(scans):
         as_name(scan.name, f"scans[{i}].name")
     check_unique([scan.name for scan in scans], "scans")
+    if (projectors is None) != (cameras is None):
+        raise ValueError("projectors, cameras: give both or neither")
+    if projectors is not None and not (len(projectors) == len(cameras) == len(scans)):
+        raise ValueError(f"projectors, cameras: one each per scan ({len(scans)})")
 
     if not isinstance(frame, str) or not frame:
         raise ValueError(f"frame: expected 'world' or a camera name, got {frame!r}")
@@ -250,15 +259,21 @@ def save_scans(
         raise ValueError(f"frame {frame!r}: its transform T_frame_world is needed")
     scans = [scan_in_frame(scan, T) for scan in scans]
     extra = {**(extra or {}), "frame": frame, "T_frame_world": T.tolist()}
+    index = None if projectors is None else {
+        scan.name: (int(k), int(i)) for scan, k, i in zip(scans, projectors, cameras,
+                                                          strict=True)}
     with atomic_directory(out, marker="scan.json") as tmp:
-        return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra, compress=compress)
+        return _write_scans(tmp, scans, mat5=mat5, ply=ply, extra=extra, compress=compress,
+                            index=index)
 
 
 def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
-                 compress: bool | int) -> dict:
+                 compress: bool | int, index: dict | None = None) -> dict:
     def write(scan: Scan) -> dict:
         entry: dict[str, Any] = {"name": scan.name, "npz": f"{scan.name}.npz",
                  "valid_pixels": int(np.count_nonzero(scan.mask)), "shape": list(scan.shape)}
+        if index is not None:
+            entry["projector_index"], entry["camera_index"] = index[scan.name]
         save_scan_npz(out / entry["npz"], scan, compress=compress)
         if mat5:
 
@@ -406,8 +421,10 @@ def load_scan_dirs(scan_dirs) -> tuple[list[Scan], list[int] | None, list[int] |
     Parameters
     ----------
     scan_dirs : sequence of path-like
-        One scan directory (a one-projector rig), or one per projector (``nail2nail scan`` of
-        each projector's capture, in projector order), written in one world frame.
+        One scan directory (a one-projector rig, or every scan of a rig of several as
+        ``nail2nail process`` writes them: :func:`save_scans` with `projectors`), or one per
+        projector (``nail2nail scan`` of each projector's capture, in projector order),
+        written in one world frame.
 
     Returns
     -------
@@ -416,8 +433,8 @@ def load_scan_dirs(scan_dirs) -> tuple[list[Scan], list[int] | None, list[int] |
         ``<camera>-p<k>`` (``k`` the directory's index), directory by directory.
     projectors, cameras : list of int or None
         Per scan, its directory's index and its camera's (cameras matched by name across the
-        directories, numbered in order of first appearance); None for one directory. As
-        :func:`nail2nail.merge.fusion.fuse_scans` takes them.
+        directories, numbered in order of first appearance); for one directory, those it
+        records, else None. As :func:`nail2nail.merge.fusion.fuse_scans` takes them.
 
     Raises
     ------
@@ -429,7 +446,7 @@ def load_scan_dirs(scan_dirs) -> tuple[list[Scan], list[int] | None, list[int] |
     if not dirs:
         raise ValueError("scan_dirs: expected at least one scan directory")
     if len(dirs) == 1:
-        return load_scans(dirs[0]), None, None
+        return (*_one_dir(dirs[0]),)
     resolved = [d.resolve() for d in dirs]
     for k, d in enumerate(resolved):
         if d in resolved[:k]:
@@ -451,3 +468,26 @@ def load_scan_dirs(scan_dirs) -> tuple[list[Scan], list[int] | None, list[int] |
             projectors.append(k)
             scans.append(replace(scan, name=f"{name}-p{k}"))
     return scans, projectors, cameras
+
+
+def _one_dir(scan_dir: Path) -> tuple[list[Scan], list[int] | None, list[int] | None]:
+    """:func:`load_scan_dirs` of one directory: its scans, and the projector and camera index
+    of each where ``scan.json`` records them (every entry, or none)."""
+    scans = load_scans(scan_dir)
+    _, manifest = _read_manifest(scan_dir)
+    cams = manifest["cameras"]
+    have = [("projector_index" in c, "camera_index" in c) for c in cams]
+    if not any(a or b for a, b in have):
+        return scans, None, None
+    if not all(a and b for a, b in have):
+        raise ValueError(f"{scan_dir / 'scan.json'}: projector_index and camera_index must be "
+                         "given for every camera or for none")
+    lists: dict[str, list[int]] = {"projector_index": [], "camera_index": []}
+    for i, c in enumerate(cams):
+        for key, values in lists.items():
+            v = c[key]
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{scan_dir / 'scan.json'}: cameras[{i}].{key} must be a "
+                                 f"non-negative integer, got {v!r}")
+            values.append(v)
+    return scans, lists["projector_index"], lists["camera_index"]

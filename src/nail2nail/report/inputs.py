@@ -147,9 +147,22 @@ def find_inputs(out_dir: str | os.PathLike) -> ReportInputs:
                               scans=_dir_with(root / "scans", "scan.json"),
                               merge=_dir_with(root / "merge", "merge.json"),
                               print=_dir_with(root / "print", "print.json"))
-        inputs.capture = _named(summary, "capture", root, "capture.json", "capture", notes,
+        projectors = summary.get("projectors")
+        if isinstance(projectors, list) and projectors and isinstance(
+                summary.get("calibration"), list) and summary["calibration"]:
+            # a rig of several projectors: the first projector's capture and calibration
+            # stand for the rig in their sections (the cameras are the same in each)
+            first = {**summary, "capture": str(Path(str(summary.get("capture", ""))) /
+                                               str(projectors[0])),
+                     "calibration": summary["calibration"][0]}
+            listed = ", ".join(map(str, projectors))
+            notes.append(f"a rig of {len(projectors)} projectors ({listed}): the capture and "
+                         f"calibration sections show {projectors[0]}'s")
+        else:
+            first = summary
+        inputs.capture = _named(first, "capture", root, "capture.json", "capture", notes,
                                 problems, path)
-        inputs.calibration = _named(summary, "calibration", root, "", "calibration", notes,
+        inputs.calibration = _named(first, "calibration", root, "", "calibration", notes,
                                     problems, path)
     elif (root / "summary.json").is_file():
         path = root / "summary.json"
