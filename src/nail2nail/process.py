@@ -28,6 +28,7 @@ import os
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from nail2nail._progress import Stages
 from nail2nail._timing import StepClock
@@ -174,13 +175,15 @@ def process_capture(
 
     layout = (projector_captures(capture) if isinstance(capture, (str, os.PathLike))
               else None)
+    captures: list[tuple[str | None, Any]]
+    calibrations: list[tuple[str, Any]]
     if layout is None:
         captures = [(None, capture)]
         calibrations = [(calibration_name, calibration)]
     else:
         captures = list(layout)
         calibrations = _projector_calibrations(calibration, [n for n, _ in layout], capture)
-    loaded = []
+    loaded: list[tuple[str, Any]] = []
     for name, calib in calibrations:
         if isinstance(calib, (str, os.PathLike)):
             name, calib = str(calib), load_calibration(calib, allow_mirrored=allow_mirrored)
@@ -240,7 +243,8 @@ def process_capture(
                        extra={"capture": str(capture_path),
                               "calibration": summary["calibration"]},
                        frame=frame, transform=transform,
-                       **({"projectors": projectors, "cameras": cameras} if several else {}))
+                       projectors=projectors if several else None,
+                       cameras=cameras if several else None)
         say("merge and fuse the super scan")
         with times.stage("merge"):
             merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
@@ -248,8 +252,8 @@ def process_capture(
                                  seamless_mesh=seamless_mesh,
                                  transform=transform, progress=progress,
                                  final_dir=out / "merge",  # the job directory once renamed
-                                 **({"projectors": projectors, "cameras": cameras}
-                                    if several else {}))
+                                 projectors=projectors if several else None,
+                                 cameras=cameras if several else None)
         summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
@@ -280,7 +284,7 @@ def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
 
 
-def _projector_calibrations(calibration, names: list[str], capture) -> list[tuple[str, object]]:
+def _projector_calibrations(calibration, names: list[str], capture) -> list[tuple[str, Any]]:
     """``[(name for errors, RigCalibration or path)]`` per projector of a capture of several:
     a sequence as given, or a path ``DIR/STEM.SUFFIX`` for ``DIR/STEM_<name>.SUFFIX`` each."""
     if isinstance(calibration, (str, os.PathLike)):

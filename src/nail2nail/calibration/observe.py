@@ -164,7 +164,7 @@ class BoardCaptures:
 
     views: list
     camera_sizes: dict
-    projector_size: tuple
+    projector_size: tuple | dict
     poses: list
     refused: list = field(default_factory=list)
 

@@ -1660,10 +1660,11 @@ def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, str
     for code, limit in enumerate(limits):
         if limit is None or n == 0:
             continue
-        threshold = np.cos(np.radians(limit)) if needs[code] else limit
+        threshold = np.cos(np.radians(limit)) if needs[code] is not None else limit
         ok = np.ones(n, dtype=bool)
+        key = needs[code]
         for scan, rc in ((parent, pairs["parent_rc"]), (child, pairs["child_rc"])):
-            if needs[code] and getattr(scan, needs[code]) is None:
+            if key is not None and getattr(scan, key) is None:
                 continue
             _bilinear_at_least(images(scan, code), rc, float(threshold), ok)
         reason[(reason < 0) & ~ok] = code
