@@ -381,14 +381,18 @@ def _agree_across_projectors(views: list[BoardView], board) -> list[BoardView]:
     for v in views:
         m = camera_map(v)
         ref = reference.setdefault(v.camera, m)
-        if float(np.sum(m * ref)) < 0:
-            ids = half_turn_ids(board, v.ids)
-            order = np.argsort(ids)
-            xy_p = None if v.xy_projector is None else v.xy_projector[order]
-            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p,
-                          projector=v.projector)
-        out.append(v)
+        out.append(_half_turned(v, board) if float(np.sum(m * ref)) < 0 else v)
     return out
+
+
+def _half_turned(view: BoardView, board) -> BoardView:
+    """`view` with the board's labels turned by half a turn (:func:`half_turn_ids`), ids
+    sorted."""
+    ids = half_turn_ids(board, view.ids)
+    order = np.argsort(ids)
+    xy_p = None if view.xy_projector is None else view.xy_projector[order]
+    return BoardView(view.camera, view.pose, ids[order], view.xy_camera[order], xy_p,
+                     projector=view.projector)
 
 
 def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], list]:
@@ -443,13 +447,7 @@ def agree_on_half_turn(views: list[BoardView], board) -> tuple[list[BoardView], 
         if m is None:
             unoriented.append(v)
             continue
-        if float(np.sum(m * ref)) < 0:
-            ids = half_turn_ids(board, v.ids)
-            order = np.argsort(ids)
-            xy_p = None if v.xy_projector is None else v.xy_projector[order]
-            v = BoardView(v.camera, v.pose, ids[order], v.xy_camera[order], xy_p,
-                          projector=v.projector)
-        out.append(v)
+        out.append(_half_turned(v, board) if float(np.sum(m * ref)) < 0 else v)
     return out, unoriented
 
 
