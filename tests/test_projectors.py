@@ -340,3 +340,38 @@ def test_scan_directory_of_several_projectors_records_both_indices(two_projector
     (tmp_path / "s" / "scan.json").write_text(json.dumps(manifest))
     with pytest.raises(ValueError, match="non-negative integer"):
         load_scan_dirs([tmp_path / "s"])
+
+
+def test_cli_batch_of_captures_of_several_projectors(layout_capture, tmp_path, capsys):
+    """``nail2nail batch`` takes captures of several projectors as ``process`` does: each job
+    as one, its per-projector calibrations in its inputs' hash (a changed ``rig_p1.json``
+    redoes it), the memory estimate over all its captures."""
+    import json
+    import shutil
+
+    from nail2nail.batch import capture_memory_mb, inputs_hash
+    from nail2nail.cli import main
+
+    caps = tmp_path / "caps"
+    shutil.copytree(layout_capture, caps / "a")
+    for k in range(2):
+        shutil.copy(layout_capture / f"p{k}" / "truth" / "calibration.json",
+                    tmp_path / f"rig_p{k}.json")
+    rig = tmp_path / "rig.json"
+    one = capture_memory_mb(layout_capture / "p0")
+    assert capture_memory_mb(caps / "a") == pytest.approx(2 * one - 600.0)
+    before = inputs_hash(caps / "a", rig)
+    args = ["batch", str(caps / "*"), "--calib", str(rig), "--out", str(tmp_path / "out"),
+            "--workers", "1", "--no-wsq", "--json"]
+    assert main(args) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["status"] for r in rows] == ["done"]
+    job = json.loads((tmp_path / "out" / "a" / "process.json").read_text())
+    assert job["projectors"] == ["p0", "p1"] and len(job["calibration"]) == 2
+    calib = json.loads((tmp_path / "rig_p1.json").read_text())
+    calib["note"] = "edited"
+    (tmp_path / "rig_p1.json").write_text(json.dumps(calib))
+    assert inputs_hash(caps / "a", rig) != before
+    (tmp_path / "rig_p0.json").unlink()
+    assert main(args) == 2  # no capture has its calibrations: refused before any task
+    assert "rig_p0.json not found" in capsys.readouterr().err

@@ -43,7 +43,7 @@ from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.scan.capture import MAX_GRADIENT, motion_summary, scan_capture
 from nail2nail.unroll import DEFAULT_METHOD, METHODS, check_print_size, unroll_scans
 
-__all__ = ["peak_rss_mb", "process_capture"]
+__all__ = ["calibration_files", "peak_rss_mb", "process_capture"]
 
 
 def peak_rss_mb() -> float | None:
@@ -284,21 +284,51 @@ def _round(value: float | None) -> float | None:
     return None if value is None else round(value, 1)
 
 
+def calibration_files(calibration: str | os.PathLike, capture: str | os.PathLike) -> list[Path]:
+    """The calibration file(s) that `calibration` names for `capture`.
+
+    Parameters
+    ----------
+    calibration : path-like
+        A calibration file ``DIR/STEM.SUFFIX``.
+    capture : path-like
+        A capture directory, or a capture of several projectors (``projectors.json``).
+
+    Returns
+    -------
+    list of Path
+        ``[calibration]`` for a capture of one projector; for a capture of several,
+        ``DIR/STEM_<capture>.SUFFIX`` of each projector, in ``projectors.json``'s order (what
+        ``nail2nail calibrate`` and ``calibrate-board`` write).
+
+    Raises
+    ------
+    ValueError
+        Naming the file that is missing (and what `calibration` stands for), or a bad
+        ``projectors.json``.
+    """
+    path = Path(calibration)
+    layout = projector_captures(capture)
+    if layout is None:
+        if not path.is_file():
+            raise ValueError(f"{path}: calibration file not found")
+        return [path]
+    names = [n for n, _ in layout]
+    files = [path.with_name(f"{path.stem}_{n}{path.suffix or '.json'}") for n in names]
+    missing = [f for f in files if not f.is_file()]
+    if missing:
+        raise ValueError(f"{capture}: a capture of {len(names)} projectors ({', '.join(names)}) "
+                         f"is scanned with one calibration per projector; {missing[0]} not "
+                         f"found (--calib {path} stands for {', '.join(f.name for f in files)}, "
+                         "as `nail2nail calibrate` writes them)")
+    return files
+
+
 def _projector_calibrations(calibration, names: list[str], capture) -> list[tuple[str, Any]]:
     """``[(name for errors, RigCalibration or path)]`` per projector of a capture of several:
     a sequence as given, or a path ``DIR/STEM.SUFFIX`` for ``DIR/STEM_<name>.SUFFIX`` each."""
     if isinstance(calibration, (str, os.PathLike)):
-        path = Path(calibration)
-        files = [path.with_name(f"{path.stem}_{n}{path.suffix or '.json'}") for n in names]
-        missing = [f for f in files if not f.is_file()]
-        if missing:
-            raise ValueError(f"{capture}: a capture of {len(names)} projectors "
-                             f"({', '.join(names)}) is scanned with one calibration per "
-                             f"projector; {missing[0]} not "
-                             f"found (--calib {path} stands for "
-                             f"{', '.join(f.name for f in files)}, as `nail2nail calibrate` "
-                             "writes them)")
-        return [(str(f), f) for f in files]
+        return [(str(f), f) for f in calibration_files(calibration, capture)]
     if isinstance(calibration, (list, tuple)):
         if len(calibration) != len(names):
             raise ValueError(f"calibration: {len(calibration)} given for a capture of "

@@ -41,6 +41,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from nail2nail._progress import progress_bar
 from nail2nail._validation import describe_error
@@ -51,8 +52,8 @@ from nail2nail.batch.tasks import clean_stale, run_capture
 from nail2nail.io._atomic import check_output_directory
 
 __all__ = ["capture_memory_mb", "check_cameras", "check_workers", "close_quietly",
-           "default_workers", "find_captures", "inputs_hash", "local_client", "process_batch",
-           "result_row", "write_results"]
+           "default_workers", "find_captures", "first_calibration", "inputs_hash",
+           "local_client", "process_batch", "result_row", "write_results"]
 
 LOCK = ".batch.lock"  # in OUT, held by the running batch
 RESERVED = (TABLE_JSON, TABLE_CSV)  # the results table: not a capture's OUT/<name>
@@ -72,7 +73,8 @@ def _check_names(captures: list[Path], what: str) -> None:
 
 
 def find_captures(pattern: str | os.PathLike) -> list[Path]:
-    """The capture directories (holding ``capture.json``) that the glob `pattern` matches.
+    """The capture directories (holding ``capture.json``, or ``projectors.json`` for a capture
+    of several projectors) that the glob `pattern` matches.
 
     Parameters
     ----------
@@ -82,7 +84,7 @@ def find_captures(pattern: str | os.PathLike) -> list[Path]:
     Returns
     -------
     list of Path
-        The matching directories that hold a ``capture.json``, sorted.
+        The matching directories that hold a ``capture.json`` or ``projectors.json``, sorted.
 
     Raises
     ------
@@ -91,12 +93,38 @@ def find_captures(pattern: str | os.PathLike) -> list[Path]:
         name is hidden or that of the results table.
     """
     matched = sorted(Path(p) for p in glob.glob(os.fspath(pattern)))
-    captures = [p for p in matched if (p / "capture.json").is_file()]
+    captures = [p for p in matched
+                if (p / "capture.json").is_file() or (p / "projectors.json").is_file()]
     if not captures:
-        raise ValueError(f"{pattern}: no capture directory (with capture.json) matches "
+        raise ValueError(f"{pattern}: no capture directory (with capture.json or "
+                         "projectors.json) matches "
                          f"({len(matched)} paths matched)")
     _check_names(captures, os.fspath(pattern))
     return captures
+
+
+def first_calibration(calibration: str | os.PathLike, captures) -> Path:
+    """The first calibration file that `calibration` names for one of `captures`: itself, or
+    ``STEM_<capture>.json`` of a capture of several projectors
+    (:func:`nail2nail.process.calibration_files`), for the checks made before any task runs.
+    A capture whose files are missing fails alone (its task reports it).
+
+    Raises
+    ------
+    ValueError
+        When no capture has its calibration file(s): the first capture's reason.
+    """
+    from nail2nail.process import calibration_files
+
+    errors = []
+    for c in captures:
+        try:
+            return calibration_files(calibration, c)[0]
+        except ValueError as exc:
+            errors.append(exc)
+    if errors:
+        raise errors[0]
+    raise ValueError("captures: no capture given")
 
 
 def check_cameras(captures, calibration, *, frame: str = "world", masks=None,
@@ -107,8 +135,9 @@ def check_cameras(captures, calibration, *, frame: str = "world", masks=None,
     Parameters
     ----------
     captures : sequence of path-like
-        The capture directories; a capture whose ``capture.json`` cannot be read is left
-        out here (its task reports it, alone).
+        The capture directories (a capture of several projectors: each of its captures); a
+        capture whose ``capture.json`` cannot be read is left out here (its task reports it,
+        alone).
     calibration : RigCalibration
         The rig's calibration (:func:`nail2nail.calibration.files.load_calibration`).
     frame : str
@@ -136,9 +165,18 @@ def check_cameras(captures, calibration, *, frame: str = "world", masks=None,
     if not isinstance(frame, str) or (frame != "world" and frame not in calibrated):
         raise ValueError(f"{names['frame']}: {frame!r} is neither 'world' nor a camera of the "
                          f"calibration (its cameras: {', '.join(calibrated)})")
+    from nail2nail.io.capture import projector_captures
+
+    expanded: list[tuple[Any, Any, int]] = []
     for c in captures:
         try:
-            cameras = read_capture(c, load=False).camera_names
+            layout = projector_captures(c)
+        except ValueError:  # its task reports it, alone
+            continue
+        expanded += [(c, c, 1)] if layout is None else [(c, p, len(layout)) for _, p in layout]
+    for c, path, n_projectors in expanded:
+        try:
+            cameras = read_capture(path, load=False).camera_names
         except (OSError, ValueError, KeyError, TypeError):  # its task reports it, alone
             continue
         if frame != "world" and frame not in cameras:
@@ -150,7 +188,7 @@ def check_cameras(captures, calibration, *, frame: str = "world", masks=None,
                                  f"{c} lacks (its cameras: {', '.join(cameras)})")
         if pairs is not None:
             try:
-                parse_pairs(pairs, len(cameras))
+                parse_pairs(pairs, len(cameras) * n_projectors)
             except ValueError as exc:
                 reason = str(exc).removeprefix("--pairs: ")
                 raise ValueError(f"{names['pairs']} {pairs}: capture {c} has {len(cameras)} "
@@ -356,11 +394,10 @@ def process_batch(captures, calibration: str | os.PathLike, out: str | os.PathLi
         raise ValueError("captures: no capture given")
     _check_names(captures, "captures")
     calibration = Path(calibration).resolve()
-    if not calibration.is_file():
-        raise ValueError(f"{calibration}: calibration file not found")
     from nail2nail.calibration.files import load_calibration
 
-    check_cameras(captures, load_calibration(calibration, allow_mirrored=bool(
+    check_cameras(captures, load_calibration(first_calibration(calibration, captures),
+                                             allow_mirrored=bool(
         options.get("allow_mirrored", False))), frame=options.get("frame", "world"),
                   masks=options.get("masks"), pairs=options.get("pairs"))
     if options.get("masks"):  # the workers may run elsewhere: absolute paths

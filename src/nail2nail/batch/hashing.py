@@ -69,9 +69,11 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
     Parameters
     ----------
     capture : path-like
-        Capture directory; hidden files (names starting with ``.``) are ignored.
+        Capture directory (or a capture of several projectors: every file under it); hidden
+        files (names starting with ``.``) are ignored.
     calibration : path-like
-        Calibration JSON file.
+        Calibration JSON file; for a capture of several projectors, it stands for one per
+        projector (:func:`nail2nail.process.calibration_files`), each hashed in turn.
     options : dict, optional
         The processing options (JSON-serialisable values, else their ``repr``); NumPy arrays
         count by their dtype, shape and bytes, and the files of ``options["masks"]``
@@ -85,13 +87,14 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
     Raises
     ------
     ValueError
-        `capture` is not a directory or `calibration` not a file.
+        `capture` is not a directory or a calibration file is missing.
     """
+    from nail2nail.process import calibration_files
+
     capture, calibration = Path(capture), Path(calibration)
     if not capture.is_dir():
         raise ValueError(f"{capture}: not a capture directory")
-    if not calibration.is_file():
-        raise ValueError(f"{calibration}: calibration file not found")
+    calibrations = calibration_files(calibration, capture)
     digest = hashlib.sha256()
     files = sorted(p for p in capture.rglob("*") if p.is_file()
                    and not any(part.startswith(".") for part in p.relative_to(capture).parts))
@@ -100,8 +103,9 @@ def inputs_hash(capture: str | os.PathLike, calibration: str | os.PathLike,
         digest.update(f"{path.relative_to(capture).as_posix()}\0{path.stat().st_size}\0"
                       .encode())
         _update_with_file(digest, path)
-    digest.update(b"\0calibration\0")
-    _update_with_file(digest, calibration)
+    for path in calibrations:
+        digest.update(b"\0calibration\0")
+        _update_with_file(digest, path)
     digest.update(b"\0options\0")
     digest.update(json.dumps(_canonical(options or {}), sort_keys=True, default=_value)
                   .encode())

@@ -18,7 +18,7 @@ import math
 import os
 from collections.abc import Sequence
 
-from nail2nail.io.capture import read_capture
+from nail2nail.io.capture import projector_captures, read_capture
 
 __all__ = ["BASE_MB", "capture_memory_mb", "check_memory_mb", "check_workers", "default_workers",
            "max_workers"]
@@ -33,7 +33,9 @@ def capture_memory_mb(capture: str | os.PathLike) -> float:
     Parameters
     ----------
     capture : path-like
-        Capture directory (its ``capture.json`` is read, not the frames).
+        Capture directory (its ``capture.json`` is read, not the frames), or a capture of
+        several projectors (``projectors.json``: the sum over its captures, as if their frames
+        were held at once; they are scanned in turn, so this is an upper bound).
 
     Returns
     -------
@@ -47,10 +49,13 @@ def capture_memory_mb(capture: str | os.PathLike) -> float:
         The manifest is missing or inconsistent (naming the file).
     """
 
-    manifest = read_capture(capture, load=False).manifest
-    n_frames = int(manifest.get("n_frames", 0))
-    pixels = sum(int(c["size"][0]) * int(c["size"][1]) * (len(c.get("frames", [])) or n_frames)
-                 for c in manifest["cameras"])
+    layout = projector_captures(capture)
+    pixels = 0
+    for path in [capture] if layout is None else [p for _, p in layout]:
+        manifest = read_capture(path, load=False).manifest
+        n_frames = int(manifest.get("n_frames", 0))
+        pixels += sum(int(c["size"][0]) * int(c["size"][1])
+                      * (len(c.get("frames", [])) or n_frames) for c in manifest["cameras"])
     return BASE_MB + COPIES * 4 * pixels / 2**20
 
 

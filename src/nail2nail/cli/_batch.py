@@ -16,6 +16,7 @@ from nail2nail.batch import (
     close_quietly,
     default_workers,
     find_captures,
+    first_calibration,
     local_client,
     process_batch,
 )
@@ -88,11 +89,11 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None:
         check_workers(args.workers, 1, name="--workers")  # before anything is read
     captures = find_captures(args.captures)
-    if not args.calib.is_file():
-        raise ValueError(f"{args.calib}: calibration file not found")
     # the options that name cameras, against the calibration and every capture: a bad one
     # would fail every capture, after the cluster has started
-    check_cameras(captures, load_calibration(args.calib, allow_mirrored=args.allow_mirrored),
+    # (rig.json, or rig_<capture>.json of a capture of several projectors)
+    check_cameras(captures, load_calibration(first_calibration(args.calib, captures),
+                                             allow_mirrored=args.allow_mirrored),
                   frame=args.frame, masks=options["masks"], pairs=args.pairs,
                   names={"frame": "--frame", "masks": "--mask", "pairs": "--pairs"})
     check_output_directory(args.out)  # not a file, not read-only
