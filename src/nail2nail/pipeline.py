@@ -27,6 +27,14 @@ Steps, each written under ``out``:
    (:mod:`nail2nail.unroll`, default method; PNG, WSQ, binarised, mask, metadata), and every
    unrolling method compared with the virtual finger's true skin coordinates (geometric
    accuracy, distortion, ridge period).
+8. ``projectors/``: the same finger on a rig of two projectors at ±45° (:data:`PROJECTOR_LAYOUT`,
+   ``docs/projectors.md``), at half resolution whatever `scale` (:data:`PROJECTOR_SCALE`):
+   the target and the finger captured under each projector (``captures/target``,
+   ``captures/finger``), both projectors calibrated with the cameras in one bundle
+   (``calib/rig_p0.json``, ``rig_p1.json``), and the whole job of ``nail2nail process`` on
+   the finger (``job/``: scans, merge of every kind of pair, super scan, print; its
+   ``report.html``). The summary gives the nail-to-nail width its scans cover against one
+   projector's.
 """
 
 from __future__ import annotations
@@ -62,10 +70,16 @@ from nail2nail.simulation.truth import truth_print_sampler, truth_skin_coordinat
 from nail2nail.unroll import DEFAULT_METHOD, METHODS, unroll_scans
 from nail2nail.unroll.accuracy import geometric_accuracy
 
-__all__ = ["CONFIGURATIONS", "best_calibration", "plane_distortion", "run_demo"]
+__all__ = ["CONFIGURATIONS", "PROJECTOR_LAYOUT", "PROJECTOR_SCALE", "best_calibration",
+           "plane_distortion", "run_demo"]
 
 #: Merge configurations compared by the demo (issue 5's table).
 CONFIGURATIONS = ("before", "thesis_lut", "model_dlt", "best")
+#: The demo's rig of several projectors (:data:`nail2nail.simulation.projectors.LAYOUTS`) and
+#: its camera scale: half resolution keeps the step to about a minute and a half and the
+#: target's marks above the 20 px they need.
+PROJECTOR_LAYOUT = "pair-45"
+PROJECTOR_SCALE = 0.5
 
 
 def _merge_summary(stats: dict) -> dict:
@@ -181,7 +195,7 @@ def run_demo(
     # incomplete; every sub-directory is replaced as a whole (atomic_directory)
     (out / "summary.json").unlink(missing_ok=True)
     # one line per step on stderr with the elapsed time, also into a log file; not with --quiet
-    step = Stages(16, enabled=progress, terminal_only=False)
+    step = Stages(18, enabled=progress, terminal_only=False)
     pattern_set = default_pattern_set()
     patterns = make_patterns(pattern_set)
     captures = {}
@@ -283,6 +297,8 @@ def run_demo(
     step("unroll the finger into a rolled-equivalent print (every method against the truth)")
     unrolled = _unroll_demo(finger_scans, captures["finger"], out / "print", figures=figures)
     outputs += unrolled.pop("outputs")
+    projectors = _projectors_demo(out / "projectors", seed=seed, step=step)
+    outputs += projectors.pop("outputs")
     best = merges[("best", "finger")]
     result = {
         "out": str(out),
@@ -298,10 +314,71 @@ def run_demo(
         "captures": captures,
         "super_scan": best.get("super_scan"),
         "print": unrolled,
+        "projectors": projectors,
         "outputs": [*outputs, str(out / "summary.json")],
     }
     write_json(out / "summary.json", result, default=float)
     return result
+
+
+def _projectors_demo(out: Path, *, seed: int, step) -> dict:
+    """Step 8 of the module docstring: a rig of two projectors from captures to print."""
+    from nail2nail.calibration.observe import projector_target_observations
+    from nail2nail.calibration.target import calibrate_projectors_from_observations
+    from nail2nail.io.capture import projector_captures, read_truth
+    from nail2nail.io.scans import load_scan_dirs
+    from nail2nail.process import process_capture
+    from nail2nail.report import write_report
+    from nail2nail.simulation.projectors import rolled_coverage, simulate_projector_captures
+    from nail2nail.simulation.scenes import make_scene
+
+    rig = default_rig(PROJECTOR_SCALE, projector_distortion="thesis")
+    step(f"simulate the target and the finger under two projectors ({PROJECTOR_LAYOUT}, "
+         f"scale {PROJECTOR_SCALE:g})")
+    dirs = {name: out / "captures" / name for name in ("target", "finger")}
+    finger = make_scene("finger", rig=rig, seed=seed)
+    for name, scene in (("target", "target"), ("finger", finger)):
+        simulate_projector_captures(dirs[name], scene, PROJECTOR_LAYOUT, rig=rig, seed=seed,
+                                    scene_name=name)
+    step("calibrate both projectors with the cameras; process the finger (scan, merge, print)")
+    layout = projector_captures(dirs["target"])
+    assert layout is not None  # written just above
+    opened = [read_capture(path, load=False) for _, path in layout]
+    sets = projector_target_observations(opened, refine_marks=True)
+    calibs, _ = calibrate_projectors_from_observations(
+        sets, projector_sizes=[tuple(c.manifest["projector"]["size"]) for c in opened],
+        surface=TargetGeometry().signed_distance, target=TargetGeometry())
+    names = [f"rig_{name}.json" for name, _ in layout]
+    with atomic_directory(out / "calib", marker=tuple(names)) as tmp:
+        for file, calib in zip(names, calibs, strict=True):
+            save_calibration(tmp / file, calib)
+    job = out / "job"
+    summary = process_capture(dirs["finger"], out / "calib" / "rig.json", job, wsq=False)
+    report = write_report(job, progress=False)
+    # the nail-to-nail width the scans see, both projectors against the first alone
+    scans, projectors, _ = load_scan_dirs([job / "scans"])
+    captures = projector_captures(dirs["finger"])
+    assert captures is not None and projectors is not None
+    truths = [read_truth(captures[k][1], str(s.name).rsplit("-p", 1)[0])
+              for s, k in zip(scans, projectors, strict=True)]
+    seen = [(s.mask, t["param_u"], t["param_v"]) for s, t in zip(scans, truths, strict=True)]
+    both = rolled_coverage(finger, seen, pitch_mm=0.2)
+    one = rolled_coverage(finger, [x for x, k in zip(seen, projectors, strict=True) if k == 0],
+                          pitch_mm=0.2)
+    return {
+        "layout": PROJECTOR_LAYOUT, "scale": PROJECTOR_SCALE,
+        "captures": {k: str(v) for k, v in dirs.items()},
+        "calibration": [str(out / "calib" / n) for n in names],
+        "job": str(job), "report": str(report),
+        "coverage": {"width_median": both["width_median"],
+                     "first_projector_width_median": one["width_median"]},
+        "merge": {key: {"kind": m.get("kind"), "pairs": m["pairs"],
+                        "distance_mm": m["distance_mm"]}
+                  for key, m in summary["merge"].items()},
+        "print": summary.get("print"),
+        "outputs": [str(out / "calib" / n) for n in names]
+        + [str(job / "process.json"), str(report)],
+    }
 
 
 def _unroll_demo(scans, capture_dir, out: Path, *, figures: bool) -> dict:
@@ -367,6 +444,19 @@ def format_summary(result: dict) -> str:
                 f"{1000 * m['displacement_mm']['p95']:9.0f} µm"
                 f"{100 * m['period_ratio']['median_abs_deviation']:11.2f}%"
                 f"{100 * m['distortion']['length']['p95']:16.1f}%{m['seconds']:8.2f}")
+    if result.get("projectors"):
+        pj = result["projectors"]
+        cover = pj["coverage"]
+        lines += ["", f"Two projectors ({pj['layout']}, scale {pj['scale']:g}): the scans cover "
+                  f"{100 * cover['width_median']:.1f} % of the nail-to-nail width (one of them "
+                  f"{100 * cover['first_projector_width_median']:.1f} %); merge median / p95 "
+                  "(µm):"]
+        for key, m in pj["merge"].items():
+            d = m["distance_mm"]
+            kind = f"({m['kind'] or 'projector'})"
+            lines.append(f"  {key:<5} {kind:<12}{1000 * d['median']:6.1f} / "
+                         f"{1000 * d['p95']:5.1f}")
+        lines.append(f"  the job (scans, merge, print, report) in {pj['job']}")
     lines.append("")
     lines.append(f"outputs under {result['out']} (summary.json lists every file)")
     return "\n".join(lines)

@@ -254,7 +254,8 @@ def process_capture(
                                  final_dir=out / "merge",  # the job directory once renamed
                                  projectors=projectors if several else None,
                                  cameras=cameras if several else None)
-        summary["merge"] = {key: {k: v[k] for k in ("pairs", "distance_mm", "rejected")}
+        summary["merge"] = {key: {k: v[k] for k in ("kind", "pairs", "distance_mm", "rejected")
+                                  if k in v}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()
                                  if k != "files"}

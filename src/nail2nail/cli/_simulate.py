@@ -9,13 +9,12 @@ from pathlib import Path
 
 from nail2nail.calibration.boards import BOARD_KINDS
 from nail2nail.cli._print_target import board_from_options
-from nail2nail.io._atomic import atomic_directory, check_output_directory
-from nail2nail.io._json import dumps_json, write_json
+from nail2nail.io._json import dumps_json
 from nail2nail.io.prints import read_print_image
 from nail2nail.simulation.board_poses import simulate_board_captures
 from nail2nail.simulation.capture import _configure_rig, read_pattern_dir, simulate_capture
 from nail2nail.simulation.conditions import draw_conditions
-from nail2nail.simulation.projectors import LAYOUTS, projector_rigs
+from nail2nail.simulation.projectors import LAYOUTS, simulate_projector_captures
 from nail2nail.simulation.rig import load_rig
 from nail2nail.simulation.scenes import SCENES, make_scene
 
@@ -202,27 +201,13 @@ def _run_projectors(args, scene, rig, patterns, names, pattern_set, print_image,
         if print_image is not None:
             options = {"print_image": print_image, "print_ppi": print_ppi or 500.0}
         scene = make_scene(scene, rig=rig, seed=args.seed, **options)
-    rigs = projector_rigs(args.projectors, rig)
-    azimuths = list(LAYOUTS[args.projectors])
-    check_output_directory(args.out, marker="projectors.json")
-    captures = []
-    with atomic_directory(args.out, marker="projectors.json") as tmp:
-        for k, projector_rig in enumerate(rigs):
-            # the noise differs between the projectors' captures (seed + k), the scene not
-            manifest = simulate_capture(
-                tmp / f"p{k}", scene, rig=projector_rig, patterns=patterns,
-                pattern_names=names, pattern_set=pattern_set, seed=(args.seed + k) % 2**32,
-                write_truth=not args.no_truth, progress=True)
-            captures.append({"capture": f"p{k}", "azimuth_deg": azimuths[k],
-                             "n_frames": manifest["n_frames"]})
-        frames = sum(c["n_frames"] for c in captures)
-        layout = {"format": "nail2nail-projectors", "version": 1, "layout": args.projectors,
-                  "scene": args.scene, "captures": captures, "n_frames": frames,
-                  "capture_s_at_120_fps": round(frames / 120.0, 4),
-                  "note": "one capture per projector, the projectors shown in turn; scan each "
-                          "with its own calibration, then `nail2nail merge` / `unroll` the "
-                          "scan directories in this order"}
-        write_json(tmp / "projectors.json", layout)
+    layout = simulate_projector_captures(
+        args.out, scene, args.projectors, rig=rig, seed=args.seed, scene_name=args.scene,
+        patterns=patterns, pattern_names=names, pattern_set=pattern_set,
+        write_truth=not args.no_truth, progress=True)
+    captures = layout["captures"]
+    frames = layout["n_frames"]
+    azimuths = [c["azimuth_deg"] for c in captures]
     elapsed = time.perf_counter() - start
     summary = {"out": str(args.out), **layout, "seconds": round(elapsed, 2)}
     if args.json:

@@ -14,7 +14,7 @@ from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.io._atomic import atomic_directory, check_output_directory
 from nail2nail.io._json import write_json
 from nail2nail.simulation.capture import _configure_rig, simulate, write_capture
-from nail2nail.simulation.projectors import LAYOUTS, projector_rigs
+from nail2nail.simulation.projectors import LAYOUTS, projector_layout, projector_rigs
 from nail2nail.simulation.rig import Rig, default_rig
 from nail2nail.simulation.scenes import (
     BoardScene,
@@ -293,11 +293,8 @@ def simulate_board_captures(
                 captures.append({"capture": f"p{j}", "azimuth_deg": LAYOUTS[projectors][j]
                                  if projectors else 0.0, "n_frames": manifest["n_frames"]})
             if projectors is not None:
-                frames = sum(c["n_frames"] for c in captures)
-                write_json(Path(tmp) / name / "projectors.json", {
-                    "format": "nail2nail-projectors", "version": 1, "layout": projectors,
-                    "scene": "board", "captures": captures, "n_frames": frames,
-                    "capture_s_at_120_fps": round(frames / 120.0, 4)})
+                write_json(Path(tmp) / name / "projectors.json",
+                           projector_layout(projectors, "board", captures))
             checks = board_pose_checks(scene, rig)
             entries.append({"capture": name, "pose": list(scene.pose),
                             "R_world_board": scene.R_world_board.tolist(),

@@ -18,15 +18,18 @@ rolled print.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from nail2nail.calibration.camera_models import Pinhole
 from nail2nail.simulation.rig import Rig, default_rig
 
-__all__ = ["LAYOUTS", "projector_rigs", "rolled_coverage", "turned_projector"]
+__all__ = ["LAYOUTS", "projector_layout", "projector_rigs", "rolled_coverage",
+           "simulate_projector_captures", "turned_projector"]
 
 #: Projector azimuths of the named layouts, degrees about the finger's axis from the pad's
 #: side (``+Z``) towards ``+X``; the first projector is the thesis rig's.
@@ -128,6 +131,93 @@ def projector_rigs(layout: str | Sequence[float] = "thesis", rig: Rig | None = N
     if len(set(azimuths)) != len(azimuths):
         raise ValueError(f"layout: azimuths repeat: {azimuths}")
     return [rig if a == 0 else turned_projector(rig, a) for a in azimuths]
+
+
+def projector_layout(layout: str, scene: str, captures: list[dict]) -> dict:
+    """The content of ``projectors.json`` for a capture of several projectors.
+
+    Parameters
+    ----------
+    layout : str
+        The layout's name (:data:`LAYOUTS`).
+    scene : str
+        What was captured (``"finger"``, ``"target"``, ``"board"`` …).
+    captures : list of dict
+        Per projector, in order: ``{"capture": directory name, "azimuth_deg": float,
+        "n_frames": int}``.
+
+    Returns
+    -------
+    dict
+        ``{"format": "nail2nail-projectors", "version": 1, "layout", "scene", "captures",
+        "n_frames" (all projectors'), "capture_s_at_120_fps", "note"}``
+        (``docs/projectors.md``; :func:`nail2nail.io.capture.projector_captures` reads it).
+    """
+    frames = sum(int(c["n_frames"]) for c in captures)
+    return {"format": "nail2nail-projectors", "version": 1, "layout": layout, "scene": scene,
+            "captures": captures, "n_frames": frames,
+            "capture_s_at_120_fps": round(frames / 120.0, 4),
+            "note": "one capture per projector, the projectors shown in turn; scan each with "
+                    "its own calibration, then `nail2nail merge` / `unroll` the scan "
+                    "directories in this order (or `nail2nail process` this directory)"}
+
+
+def simulate_projector_captures(out_dir: str | os.PathLike, scene, layout: str, *,
+                                rig: Rig | None = None, seed: int = 0,
+                                scene_name: str | None = None, **capture_options) -> dict:
+    """Render one scene under every projector of a layout: ``OUT/p0``, ``OUT/p1`` … and
+    ``OUT/projectors.json`` (what ``nail2nail simulate --projectors`` writes).
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Written as a whole (:func:`nail2nail.io._atomic.atomic_directory`, marker
+        ``projectors.json``): a non-empty directory without it is refused.
+    scene : Scene
+        One scene object, so that every projector lights the same finger or target (a name
+        is made into one with `rig` and `seed`).
+    layout : str
+        A name of :data:`LAYOUTS`.
+    rig : Rig, optional
+        The one-projector rig whose projector is turned (:func:`projector_rigs`); the default
+        rig by default.
+    seed : int
+        Noise seed; projector ``k``'s capture renders with ``seed + k``.
+    scene_name : str, optional
+        The scene's name in ``projectors.json`` (default: `scene` when a name, else its
+        class's).
+    **capture_options
+        Passed to :func:`nail2nail.simulation.capture.simulate_capture` (``patterns``,
+        ``pattern_set``, ``pattern_names``, ``write_truth``, ``progress`` …).
+
+    Returns
+    -------
+    dict
+        The content of ``projectors.json`` (:func:`projector_layout`).
+    """
+    from nail2nail.io._atomic import atomic_directory, check_output_directory
+    from nail2nail.io._json import write_json
+    from nail2nail.simulation.capture import simulate_capture
+    from nail2nail.simulation.scenes import make_scene
+
+    rig = rig or default_rig()
+    name = scene_name or (scene if isinstance(scene, str) else type(scene).__name__.lower())
+    if isinstance(scene, str):
+        scene = make_scene(scene, rig=rig, seed=seed)
+    rigs = projector_rigs(layout, rig)
+    azimuths = list(LAYOUTS[layout]) if isinstance(layout, str) else list(layout)
+    check_output_directory(out_dir, marker="projectors.json")
+    captures = []
+    with atomic_directory(out_dir, marker="projectors.json") as tmp:
+        for k, projector_rig in enumerate(rigs):
+            # the noise differs between the projectors' captures (seed + k), the scene not
+            manifest = simulate_capture(Path(tmp) / f"p{k}", scene, rig=projector_rig,
+                                        seed=(seed + k) % 2**32, **capture_options)
+            captures.append({"capture": f"p{k}", "azimuth_deg": azimuths[k],
+                             "n_frames": manifest["n_frames"]})
+        content = projector_layout(str(layout), str(name), captures)
+        write_json(Path(tmp) / "projectors.json", content)
+    return content
 
 
 def rolled_coverage(scene, masks_and_params, *, pitch_mm: float = 0.1,
