@@ -74,6 +74,9 @@ def strategies() -> dict:
         "pmp-24 + compensation, yp only (--compensate-motion --use yp)":
             (default_pattern_set(), {"use": "yp", "decode_options": {"compensate_motion": True}},
              0),
+        "pmp-24 + stabilisation (frames resampled to one time from the skin's texture, "
+        "then compensated, yp: --stabilise-motion)":
+            (default_pattern_set(), {"decode_options": {"stabilise_motion": True}}, 0),
     }
 
 

@@ -75,6 +75,12 @@ def add_scan_options(p) -> None:
                    "between the steps of each phase-shift group of 4 or more steps, then the "
                    "coarser frequencies registered to the finest so that unwrapping holds "
                    "(docs/motion.md)")
+    p.add_argument("--stabilise-motion", action="store_true",
+                   help="resample a moving finger's frames so that every pixel shows one point "
+                   "of skin at the time of the finest group shown last (its motion measured "
+                   "from the skin's texture), then compensate as --compensate-motion does; the "
+                   "points are triangulated from that group's direction (yp for the default "
+                   "patterns; docs/motion.md)")
     p.add_argument("--frame", default="world", metavar="world|CAMERA",
                    help="frame of the points written (scans, super scan): 'world' (the "
                    "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
@@ -190,7 +196,8 @@ def decode_options(args: argparse.Namespace) -> dict:
             "min_albedo": args.min_albedo,
             "saturation": args.saturation, "unwrap_tolerance": 2 * math.pi * args.unwrap_tolerance,
             "erode": args.erode, "max_motion_mm": args.max_motion,
-            "compensate_motion": args.compensate_motion}
+            "compensate_motion": args.compensate_motion,
+            "stabilise_motion": args.stabilise_motion}
 
 
 def masks(args: argparse.Namespace) -> dict[str, str]:

@@ -43,6 +43,7 @@ from nail2nail.scan.results import (
     NO_POINT,
     Scan,
 )
+from nail2nail.scan.stabilise import reference_direction, stabilise_frames
 from nail2nail.scan.triangulation import (
     _check_use,
     _reconstruct_into,
@@ -400,6 +401,7 @@ def scan_capture(
     detect_motion: bool = True,
     max_motion_mm: float | None = None,
     compensate_motion: bool = False,
+    stabilise_motion: bool = False,
     **decode_options,
 ) -> list[Scan]:
     """Scan every camera of a capture that the calibration knows.
@@ -463,6 +465,13 @@ def scan_capture(
         group of 4 or more steps, and register the coarser frequencies to the finest, before
         decoding (:func:`nail2nail.scan.motion.compensate_phase_steps`; recorded in
         ``Scan.motion["compensation"]``). The motion check reads the frames as captured.
+    stabilise_motion : bool
+        First resample every frame so that each pixel shows one point of skin, at the time of
+        the reference group (the last with the most fringe periods), from the skin's texture
+        (:func:`nail2nail.scan.stabilise.stabilise_frames`; recorded in
+        ``Scan.motion["stabilisation"]``), then compensate as `compensate_motion` does, and
+        triangulate from the reference direction's phase alone (``"yp"`` for the default
+        patterns; `use` ``"xpyp"`` gives way to it, the other single direction is refused).
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -490,6 +499,9 @@ def scan_capture(
 
     _check_method(method)
     _check_use(use)
+    if stabilise_motion:
+        _require_pattern_set(capture)
+        use = _stabilised_use(use, capture.pattern_set)
     clock = StepClock()
     clock.seconds.update(read_frames=0.0, decode=0.0)
     names = capture.camera_names
@@ -520,7 +532,8 @@ def scan_capture(
         scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
                                   method=method, decode_options=decode_options, clock=clock,
                                   detect_motion=detect_motion or max_motion_mm is not None,
-                                  compensate_motion=compensate_motion))
+                                  compensate_motion=compensate_motion,
+                                  stabilise_motion=stabilise_motion))
         if name in masks:
             _apply_user_mask(scans[-1], masks[name])
         if use in ("xp", "yp"):
@@ -623,7 +636,7 @@ def _apply_user_mask(scan: Scan, mask: np.ndarray) -> None:
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
                  decode_options, clock: StepClock, detect_motion: bool = True,
-                 compensate_motion: bool = False) -> Scan:
+                 compensate_motion: bool = False, stabilise_motion: bool = False) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
@@ -639,10 +652,14 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     clock("read_frames")
     options = dict(decode_options, max_gradient=gradient_limit(max_gradient, frames.shape))
     measured = frames
-    compensation = None
-    if compensate_motion:
-        saturation = options.get("saturation", SATURATION)
-        top = (2 ** capture.bit_depth - 1) if not cached and capture.bit_depth else 1.0
+    compensation = stabilisation = None
+    saturation = options.get("saturation", SATURATION)
+    top = (2 ** capture.bit_depth - 1) if not cached and capture.bit_depth else 1.0
+    if stabilise_motion:
+        frames, stabilisation = stabilise_frames(frames, capture.pattern_set,
+                                                 saturation=saturation * top)
+        clock("stabilise")
+    if compensate_motion or stabilise_motion:
         frames, compensation = compensate_phase_steps(frames, capture.pattern_set, None,
                                                       saturation=saturation * top)
         clock("compensate")
@@ -657,8 +674,22 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
         clock("motion")
     if compensation is not None:
         scan.motion = {**(scan.motion or {}), "compensation": compensation}
+    if stabilisation is not None:
+        scan.motion = {**(scan.motion or {}), "stabilisation": stabilisation}
     scan.fringe_periods = fringe_periods(capture.pattern_set)
     return scan
+
+
+def _stabilised_use(use: str, pattern_set) -> str:
+    """The projector coordinate a stabilised capture is triangulated from: the reference
+    group's direction (:func:`~nail2nail.scan.stabilise.reference_direction`); ``"xpyp"``
+    gives way to it, the other direction alone is refused."""
+    wanted = reference_direction(pattern_set) + "p"
+    if use not in ("xpyp", wanted):
+        raise ValueError(f"use={use!r}: a stabilised capture is triangulated from {wanted!r}, "
+                         f"the phase of the group it is stabilised to (the other direction's "
+                         f"is its skin at another time)")
+    return wanted
 
 
 def _require_pattern_set(capture) -> None:

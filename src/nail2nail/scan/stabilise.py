@@ -1,0 +1,347 @@
+"""A moving finger's frames brought to one time: the skin held still under the pixels.
+
+Phase shifting fits each pixel's intensities to ``a + b cos(φ + δ_k)``. On a trembling finger
+(8–12 Hz, 100 µm RMS moves the skin by about a pixel between steps at 120 frames per second)
+the skin's texture, the albedo's ridges and the relief's shading, slides under the pixel while
+the steps are shown, so ``a`` and ``b`` are not constant and the fitted phase takes an error
+that follows the ridges: on the virtual scanner it is most of a moving finger's shape error
+(``bench/motion_texture.py``: 27.6 µm after alignment with the ridges, 5.3 µm on the same
+finger without them). :func:`~nail2nail.scan.motion.compensate_phase_steps` corrects the
+fringes' phase offsets between steps but not that; :func:`stabilise_frames` does:
+
+1. **Texture images without fringes**: the mean of each 3-step group (the DC image, exact for
+   harmonics below 3) and, in a group of an even number ``N ≥ 4`` of steps, the mean of every
+   pair of opposite steps ``k, k + N/2`` (their fringes cancel, odd harmonics too) and, when
+   3 divides ``N``, of every triple ``k, k + N/3, k + 2N/3``: each the average of known
+   frames. The remaining fringe (motion between the two steps, even
+   harmonics) is notched out at the group's fringe frequency, the shading by a band-pass.
+2. **Their motion**: each texture image registered to one anchor (a 3-step group's mean: no
+   fine fringe left in it), as one affine map per image (six
+   numbers, Lucas–Kanade over every valid pixel: a rigid motion of a finger seen by one camera
+   is affine to within what it changes the result; the true motion reduced to an affine map
+   per frame gives the same figures as itself, ``bench/motion_texture.py``), then all of them
+   moved so that the mean of the reference group's images (the last group with the most
+   fringe periods: the geometry's) is the identity.
+3. **The motion of every frame**: the smoothest trajectory of the affine maps over the frames
+   (least second differences) whose averages over each image's frames are the measured maps.
+4. **The frames resampled** at the skin's position at the reference time (``I_k(x + d_k(x))``,
+   bilinear), and each group's pixels fitted again with the shift the resampling itself puts
+   in the fringes, ``δ_k + ∇φ · (d_k − d̄)`` (``d̄`` the group's mean motion), so that the
+   phase a pixel reads is that of the skin point it shows at the reference time, at the
+   group's mean time; the frames re-synthesised with the nominal shifts.
+
+Every pixel then shows one point of skin in every frame: the projector coordinates of both
+directions are the same skin point's (so two cameras' pairs in projector space are the same
+points, ``docs/motion.md``), and the camera ray is that point's at the reference group's time,
+with whose phase alone the point is triangulated (``use="yp"`` for the default patterns: the
+other direction's phase is that skin point's at another time, another pose).
+
+Conventions: frame indices are time (equally spaced frames); displacements ``(dy, dx)`` in
+camera pixels, ``dy`` along rows, of where a pixel's skin is in a frame relative to where it
+is at the reference time; the affine map of an image is ``d(x) = P · (1, x̂, ŷ)`` with
+``x̂ = (col − W/2) / W``, ``ŷ = (row − H/2) / H``.
+
+References
+----------
+Lucas and Kanade, "An iterative image registration technique with an application to stereo
+vision", IJCAI 1981 (the affine registration); the motion-induced phase errors of phase
+shifting and their compensation from the frames: Weise, Leibe and Van Gool, "Fast 3D scanning
+with automatic motion compensation", CVPR 2007; Lu, Yin, Zhang and Wang, "Motion induced error
+reduction methods for phase shifting profilometry: a review", Opt. Lasers Eng. 141, 106573
+(2021), doi:10.1016/j.optlaseng.2021.106573.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from nail2nail.scan.motion import dc_groups
+from nail2nail.scan.patterns import PatternSet, frame_table
+
+__all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "reference_direction",
+           "stabilise_frames"]
+
+#: Band-pass of the texture images, σ of the difference of Gaussians, camera px: keeps the
+#: ridges (7–16 px per period from half to full resolution on the thesis rig), leaves out the
+#: shading
+STABILISE_BAND_PX = (1.0, 4.0)
+#: Radius of the notches at the fringe frequency and its harmonics, cycles per px
+NOTCH_RADIUS = 0.015
+#: Gauss–Newton iterations of each image's affine registration
+ITERATIONS = 12
+#: Smallest normalised correlation of a texture image with the anchor once registered: below
+#: it the skin shows too little texture (no ridges, noise alone) for its motion to be
+#: measured, and the frames are returned as they are (``info["skipped"]``)
+MIN_TEXTURE_CORRELATION = 0.5
+
+
+def _phase_groups(pattern_set: PatternSet) -> list[tuple[str, list[int]]]:
+    table = frame_table(pattern_set)
+    return [(label, idx) for label, idx in dc_groups(pattern_set)
+            if table[idx[0]].kind == "phase"]
+
+
+def reference_direction(pattern_set: PatternSet) -> str:
+    """The direction (``"x"`` or ``"y"``) of the group the frames are stabilised to: the last
+    in time of the groups with the most fringe periods."""
+    table = frame_table(pattern_set)
+    groups = _phase_groups(pattern_set)
+    if not groups:
+        raise ValueError("stabilise_frames: the pattern set has no phase-shift group")
+    most = max(table[idx[0]].periods for _, idx in groups)
+    return str([table[idx[0]].direction for _, idx in groups
+                if table[idx[0]].periods == most][-1])
+
+
+def _fit(stack: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """Per pixel least squares ``a, C, S`` of ``a + C cos δ − S sin δ`` with each pixel's own
+    shifts; `stack` ``(N, H, W)``, `shifts` ``(N, H, W)`` or ``(N, 1, 1)``."""
+    shifts = np.broadcast_to(shifts, stack.shape)
+    basis = np.stack([np.ones_like(shifts), np.cos(shifts), -np.sin(shifts)])
+    normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
+    rhs = np.einsum("ikhw,khw->hwi", basis, stack)
+    return np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
+
+
+def _phase_gradient(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``∂φ/∂row, ∂φ/∂col`` (rad per px) of ``φ = atan2(S, C)``, central differences of the
+    wrapped phase; 0 on the image's border."""
+    z = c + 1j * s
+    gy, gx = np.zeros(c.shape), np.zeros(c.shape)
+    gy[1:-1] = np.angle(z[2:] * np.conj(z[:-2])) / 2
+    gx[:, 1:-1] = np.angle(z[:, 2:] * np.conj(z[:, :-2])) / 2
+    return gy, gx
+
+
+def _notch(shape, frequency, radius: float = NOTCH_RADIUS, harmonics: int = 3) -> np.ndarray:
+    """Multiplicative notch filter (DFT layout) at ``± h · frequency`` (cycles per px, ``(fy,
+    fx)``), ``h = 1 … harmonics``."""
+    fy = np.fft.fftfreq(shape[0])[:, None]
+    fx = np.fft.fftfreq(shape[1])[None, :]
+    out = np.ones(shape)
+    for h in range(1, harmonics + 1):
+        for sign in (1, -1):
+            out *= 1 - np.exp(-((fy - sign * h * frequency[0]) ** 2
+                                + (fx - sign * h * frequency[1]) ** 2) / (2 * radius**2))
+    return out
+
+
+def _fringe_frequency(c: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+    """The peak of the fringe image's spectrum, ``(fy, fx)`` cycles per px."""
+    spectrum = np.abs(np.fft.fft2(np.where(valid, c, 0.0)))
+    spectrum[0, 0] = 0
+    row, col = np.unravel_index(int(np.argmax(spectrum)), spectrum.shape)
+    return float(np.fft.fftfreq(c.shape[0])[row]), float(np.fft.fftfreq(c.shape[1])[col])
+
+
+def _affine_basis(shape) -> np.ndarray:
+    h, w = shape
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    return np.stack([np.ones((h, w)), (cols - w / 2) / w, (rows - h / 2) / h])
+
+
+def _warp(image: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """``image(row + dy, col + dx)``, bilinear, edges repeated."""
+    h, w = image.shape
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    return ndi.map_coordinates(image, [rows + dy, cols + dx], order=1, mode="nearest")
+
+
+def _register_affine(image: np.ndarray, reference: np.ndarray, weight: np.ndarray,
+                     basis: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
+    """``(2, 3)`` affine map ``P`` with ``image(x + P·b(x)) ≈ reference(x)`` (Gauss–Newton,
+    weighted least squares over the pixels; row 0 ``dy``, row 1 ``dx``)."""
+    params = np.zeros((2, 3))
+    sel = weight > 0
+    w = weight[sel]
+    b = basis[:, sel]
+    for _ in range(iterations):
+        d = np.einsum("jb,bhw->jhw", params, basis)
+        moved = _warp(image, d[0], d[1])
+        gy, gx = np.gradient(moved)
+        jac = np.concatenate([gy[sel] * b, gx[sel] * b])  # (6, P)
+        residual = reference[sel] - moved[sel]
+        normal = (jac * w) @ jac.T
+        normal += 1e-6 * np.trace(normal) / 6 * np.eye(6)
+        step = np.linalg.solve(normal, (jac * w) @ residual).reshape(2, 3)
+        params += np.clip(step, -2.0, 2.0)
+        if np.max(np.abs(step)) < 1e-4:
+            break
+    return params
+
+
+def _fringe_free_sets(idx: list[int]) -> list[list[int]]:
+    """The sets of a group's frames (`idx`, ``N`` equally spaced steps) whose mean has no
+    fringe: the whole group if ``N = 3``; every pair of opposite steps ``k, k + N/2`` (the
+    first harmonic and every odd one cancel) and, if 3 divides ``N``, every triple
+    ``k, k + N/3, k + 2N/3`` (the first two harmonics cancel)."""
+    n = len(idx)
+    if n == 3:
+        return [list(idx)]
+    sets = [[idx[k], idx[k + n // 2]] for k in range(n // 2)]
+    if n % 3 == 0:
+        sets += [[idx[k], idx[k + n // 3], idx[k + 2 * n // 3]] for k in range(n // 3)]
+    return sets
+
+
+#: Weight of the trajectory's curvature against its fit to the images' displacements
+#: (:func:`_trajectory`): small, so that the images' averages are met and the curvature only
+#: fills in what they leave open
+SMOOTHING = 1e-3
+
+
+def _trajectory(n_frames: int, members: list[list[int]], observed: np.ndarray) -> np.ndarray:
+    """Per-frame values ``(n_frames, …)`` whose averages over each image's frames (`members`)
+    are `observed` ``(n_images, …)``, of least curvature (second differences) in between: the
+    minimum-curvature interpolation of averages, which extrapolates linearly past the last
+    image (a cubic spline through the images' mean times would not honour that an image of
+    two opposite steps three frames apart is their average, not the motion at their mean
+    time)."""
+    design = np.zeros((len(members), n_frames))
+    for row, frames in enumerate(members):
+        design[row, frames] = 1.0 / len(frames)
+    curvature = np.diff(np.eye(n_frames), n=2, axis=0)
+    flat = observed.reshape(len(members), -1)
+    normal = design.T @ design + SMOOTHING * curvature.T @ curvature
+    solved = np.linalg.solve(normal, design.T @ flat)
+    return solved.reshape((n_frames, *observed.shape[1:]))
+
+
+def stabilise_frames(frames, pattern_set: PatternSet, *,
+                     saturation: float | None = None) -> tuple[np.ndarray, dict]:
+    """Frames of a moving finger resampled so that every pixel shows one point of skin.
+
+    Parameters
+    ----------
+    frames : (n_frames, H, W) array
+        One camera's frames (integer values or floats), in the order shown; not modified.
+    pattern_set : PatternSet
+        A PMP pattern set whose phase-shift groups have 3 steps or an even number ≥ 4 (other
+        sets, and sets without such a group, are returned as they are).
+    saturation : float, optional
+        Frame value at or above which a pixel counts as unlit (it takes no part in the
+        registration; a pixel whose skin is there in any frame is left dark).
+
+    Returns
+    -------
+    frames : (n_frames, H, W) array of the input's dtype
+        Resampled at the skin's position at the reference group's mean time, each group
+        re-synthesised with its nominal shifts; 0 at pixels whose skin is outside the lit,
+        unsaturated pixels (every group's fringe amplitude and mean at least 2 % of the
+        frames' largest value) or the image in any frame.
+    info : dict
+        ``"reference"`` (the group's label), ``"direction"`` (its direction: triangulate from
+        that direction's phase), ``"samples"``: per texture image its time (frame index) and
+        mean displacement ``(dy, dx)`` px over the valid pixels; ``"frames_px"``: per frame
+        the mean displacement; ``"spread_px"``: the largest distance between two frames' mean
+        displacements.
+    """
+    frames = np.asarray(frames)
+    info: dict = {"reference": None, "direction": None, "samples": [], "frames_px": [],
+                  "spread_px": 0.0}
+    groups = _phase_groups(pattern_set) if pattern_set.scheme == "pmp" else []
+    if not groups or any(len(idx) != 3 and (len(idx) < 4 or len(idx) % 2) for _, idx in groups):
+        return frames.copy(), info
+    table = frame_table(pattern_set)
+    n_frames, height, width = frames.shape
+    values = frames.astype(np.float64)
+    full = float(values.max()) if values.size else 1.0
+    band = STABILISE_BAND_PX
+
+    # 1. each group's fit, its valid pixels and texture images
+    fits, textures = {}, []  # textures: (time, image, group label, frames averaged)
+    valid_all = np.ones((height, width), bool)
+    for label, idx in groups:
+        nominal = np.array([table[i].shift for i in idx])[:, None, None]
+        a, c, s = _fit(values[idx], nominal)
+        valid = (np.hypot(c, s) >= 0.02 * full) & (a >= 0.02 * full)
+        if saturation is not None:
+            valid &= (values[idx] < saturation).all(axis=0)
+        valid_all &= valid
+        fits[label] = (idx, nominal, c, s, valid)
+        notch = _notch((height, width), _fringe_frequency(c, valid))
+
+        def clean(image, notch=notch):
+            banded = ndi.gaussian_filter(image, band[0]) - ndi.gaussian_filter(image, band[1])
+            return np.real(np.fft.ifft2(np.fft.fft2(banded) * notch))
+
+        for members in _fringe_free_sets(idx):
+            textures.append((float(np.mean(members)), clean(values[members].mean(axis=0)),
+                             label, members))
+    weight = ndi.binary_erosion(valid_all, iterations=8).astype(np.float64)
+    if weight.sum() < 1000:
+        return frames.copy(), info
+    most = max(table[idx[0]].periods for _, idx in groups)
+    reference = [label for label, idx in groups if table[idx[0]].periods == most][-1]
+    info["reference"] = reference
+    info["direction"] = table[fits[reference][0][0]].direction
+
+    # 2. every texture image's affine motion against the reference group's mean texture
+    basis = _affine_basis((height, width))
+    # every image is registered to one anchor, then the reference group's mean is made 0. The
+    # anchor is a 3-step group's mean, whose fringes are coarse: an opposite-step pair of a
+    # fine group keeps a little of its fringe where the finger moved between the two steps,
+    # and two pairs of one group (or an average holding the image itself) would pull each
+    # other's displacement across the fringes towards their own
+    in_reference = [i for i, (_, _, label, _) in enumerate(textures) if label == reference]
+    t_ref = float(np.mean([textures[i][0] for i in in_reference]))
+    direction = info["direction"]
+    candidates = ([i for i, (_, _, label, _) in enumerate(textures) if len(fits[label][0]) == 3]
+                  or [i for i, (_, _, label, _) in enumerate(textures)
+                      if table[fits[label][0][0]].direction != direction]
+                  or in_reference)
+    anchor = textures[min(candidates, key=lambda i: abs(textures[i][0] - t_ref))][1]
+    times = np.array([t for t, _, _, _ in textures])
+    params = np.stack([_register_affine(image, anchor, weight, basis)
+                       for _, image, _, _ in textures])  # (n_images, 2, 3)
+    # how well each image matches the anchor once moved: skin without ridges (or noise
+    # alone) gives a "motion" that is anywhere, and no image is resampled with it
+    sel = weight > 0
+    correlation = []
+    for (_, image, _, _), p in zip(textures, params, strict=True):
+        d = np.einsum("jb,bhw->jhw", p, basis)
+        moved = _warp(image, d[0], d[1])[sel]
+        correlation.append(float(np.dot(moved, anchor[sel]) / max(
+            np.linalg.norm(moved) * np.linalg.norm(anchor[sel]), 1e-12)))
+    info["correlation"] = [round(c, 3) for c in correlation]
+    if min(correlation) < MIN_TEXTURE_CORRELATION:
+        info["skipped"] = (f"the skin's texture does not register (correlation "
+                           f"{min(correlation):.2f} < {MIN_TEXTURE_CORRELATION})")
+        return frames.copy(), info
+    params -= params[in_reference].mean(axis=0)
+
+    # 3. every frame's motion: the smoothest trajectory whose averages are the images'
+    per_frame = _trajectory(n_frames, [members for _, _, _, members in textures], params)
+    mean_d = np.einsum("kjb,b->kj", per_frame, basis[:, sel].mean(axis=1))  # (n_frames, 2)
+    info["samples"] = [{"time": round(float(t), 2),
+                        "mean_px": [round(float(v), 3)
+                                    for v in p @ basis[:, sel].mean(axis=1)]}
+                       for t, p in zip(times, params, strict=True)]
+    info["frames_px"] = [[round(float(v), 3) for v in row] for row in mean_d]
+    info["spread_px"] = round(float(np.max(np.linalg.norm(
+        mean_d[:, None] - mean_d[None], axis=-1))), 3)
+
+    # 4. resample, fit each group with the resampling's fringe shift, re-synthesise; a pixel
+    # whose skin lies outside the lit, unsaturated pixels in any frame (the moving silhouette,
+    # the image's border) is left dark: the decoder drops it rather than read a mixture
+    out = values.copy()
+    inside = np.ones((height, width), bool)
+    lit = valid_all.astype(np.float64)
+    for k in range(n_frames):
+        d = np.einsum("jb,bhw->jhw", per_frame[k], basis)
+        rows_k = np.arange(height)[:, None] + d[0]
+        cols_k = np.arange(width)[None, :] + d[1]
+        inside &= (rows_k >= 0) & (rows_k <= height - 1) & (cols_k >= 0) & (cols_k <= width - 1)
+        inside &= _warp(lit, d[0], d[1]) >= 1.0 - 1e-9
+    for idx, nominal, c, s, _ in fits.values():
+        d = np.einsum("kjb,bhw->kjhw", per_frame[idx], basis)  # (N, 2, H, W)
+        moved = np.stack([_warp(values[k], d[j, 0], d[j, 1]) for j, k in enumerate(idx)])
+        gy, gx = _phase_gradient(c, s)
+        dev = d - d.mean(axis=0, keepdims=True)
+        a2, c2, s2 = _fit(moved, nominal + gy * dev[:, 0] + gx * dev[:, 1])
+        synthetic = a2 + c2 * np.cos(nominal) - s2 * np.sin(nominal)
+        out[idx] = np.where(inside, synthetic, 0.0)
+    if np.issubdtype(frames.dtype, np.integer):
+        out = np.clip(np.rint(out), 0, np.iinfo(frames.dtype).max)
+    return out.astype(frames.dtype), info

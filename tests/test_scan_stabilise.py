@@ -1,0 +1,147 @@
+"""Stabilising a moving finger's frames (:mod:`nail2nail.scan.stabilise`): the skin's motion
+measured from its texture, the frames resampled to one time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+
+from nail2nail.io.capture import read_capture
+from nail2nail.scan.capture import scan_capture
+from nail2nail.scan.patterns import Frequency, PatternSet, default_pattern_set, frame_table
+from nail2nail.scan.stabilise import _trajectory, reference_direction, stabilise_frames
+
+H, W = 240, 320
+#: the finest fringe's period, px (the thesis rig's at half resolution: 12–14 px)
+FINE_PX = 13.0
+
+
+def _trajectory_px(n_frames: int, amplitude: float) -> np.ndarray:
+    """A smooth tremor-like path ``(n_frames, 2)`` (dy, dx) of the skin, px."""
+    t = np.arange(n_frames, dtype=float)
+    return amplitude * np.stack([np.sin(2 * np.pi * t / 12 + 0.4),
+                                 0.6 * np.cos(2 * np.pi * t / 10 + 1.0)], axis=1)
+
+
+def _frames(pattern_set: PatternSet, path: np.ndarray, *, contrast: float = 0.15, seed: int = 0):
+    """Frames of a ridge-like texture carried along `path` (each frame's (dy, dx) px) under
+    fringes fixed to the projector: ``I_k = ρ(x − d_k) (0.15 + 0.7 L_k(x))``, 8-bit, noise 1
+    grey level. Returns the frames and the phase of the finest fringe of each direction."""
+    rng = np.random.default_rng(seed)
+    noise = ndi.gaussian_filter(rng.standard_normal((H + 40, W + 40)), 1.5)
+    texture = 1.0 + contrast * noise / noise.std()
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    table = frame_table(pattern_set)
+    most = max(row.periods for row in table)
+    out = []
+    for row, (dy, dx) in zip(table, path, strict=True):
+        rho = ndi.shift(texture, (dy, dx), order=3, mode="nearest")[20:20 + H, 20:20 + W]
+        axis = xx if row.direction == "x" else yy
+        phase = 2 * np.pi * axis / FINE_PX * row.periods / most
+        light = 0.5 + 0.5 * np.cos(phase + row.shift)
+        out.append(150 * rho * (0.15 + 0.7 * light) + rng.normal(0, 1.0, (H, W)))
+    fine = {d: 2 * np.pi * (xx if d == "x" else yy) / FINE_PX for d in ("x", "y")}
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8), fine
+
+
+def _group_phase(frames, pattern_set, direction):
+    """Wrapped phase of the direction's finest group (least squares over its steps)."""
+    table = frame_table(pattern_set)
+    most = max(row.periods for row in table)
+    idx = [r.index for r in table if r.direction == direction and r.periods == most]
+    d = np.array([table[i].shift for i in idx])
+    design = np.stack([np.ones_like(d), np.cos(d), -np.sin(d)], -1)
+    coef = np.tensordot(np.linalg.pinv(design), frames[idx].astype(float), axes=(1, 0))
+    return np.arctan2(coef[2], coef[1])
+
+
+def _wrapped_rms(a, b, inner):
+    return float(np.sqrt(np.mean(np.angle(np.exp(1j * (a - b)))[inner] ** 2)))
+
+
+INNER = (slice(30, H - 30), slice(30, W - 30))
+
+
+def test_the_reference_is_the_last_finest_group():
+    assert reference_direction(default_pattern_set()) == "y"
+    xs = PatternSet(x=(Frequency(1, 3), Frequency(16, 4)), y=(Frequency(1, 3), Frequency(8, 4)),
+                    gamma=None)
+    assert reference_direction(xs) == "x"  # the most periods win over the later group
+
+
+def test_the_trajectory_meets_averages_and_extrapolates_linearly():
+    truth = 0.3 * np.arange(10.0) - 1.0  # linear: the least-curvature path through its averages
+    members = [[0, 1, 2], [3, 6], [4, 7], [5, 8], [9]]
+    observed = np.array([truth[m].mean() for m in members])
+    np.testing.assert_allclose(_trajectory(10, members, observed), truth, atol=1e-3)
+
+
+def test_moving_texture_is_measured_and_held_still():
+    pattern_set = default_pattern_set()
+    path = _trajectory_px(pattern_set.n_frames, 1.2)
+    frames, fine = _frames(pattern_set, path)
+    out, info = stabilise_frames(frames, pattern_set)
+    assert info["reference"] == "y/64" and info["direction"] == "y"
+    assert "skipped" not in info and min(info["correlation"]) > 0.9
+    # the motion relative to the reference group's mean, every frame
+    expected = path - path[18:24].mean(axis=0)
+    measured = np.array(info["frames_px"])
+    assert np.sqrt(np.mean((measured - expected) ** 2)) < 0.12
+    # the reference direction's phase: the sliding texture's error is gone
+    before = _wrapped_rms(_group_phase(frames, pattern_set, "y"), fine["y"], INNER)
+    after = _wrapped_rms(_group_phase(out, pattern_set, "y"), fine["y"], INNER)
+    assert after < 0.5 * before and after < 0.03
+    assert out.dtype == frames.dtype and out.shape == frames.shape
+
+
+def test_still_frames_are_left_as_they_are():
+    pattern_set = default_pattern_set()
+    frames, fine = _frames(pattern_set, np.zeros((pattern_set.n_frames, 2)))
+    out, info = stabilise_frames(frames, pattern_set)
+    assert np.abs(np.array(info["frames_px"])).max() < 0.03 and info["spread_px"] < 0.05
+    for direction in ("x", "y"):
+        before = _wrapped_rms(_group_phase(frames, pattern_set, direction), fine[direction], INNER)
+        after = _wrapped_rms(_group_phase(out, pattern_set, direction), fine[direction], INNER)
+        assert after < before + 0.003
+    # the frames differ by the noise the per-pixel fit leaves out (σ 1 grey level, 3 of 6
+    # steps' degrees of freedom in the fine groups, none in the 3-step ones) and rounding
+    diff = out[:, 40:-40, 40:-40].astype(float) - frames[:, 40:-40, 40:-40]
+    assert np.sqrt(np.mean(diff**2)) < 0.8 and np.abs(diff).max() <= 6
+
+
+def test_skin_without_texture_is_not_resampled():
+    pattern_set = default_pattern_set()
+    frames, _ = _frames(pattern_set, _trajectory_px(pattern_set.n_frames, 1.0), contrast=0.0)
+    out, info = stabilise_frames(frames, pattern_set)
+    assert "does not register" in info["skipped"]
+    assert np.array_equal(out, frames)
+
+
+@pytest.mark.parametrize("pattern_set", [
+    PatternSet(x=(Frequency(1, 3), Frequency(8, 5)), y=(Frequency(1, 3),), gamma=None),
+    PatternSet(scheme="gray", x=(Frequency(320, 4),), y=(), gamma=None),
+])
+def test_pattern_sets_it_cannot_stabilise_are_returned(pattern_set):
+    frames = np.random.default_rng(0).integers(0, 255, (pattern_set.n_frames, 40, 50),
+                                               dtype=np.uint8)
+    out, info = stabilise_frames(frames, pattern_set)
+    assert info["reference"] is None and np.array_equal(out, frames)
+
+
+def test_scan_capture_stabilised_triangulates_from_the_reference_direction(tmp_path):
+    from nail2nail.calibration.files import RigCalibration
+    from nail2nail.simulation.capture import simulate_capture
+    from nail2nail.simulation.rig import default_rig, ideal_calibration
+    from nail2nail.simulation.scenes import make_scene
+
+    rig = default_rig(0.125)
+    simulate_capture(tmp_path / "cap", make_scene("finger", rig=rig, seed=3), rig=rig, seed=2)
+    calib = RigCalibration.from_dict(ideal_calibration(rig))
+    capture = read_capture(tmp_path / "cap", load=False)
+    scans = scan_capture(capture, calib, stabilise_motion=True)
+    for scan in scans:
+        assert "stabilisation" in scan.motion and "compensation" in scan.motion
+        assert np.isfinite(scan.xyz[scan.mask]).all() and scan.mask.any()
+    with pytest.raises(ValueError, match="triangulated from 'yp'"):
+        scan_capture(capture, calib, stabilise_motion=True, use="xp")
