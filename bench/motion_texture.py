@@ -31,6 +31,8 @@ Usage::
 
     .venv/bin/python bench/motion_texture.py [--amplitude 100] [--scale 0.5]
         [--out bench-output/motion_texture]
+    # held out: random conditions, each its own tremor; compensation against stabilisation
+    .venv/bin/python bench/motion_texture.py --conditions 6 --seed0 600
 
 Cost (half resolution, two cores): four captures of every frame intersected anew, about
 5 minutes each on one core (two at a time), then ten ``process`` jobs of about a minute.
@@ -75,15 +77,24 @@ def simulate_one(job: dict) -> str:
     out = Path(job["dir"])
     if (out / "capture.json").is_file():
         return str(out)
-    rig = default_rig(job["scale"])
-    scene = make_scene("finger", rig=rig, seed=FINGER_SEED, **job["scene"])
+    seed, motion_seed = FINGER_SEED, MOTION_SEED
+    if job.get("condition") is None:
+        rig = default_rig(job["scale"])
+        scene = make_scene("finger", rig=rig, seed=seed, **job["scene"])
+    else:  # a random condition of the virtual scanner, its own tremor
+        from nail2nail.simulation.conditions import draw_conditions
+
+        seed = motion_seed = job["condition"]
+        cond = draw_conditions(seed)
+        rig = cond.rig(job["scale"])
+        scene = make_scene("finger", rig=rig, seed=seed, **cond.finger_options())
     motion = tremor(24, amplitude_mm=job["amplitude_um"] / 1000, blur_steps=2,
-                    exposure_s=1 / 240, seed=MOTION_SEED) if job["moving"] else None
+                    exposure_s=1 / 240, seed=motion_seed) if job["moving"] else None
     pattern_set = default_pattern_set()
     t0 = time.perf_counter()
     sim = simulate(scene, rig=rig, patterns=make_patterns(pattern_set), pattern_set=pattern_set,
-                   seed=FINGER_SEED, motion=motion, motion_cache={})
-    write_capture(out, sim, seed=FINGER_SEED)
+                   seed=seed, motion=motion, motion_cache={})
+    write_capture(out, sim, seed=seed)
     log(f"simulated {out.parent.name}: {time.perf_counter() - t0:.0f} s")
     return str(out)
 
@@ -196,7 +207,12 @@ def process_one(job: dict) -> dict:
 
     capture_dir, job_dir = Path(job["capture"]), Path(job["dir"])
     if not (job_dir / "process.json").is_file():
-        calib = RigCalibration.from_dict(ideal_calibration(default_rig(job["scale"])))
+        rig = default_rig(job["scale"])
+        if job.get("condition") is not None:
+            from nail2nail.simulation.conditions import draw_conditions
+
+            rig = draw_conditions(job["condition"]).rig(job["scale"])
+        calib = RigCalibration.from_dict(ideal_calibration(rig))
         options: dict = {"decode_options": {"compensate_motion": True}}
         if job["use"] == "yp":
             options["use"] = "yp"
@@ -218,8 +234,15 @@ def main(argv=None) -> int:
     p.add_argument("--scale", type=float, default=0.5)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("bench-output/motion_texture"))
+    p.add_argument("--conditions", type=int, default=0,
+                   help="instead: this many random conditions of the virtual scanner (seeds "
+                   "from --seed0, each its own tremor), the compensation against the "
+                   "stabilisation")
+    p.add_argument("--seed0", type=int, default=600)
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.conditions:
+        return held_out(args)
     jobs = [{"dir": str(args.out / name.replace(" ", "_") / "capture"), "scene": scene,
              "moving": moving, "amplitude_um": args.amplitude, "scale": args.scale}
             for name, (scene, moving) in CAPTURES.items()]
@@ -257,6 +280,42 @@ def main(argv=None) -> int:
         c = by[(key, "stabilised")]
         print(f"| {labels[key]}, `--stabilise-motion` (yp) | {c['aligned']['rms_um']:.1f} "
               f"(p95 {c['aligned']['p95_um']:.1f}) | {c['merge_median_um']:.1f} |")
+    return 0
+
+
+def held_out(args) -> int:
+    """Random conditions (optics, skin, finger, print, pose) each trembling with its own
+    trajectory: ``--compensate-motion`` (both directions and ``yp``) against
+    ``--stabilise-motion``."""
+    seeds = range(args.seed0, args.seed0 + args.conditions)
+    jobs = [{"dir": str(args.out / f"c{seed}" / "capture"), "scene": {}, "moving": True,
+             "condition": seed, "amplitude_um": args.amplitude, "scale": args.scale}
+            for seed in seeds]
+    with ProcessPoolExecutor(args.workers) as pool:
+        captures = list(pool.map(simulate_one, jobs))
+    work = [{"row": seed, "capture": path, "use": use, "scale": args.scale, "condition": seed,
+             "dir": str(Path(path).parent / f"job_{use}")}
+            for seed, path in zip(seeds, captures, strict=True)
+            for use in ("xpyp", "yp", "stabilised")]
+    with ProcessPoolExecutor(args.workers) as pool:
+        results = list(pool.map(process_one, work))
+    (args.out / "held_out.json").write_text(json.dumps(results, indent=1))
+    by = {(r["row"], r["use"]): r for r in results}
+    print(f"\nRandom conditions {args.seed0}–{args.seed0 + args.conditions - 1}, tremor "
+          f"{args.amplitude:g} µm RMS, scale {args.scale:g}: 3D RMS after alignment / merge "
+          "median of the worst pair, µm\n")
+    print("| condition | --compensate-motion | --compensate-motion --use yp | "
+          "--stabilise-motion |")
+    print("| --- | --- | --- | --- |")
+    for seed in seeds:
+        rows = [by[(seed, u)] for u in ("xpyp", "yp", "stabilised")]
+        cells = [f"{r['aligned']['rms_um']:.1f} / {r['merge_median_um']:.1f}" for r in rows]
+        print(f"| {seed} | " + " | ".join(cells) + " |")
+    for u in ("xpyp", "yp", "stabilised"):
+        a = [by[(seed, u)]["aligned"]["rms_um"] for seed in seeds]
+        m = [by[(seed, u)]["merge_median_um"] for seed in seeds]
+        print(f"{u}: aligned median {np.median(a):.1f} worst {max(a):.1f}; merge median "
+              f"{np.median(m):.1f} worst {max(m):.1f}")
     return 0
 
 
