@@ -228,6 +228,14 @@ def process_one(job: dict) -> dict:
             "merge_median_um": round(1000 * max(merge), 1)}
 
 
+def run_jobs(work: list[dict], workers: int, path: Path) -> dict:
+    """:func:`process_one` of every job, written to `path`; ``{(row, use): result}``."""
+    with ProcessPoolExecutor(workers) as pool:
+        results = list(pool.map(process_one, work))
+    path.write_text(json.dumps(results, indent=1))
+    return {(r["row"], r["use"]): r for r in results}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--amplitude", type=float, default=100.0, help="tremor RMS, µm")
@@ -263,10 +271,7 @@ def main(argv=None) -> int:
     work += [{"row": key, "capture": captures[key], "use": "stabilised", "scale": args.scale,
               "dir": str(Path(captures[key]).parent / "job_stabilised")}
              for key in ("ridged", "no texture", "still")]
-    with ProcessPoolExecutor(args.workers) as pool:
-        results = list(pool.map(process_one, work))
-    (args.out / "results.json").write_text(json.dumps(results, indent=1))
-    by = {(r["row"], r["use"]): r for r in results}
+    by = run_jobs(work, args.workers, args.out / "results.json")
     print(f"\nTremor {args.amplitude:g} µm RMS (10 Hz band, 120 fps), scale {args.scale:g}, "
           "`--compensate-motion`:\n")
     print("| capture | 3D RMS after alignment, µm: xpyp / yp | merge median, worst pair, µm: "
@@ -297,10 +302,7 @@ def held_out(args) -> int:
              "dir": str(Path(path).parent / f"job_{use}")}
             for seed, path in zip(seeds, captures, strict=True)
             for use in ("xpyp", "yp", "stabilised")]
-    with ProcessPoolExecutor(args.workers) as pool:
-        results = list(pool.map(process_one, work))
-    (args.out / "held_out.json").write_text(json.dumps(results, indent=1))
-    by = {(r["row"], r["use"]): r for r in results}
+    by = run_jobs(work, args.workers, args.out / "held_out.json")
     print(f"\nRandom conditions {args.seed0}–{args.seed0 + args.conditions - 1}, tremor "
           f"{args.amplitude:g} µm RMS, scale {args.scale:g}: 3D RMS after alignment / merge "
           "median of the worst pair, µm\n")

@@ -142,6 +142,9 @@ def test_scan_capture_stabilised_triangulates_from_the_reference_direction(tmp_p
     scans = scan_capture(capture, calib, stabilise_motion=True)
     for scan in scans:
         assert "stabilisation" in scan.motion and "compensation" in scan.motion
+        # resampled: triangulated from yp; not (too little texture): as asked (xpyp)
+        stabilisation = scan.motion["stabilisation"]
+        assert stabilisation["use"] == ("xpyp" if "skipped" in stabilisation else "yp")
         assert np.isfinite(scan.xyz[scan.mask]).all() and scan.mask.any()
     with pytest.raises(ValueError, match="triangulated from 'yp'"):
         scan_capture(capture, calib, stabilise_motion=True, use="xp")

@@ -471,7 +471,9 @@ def scan_capture(
         (:func:`nail2nail.scan.stabilise.stabilise_frames`; recorded in
         ``Scan.motion["stabilisation"]``), then compensate as `compensate_motion` does, and
         triangulate from the reference direction's phase alone (``"yp"`` for the default
-        patterns; `use` ``"xpyp"`` gives way to it, the other single direction is refused).
+        patterns; `use` ``"xpyp"`` gives way to it, the other single direction is refused). A
+        camera whose frames are not resampled (too little texture to register) is triangulated
+        with `use` as given; ``Scan.motion["stabilisation"]["use"]`` says which.
     **decode_options
         Passed to :func:`scan_frames` (``min_modulation`` …).
 
@@ -499,9 +501,9 @@ def scan_capture(
 
     _check_method(method)
     _check_use(use)
-    if stabilise_motion:
+    if stabilise_motion:  # refused before any frame is read
         _require_pattern_set(capture)
-        use = _stabilised_use(use, capture.pattern_set)
+        _stabilised_use(use, capture.pattern_set)
     clock = StepClock()
     clock.seconds.update(read_frames=0.0, decode=0.0)
     names = capture.camera_names
@@ -536,8 +538,9 @@ def scan_capture(
                                   stabilise_motion=stabilise_motion))
         if name in masks:
             _apply_user_mask(scans[-1], masks[name])
-        if use in ("xp", "yp"):
-            _warn_ill_conditioned(scans[-1], calibration.camera(name), use)
+        used = ((scans[-1].motion or {}).get("stabilisation") or {}).get("use", use)
+        if used in ("xp", "yp"):
+            _warn_ill_conditioned(scans[-1], calibration.camera(name), used)
         kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
@@ -658,6 +661,11 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     if stabilise_motion:
         frames, stabilisation = stabilise_frames(frames, capture.pattern_set,
                                                  saturation=saturation * top)
+        # resampled: one time, the reference direction's phase; not resampled (no texture to
+        # register): the frames as captured, triangulated as asked
+        if stabilisation["reference"] is not None and "skipped" not in stabilisation:
+            use = _stabilised_use(use, capture.pattern_set)
+        stabilisation["use"] = use
         clock("stabilise")
     if compensate_motion or stabilise_motion:
         frames, compensation = compensate_phase_steps(frames, capture.pattern_set, None,
