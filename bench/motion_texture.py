@@ -140,37 +140,26 @@ def true_flow(capture_dir: Path, camera: str, *, affine: bool = False) -> np.nda
 def stabilise_with_flow(frames: np.ndarray, pattern_set, flow: np.ndarray) -> np.ndarray:
     """Frames whose finest (≥ 4-step) groups are warped by `flow` relative to the group's mean
     position and re-synthesised with the nominal shifts (the warp's own fringe shift
-    ``∇φ · d_k`` in each pixel's fit)."""
-    from nail2nail.scan.motion import dc_groups
+    ``∇φ · d_k`` in each pixel's fit): :func:`~nail2nail.scan.stabilise.stabilise_frames`'s
+    last step, with the true motion and each group to its own mean time."""
+    from nail2nail.scan.motion import dc_groups, fit_pixel_shifts
     from nail2nail.scan.patterns import frame_table
+    from nail2nail.scan.stabilise import _warp, phase_gradient
 
     table = frame_table(pattern_set)
     values = frames.astype(np.float64)
     out = values.copy()
-    _, h, w = values.shape
-    rows, cols = np.meshgrid(np.arange(h, dtype=float), np.arange(w, dtype=float), indexing="ij")
-
-    def fit(stack, shifts):  # per pixel a, C, S of a + C cos δ − S sin δ
-        basis = np.stack([np.ones_like(shifts), np.cos(shifts), -np.sin(shifts)])
-        normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
-        rhs = np.einsum("ikhw,khw->hwi", basis, stack)
-        return np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
-
     for _, idx in dc_groups(pattern_set):
         if len(idx) < 4 or table[idx[0]].kind != "phase":
             continue
         nominal = np.array([table[i].shift for i in idx])[:, None, None]
         group = values[idx]
         d = flow[idx] - flow[idx].mean(axis=0, keepdims=True)  # (n, H, W, 2): dx, dy
-        warped = np.stack([ndi.map_coordinates(g, [rows + dk[..., 1], cols + dk[..., 0]],
-                                               order=1, mode="nearest")
+        warped = np.stack([_warp(g, dk[..., 1], dk[..., 0])
                            for g, dk in zip(group, d, strict=True)])
-        _, c, s = fit(group, np.broadcast_to(nominal, group.shape).copy())
-        z = c + 1j * s  # the fringe's phase gradient, rad per px
-        gy, gx = np.zeros((h, w)), np.zeros((h, w))
-        gy[1:-1] = np.angle(z[2:] * np.conj(z[:-2])) / 2
-        gx[:, 1:-1] = np.angle(z[:, 2:] * np.conj(z[:, :-2])) / 2
-        a2, c2, s2 = fit(warped, nominal + gy * d[..., 1] + gx * d[..., 0])
+        _, c, s = fit_pixel_shifts(group, nominal)
+        gy, gx = phase_gradient(c, s)
+        a2, c2, s2 = fit_pixel_shifts(warped, nominal + gy * d[..., 1] + gx * d[..., 0])
         out[idx] = a2 + c2 * np.cos(nominal) - s2 * np.sin(nominal)
     top = np.iinfo(frames.dtype).max
     return np.clip(np.rint(out), 0, top).astype(frames.dtype)

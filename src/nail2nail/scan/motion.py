@@ -41,6 +41,7 @@ __all__ = [
     "compensate_phase_steps",
     "dc_groups",
     "estimate_motion",
+    "fit_pixel_shifts",
     "mm_per_pixel",
     "register_frequencies",
 ]
@@ -381,6 +382,31 @@ def _tile_shifts(values: np.ndarray, weight: np.ndarray, nominal: np.ndarray) ->
     return out
 
 
+def fit_pixel_shifts(values: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """Per pixel least squares ``a, C, S`` of ``I_k = a + C cos δ_k − S sin δ_k`` with each
+    pixel's own phase shifts (the PMP model of :mod:`nail2nail.scan.phase_shift`,
+    ``I_k = A + B cos(φ + δ_k)`` with ``φ = atan2(S, C)``, ``B = hypot(C, S)``, solved by its
+    3 × 3 normal equations where the shifts are not equally spaced).
+
+    Parameters
+    ----------
+    values : (N, H, W) float
+        One phase-shift group's frames.
+    shifts : (N, H, W) or (N, 1, 1) float
+        Each frame's shift, rad, per pixel or for all.
+
+    Returns
+    -------
+    (3, H, W) float64
+        ``a, C, S``.
+    """
+    shifts = np.broadcast_to(shifts, np.shape(values))
+    basis = np.stack([np.ones_like(shifts), np.cos(shifts), -np.sin(shifts)])  # (3, N, H, W)
+    normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
+    rhs = np.einsum("ikhw,khw->hwi", basis, values)
+    return np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
+
+
 def _phase_design(nominal: np.ndarray) -> np.ndarray:
     """``(N, 3)`` design ``[1, cos δ_k, −sin δ_k]`` of a group's frames ``a + C cos δ − S sin δ``
     (so ``atan2(S, C)`` is the fringe phase up to the pattern set's sign convention, the same
@@ -674,12 +700,7 @@ def compensate_phase_steps(frames, pattern_set: PatternSet, mask, *,
                                                                  order=1, mode="nearest")
                                 for k in range(n)])  # (n, H, W)
         values = frames[idx].astype(np.float64)
-        # per pixel least squares with its own shifts: normal equations of [1, cos δ, −sin δ]
-        basis = np.stack([np.ones_like(pixel_delta), np.cos(pixel_delta),
-                          -np.sin(pixel_delta)])  # (3, n, H, W)
-        normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
-        rhs = np.einsum("ikhw,khw->hwi", basis, values)
-        a, c, s = np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
+        a, c, s = fit_pixel_shifts(values, pixel_delta)
         synthetic = a + c * np.cos(nominal)[:, None, None] - s * np.sin(nominal)[:, None, None]
         keep = np.zeros((height, width), bool)
         if saturation is not None:

@@ -56,11 +56,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
-from nail2nail.scan.motion import dc_groups
+from nail2nail.scan.motion import _band, dc_groups, fit_pixel_shifts
 from nail2nail.scan.patterns import PatternSet, frame_table
 
-__all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "reference_direction",
-           "stabilise_frames"]
+__all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "phase_gradient",
+           "reference_direction", "stabilise_frames"]
 
 #: Band-pass of the texture images, σ of the difference of Gaussians, camera px: keeps the
 #: ridges (7–16 px per period from half to full resolution on the thesis rig), leaves out the
@@ -84,7 +84,13 @@ def _phase_groups(pattern_set: PatternSet) -> list[tuple[str, list[int]]]:
 
 def reference_direction(pattern_set: PatternSet) -> str:
     """The direction (``"x"`` or ``"y"``) of the group the frames are stabilised to: the last
-    in time of the groups with the most fringe periods."""
+    in time of the groups with the most fringe periods (``"y"`` for the default patterns).
+
+    Raises
+    ------
+    ValueError
+        If the pattern set has no phase-shift group.
+    """
     table = frame_table(pattern_set)
     groups = _phase_groups(pattern_set)
     if not groups:
@@ -94,19 +100,11 @@ def reference_direction(pattern_set: PatternSet) -> str:
                 if table[idx[0]].periods == most][-1])
 
 
-def _fit(stack: np.ndarray, shifts: np.ndarray) -> np.ndarray:
-    """Per pixel least squares ``a, C, S`` of ``a + C cos δ − S sin δ`` with each pixel's own
-    shifts; `stack` ``(N, H, W)``, `shifts` ``(N, H, W)`` or ``(N, 1, 1)``."""
-    shifts = np.broadcast_to(shifts, stack.shape)
-    basis = np.stack([np.ones_like(shifts), np.cos(shifts), -np.sin(shifts)])
-    normal = np.einsum("ikhw,jkhw->hwij", basis, basis)
-    rhs = np.einsum("ikhw,khw->hwi", basis, stack)
-    return np.moveaxis(np.linalg.solve(normal, rhs[..., None])[..., 0], -1, 0)
-
-
-def _phase_gradient(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``∂φ/∂row, ∂φ/∂col`` (rad per px) of ``φ = atan2(S, C)``, central differences of the
-    wrapped phase; 0 on the image's border."""
+def phase_gradient(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fringe phase's gradient from a fit's ``C, S`` (:func:`~nail2nail.scan.motion.
+    fit_pixel_shifts`, ``(H, W)`` each): ``∂φ/∂row, ∂φ/∂col`` of ``φ = atan2(S, C)``, rad per
+    camera px, central differences of the wrapped phase (so a fringe's 2π jumps do not
+    count); 0 on the image's outer rows and columns."""
     z = c + 1j * s
     gy, gx = np.zeros(c.shape), np.zeros(c.shape)
     gy[1:-1] = np.angle(z[2:] * np.conj(z[:-2])) / 2
@@ -232,10 +230,19 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
         frames' largest value) or the image in any frame.
     info : dict
         ``"reference"`` (the group's label), ``"direction"`` (its direction: triangulate from
-        that direction's phase), ``"samples"``: per texture image its time (frame index) and
-        mean displacement ``(dy, dx)`` px over the valid pixels; ``"frames_px"``: per frame
-        the mean displacement; ``"spread_px"``: the largest distance between two frames' mean
-        displacements.
+        that direction's phase), ``"correlation"``: per texture image its normalised
+        correlation with the anchor once registered, ``"samples"``: per texture image its time
+        (frame index) and mean displacement ``(dy, dx)`` px over the valid pixels;
+        ``"frames_px"``: per frame the mean displacement; ``"spread_px"``: the largest
+        distance between two frames' mean displacements; ``"skipped"`` (only when the frames
+        are returned as they are because the texture does not register: why). The reference
+        is None, and the frames returned as they are, for pattern sets it cannot stabilise.
+
+    Notes
+    -----
+    The thesis decodes a still finger (PMP, its chapter two; the fit here is that model with
+    per-pixel shifts, :func:`~nail2nail.scan.motion.fit_pixel_shifts`); the stabilisation is
+    beyond it (module docstring, references).
     """
     frames = np.asarray(frames)
     info: dict = {"reference": None, "direction": None, "samples": [], "frames_px": [],
@@ -254,7 +261,7 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
     valid_all = np.ones((height, width), bool)
     for label, idx in groups:
         nominal = np.array([table[i].shift for i in idx])[:, None, None]
-        a, c, s = _fit(values[idx], nominal)
+        a, c, s = fit_pixel_shifts(values[idx], nominal)
         valid = (np.hypot(c, s) >= 0.02 * full) & (a >= 0.02 * full)
         if saturation is not None:
             valid &= (values[idx] < saturation).all(axis=0)
@@ -263,8 +270,7 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
         notch = _notch((height, width), _fringe_frequency(c, valid))
 
         def clean(image, notch=notch):
-            banded = ndi.gaussian_filter(image, band[0]) - ndi.gaussian_filter(image, band[1])
-            return np.real(np.fft.ifft2(np.fft.fft2(banded) * notch))
+            return np.real(np.fft.ifft2(np.fft.fft2(_band(image, band)) * notch))
 
         for members in _fringe_free_sets(idx):
             textures.append((float(np.mean(members)), clean(values[members].mean(axis=0)),
@@ -277,7 +283,7 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
     info["reference"] = reference
     info["direction"] = table[fits[reference][0][0]].direction
 
-    # 2. every texture image's affine motion against the reference group's mean texture
+    # 2. every texture image's affine motion against one anchor image
     basis = _affine_basis((height, width))
     # every image is registered to one anchor, then the reference group's mean is made 0. The
     # anchor is a 3-step group's mean, whose fringes are coarse: an opposite-step pair of a
@@ -337,9 +343,9 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
     for idx, nominal, c, s, _ in fits.values():
         d = np.einsum("kjb,bhw->kjhw", per_frame[idx], basis)  # (N, 2, H, W)
         moved = np.stack([_warp(values[k], d[j, 0], d[j, 1]) for j, k in enumerate(idx)])
-        gy, gx = _phase_gradient(c, s)
+        gy, gx = phase_gradient(c, s)
         dev = d - d.mean(axis=0, keepdims=True)
-        a2, c2, s2 = _fit(moved, nominal + gy * dev[:, 0] + gx * dev[:, 1])
+        a2, c2, s2 = fit_pixel_shifts(moved, nominal + gy * dev[:, 0] + gx * dev[:, 1])
         synthetic = a2 + c2 * np.cos(nominal) - s2 * np.sin(nominal)
         out[idx] = np.where(inside, synthetic, 0.0)
     if np.issubdtype(frames.dtype, np.integer):
