@@ -21,6 +21,10 @@ each real print encoded and decoded at every rate (:func:`nail2nail.io.prints.en
 with the same ratio, RMS and score against itself, so that the demo print's figures can be read
 against what NBIS's encoder does to a real print (``--real-prints ''`` skips it).
 
+**Blank paper** (:func:`blank_space`): WSQ's ratio at a rate grows with the image's blank area,
+so each print (the demo's and the real ones) is also encoded at the first rate cut to the box
+of its ridges (:func:`ridge_area`), to compare the codec on like content.
+
 **Ten fingers from a batch** (unless ``--no-batch``): ten virtual captures (seeds 1–10, scale
 ``--scale``, the rig's true calibration) through ``nail2nail batch … --subjects TABLE`` (two
 workers): one transaction of ten Type-14 records, read back by both readers; its size and each
@@ -59,6 +63,35 @@ def demo_print_dir(args, tmp: Path) -> Path:
     return tmp / "demo" / "print"
 
 
+def ridge_area(image: np.ndarray) -> np.ndarray:
+    """Pixels of a print that hold ridges, not blank paper: the grey level's standard deviation
+    over 15 × 15 px above 12 levels, closed over 5 px (a bench heuristic for 500 ppi prints)."""
+    from scipy import ndimage as ndi
+
+    f = image.astype(np.float64)
+    mean = ndi.uniform_filter(f, 15)
+    std = np.sqrt(np.maximum(ndi.uniform_filter(f * f, 15) - mean * mean, 0.0))
+    return ndi.binary_closing(std > 12, iterations=5)
+
+
+def blank_space(image: np.ndarray, rate: float) -> dict:
+    """The image's blank fraction, and WSQ at `rate` on the box of its ridges alone.
+
+    WSQ's rate sets the quantisation (the distortion), not the size: the entropy coder spends
+    almost nothing on blank paper, so an image's ratio grows with its blank area (the FBI's
+    "about 15 : 1" at 0.75 bpp is an average over card prints with their margins). Cropping
+    every print to its ridges compares the codec on like content."""
+    from nail2nail.io.prints import encode_wsq
+
+    ridges = ridge_area(image)
+    rows, cols = np.nonzero(ridges)
+    crop = image[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+    size = len(encode_wsq(crop, bitrate=rate))
+    return {"blank_fraction": round(1.0 - float(ridges.mean()), 3),
+            "ridge_box_shape": list(crop.shape), "ridge_box_ratio": round(crop.size / size, 2),
+            "ridge_box_bpp": round(8 * size / crop.size, 3)}
+
+
 def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
     import sourceafis
     from test_interchange import _independent_read
@@ -82,7 +115,7 @@ def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
                      "ratio": p["compression_ratio"], "rms_grey": round(rms, 2),
                      "transaction_bytes": summary["bytes"]})
     result = {"print_dir": str(print_dir), "shape": list(original.shape), "rates": rows,
-              "sourceafis": None}
+              "blank_space": blank_space(original, rates[0]), "sourceafis": None}
     if not sourceafis.available():
         print("SourceAFIS: java or mvn missing; scores skipped", file=sys.stderr)
         return result
@@ -106,9 +139,10 @@ def real_print_rates(prints: Path, rates, tmp: Path) -> dict:
 
     from nail2nail.io.prints import decode_wsq, encode_wsq, read_print_image
 
-    rows, pairs = [], []
+    rows, pairs, blank = [], [], {}
     for path in sorted(prints.glob("*.png")):
         image, _ = read_print_image(path)
+        blank[path.name] = blank_space(image, rates[0])
         original = sourceafis.save_png(tmp / f"real_{path.stem}.png", image)
         pairs.append((original, original))
         for rate in rates:
@@ -120,7 +154,7 @@ def real_print_rates(prints: Path, rates, tmp: Path) -> dict:
             rows.append({"print": path.name, "shape": list(image.shape), "bitrate_bpp": rate,
                          "achieved_bpp": round(8 * len(data) / image.size, 3),
                          "ratio": round(image.size / len(data), 2), "rms_grey": round(rms, 2)})
-    result = {"prints": str(prints), "rates": rows, "sourceafis": None}
+    result = {"prints": str(prints), "rates": rows, "blank_space": blank, "sourceafis": None}
     if not rows or not sourceafis.available():
         return result
     scores = sourceafis.score_pairs(pairs, dpi=500)
@@ -209,12 +243,20 @@ def main(argv=None) -> dict:
                  if "score_ratio" in r else "")
         print(f"  WSQ {r['bitrate_bpp']:g} bpp: achieved {r['achieved_bpp']:.3f} bpp, "
               f"{r['ratio']:.2f}:1, RMS grey error {r['rms_grey']:.2f}{score}")
+    def blank_line(name, b):
+        print(f"  {name}: blank {100 * b['blank_fraction']:.0f} %; WSQ {args.rates[0]:g} bpp on "
+              f"the box of its ridges ({b['ridge_box_shape'][1]} x {b['ridge_box_shape'][0]} "
+              f"px): {b['ridge_box_ratio']:.2f}:1, {b['ridge_box_bpp']:.3f} bpp")
+
+    blank_line("demo print", w["blank_space"])
     for r in results.get("real_prints", {}).get("rates", []):
         score = (f", SourceAFIS {r['score_vs_original']} = {r['score_ratio']:.3f} x self"
                  if "score_ratio" in r else "")
         print(f"  real {r['print']} ({r['shape'][1]} x {r['shape'][0]} px), WSQ "
               f"{r['bitrate_bpp']:g} bpp: achieved {r['achieved_bpp']:.3f} bpp, "
               f"{r['ratio']:.2f}:1, RMS grey error {r['rms_grey']:.2f}{score}")
+    for name, b in results.get("real_prints", {}).get("blank_space", {}).items():
+        blank_line(f"real {name}", b)
     if "ten_fingers" in results:
         t = results["ten_fingers"]
         print(f"ten virtual captures (scale {t['scale']}): simulate {t['simulate_s']} s, batch "
