@@ -470,8 +470,9 @@ def scan_capture(
         the reference group (the last with the most fringe periods), from the skin's texture
         (:func:`nail2nail.scan.stabilise.stabilise_frames`; recorded in
         ``Scan.motion["stabilisation"]``), then compensate as `compensate_motion` does, and
-        triangulate from the reference direction's phase alone (``"yp"`` for the default
-        patterns; `use` ``"xpyp"`` gives way to it, the other single direction is refused). A
+        triangulate from the reference direction's phase alone: `use` ``"xp"`` or ``"yp"``
+        chooses it (the finest group of that direction is the reference), ``"xpyp"`` gives
+        way to the last finest group's (``"yp"`` for the default patterns). A
         camera whose frames are not resampled (too little texture to register) is triangulated
         with `use` as given; ``Scan.motion["stabilisation"]["use"]`` says which.
     **decode_options
@@ -659,8 +660,9 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     saturation = options.get("saturation", SATURATION)
     top = (2 ** capture.bit_depth - 1) if not cached and capture.bit_depth else 1.0
     if stabilise_motion:
-        frames, stabilisation = stabilise_frames(frames, capture.pattern_set,
-                                                 saturation=saturation * top)
+        frames, stabilisation = stabilise_frames(
+            frames, capture.pattern_set, saturation=saturation * top,
+            direction=_stabilised_use(use, capture.pattern_set)[0])
         # resampled: one time, the reference direction's phase; not resampled (no texture to
         # register): the frames as captured, triangulated as asked
         if stabilisation["reference"] is not None and "skipped" not in stabilisation:
@@ -689,15 +691,17 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
 
 
 def _stabilised_use(use: str, pattern_set) -> str:
-    """The projector coordinate a stabilised capture is triangulated from: the reference
-    group's direction (:func:`~nail2nail.scan.stabilise.reference_direction`); ``"xpyp"``
-    gives way to it, the other direction alone is refused."""
-    wanted = reference_direction(pattern_set) + "p"
-    if use not in ("xpyp", wanted):
-        raise ValueError(f"use={use!r}: a stabilised capture is triangulated from {wanted!r}, "
-                         f"the phase of the group it is stabilised to (the other direction's "
-                         f"is its skin at another time)")
-    return wanted
+    """The projector coordinate a stabilised capture is triangulated from, the direction of the
+    group its frames are stabilised to (:func:`~nail2nail.scan.stabilise.reference_direction`):
+    ``"xp"`` or ``"yp"`` as asked, ``"xpyp"`` gives way to the default reference's (the other
+    direction's phase is the skin at another time)."""
+    if use in ("xp", "yp"):
+        try:
+            return reference_direction(pattern_set, use[0]) + "p"
+        except ValueError:
+            raise ValueError(f"use={use!r}: the capture's patterns have no phase-shift group in "
+                             f"direction {use[0]!r} to stabilise to") from None
+    return reference_direction(pattern_set) + "p"
 
 
 def _require_pattern_set(capture) -> None:

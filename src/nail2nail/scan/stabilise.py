@@ -28,7 +28,9 @@ fringes' phase offsets between steps but not that; :func:`stabilise_frames` does
    bilinear), and each group's pixels fitted again with the shift the resampling itself puts
    in the fringes, ``δ_k + ∇φ · (d_k − d̄)`` (``d̄`` the group's mean motion), so that the
    phase a pixel reads is that of the skin point it shows at the reference time, at the
-   group's mean time; the frames re-synthesised with the nominal shifts.
+   group's mean time; in the groups with the most fringe periods, the phase error that the
+   motion left unseen by the texture images puts in through the texture is fitted and taken
+   out (:func:`texture_phase_error`); the frames re-synthesised with the nominal shifts.
 
 Every pixel then shows one point of skin in every frame: the projector coordinates of both
 directions are the same skin point's (so two cameras' pairs in projector space are the same
@@ -59,8 +61,8 @@ import scipy.ndimage as ndi
 from nail2nail.scan.motion import _band, dc_groups, fit_pixel_shifts
 from nail2nail.scan.patterns import PatternSet, frame_table
 
-__all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "phase_gradient",
-           "reference_direction", "stabilise_frames"]
+__all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "TEXTURE_PHASE_SIGMA_PX",
+           "phase_gradient", "reference_direction", "stabilise_frames", "texture_phase_error"]
 
 #: Band-pass of the texture images, σ of the difference of Gaussians, camera px: keeps the
 #: ridges (7–16 px per period from half to full resolution on the thesis rig), leaves out the
@@ -82,22 +84,32 @@ def _phase_groups(pattern_set: PatternSet) -> list[tuple[str, list[int]]]:
             if table[idx[0]].kind == "phase"]
 
 
-def reference_direction(pattern_set: PatternSet) -> str:
-    """The direction (``"x"`` or ``"y"``) of the group the frames are stabilised to: the last
-    in time of the groups with the most fringe periods (``"y"`` for the default patterns).
+def reference_direction(pattern_set: PatternSet, direction: str | None = None) -> str:
+    """The direction (``"x"`` or ``"y"``) of the group the frames are stabilised to: `direction`
+    when given (the phase the points will be triangulated from), else that of the last in time
+    of the groups with the most fringe periods (``"y"`` for the default patterns).
 
     Raises
     ------
     ValueError
-        If the pattern set has no phase-shift group.
+        If the pattern set has no phase-shift group, or none in `direction`.
     """
+    return str(_reference_group(pattern_set, direction)[1])
+
+
+def _reference_group(pattern_set: PatternSet, direction: str | None) -> tuple[str, str]:
+    """``(label, direction)`` of the reference group: the last in time of the groups with the
+    most fringe periods, among those of `direction` when given."""
     table = frame_table(pattern_set)
     groups = _phase_groups(pattern_set)
+    if direction is not None:
+        groups = [(label, idx) for label, idx in groups if table[idx[0]].direction == direction]
     if not groups:
-        raise ValueError("stabilise_frames: the pattern set has no phase-shift group")
+        raise ValueError("stabilise_frames: the pattern set has no phase-shift group"
+                         + (f" in direction {direction!r}" if direction is not None else ""))
     most = max(table[idx[0]].periods for _, idx in groups)
-    return str([table[idx[0]].direction for _, idx in groups
-                if table[idx[0]].periods == most][-1])
+    label, idx = [(label, idx) for label, idx in groups if table[idx[0]].periods == most][-1]
+    return label, table[idx[0]].direction
 
 
 def phase_gradient(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -206,8 +218,85 @@ def _trajectory(n_frames: int, members: list[list[int]], observed: np.ndarray) -
     return solved.reshape((n_frames, *observed.shape[1:]))
 
 
-def stabilise_frames(frames, pattern_set: PatternSet, *,
-                     saturation: float | None = None) -> tuple[np.ndarray, dict]:
+#: σ of the Gaussian whose low-pass is taken out of the phase and of its error's pattern
+#: (:func:`texture_phase_error`), camera px: below the ridges' and fringes' periods, so the
+#: surface's smooth phase is left out of the fit and their beat is kept
+TEXTURE_PHASE_SIGMA_PX = 1.5
+
+
+def texture_phase_error(a: np.ndarray, c: np.ndarray, s: np.ndarray, weight: np.ndarray, *,
+                        sigma_px: float = TEXTURE_PHASE_SIGMA_PX) -> tuple[np.ndarray, dict]:
+    """The phase error that the skin's motion within a phase-shift group leaves through its
+    texture, fitted over one camera's image.
+
+    Within a group of ``N`` steps, a texture ``a`` displaced by ``e_k`` at step ``k`` adds
+    ``∇a · e_k`` to that frame. The part of ``e_k`` along the steps' first harmonic,
+    ``E_c cos δ_k + E_s sin δ_k``, is what a per-pixel fit takes for fringe: ``C`` gains
+    ``∇a · E_c``, ``S`` loses ``∇a · E_s``, and the phase errs by
+
+        ``Δφ = −[(∇a · E_c) sin φ + (∇a · E_s) cos φ] / B``.
+
+    It is also the part of the motion that the fringe-free texture images cannot see (a mean
+    of opposite steps, or of a step triple, cancels it along with the fringe), so the
+    stabiliser's trajectory only interpolates it. With ``E_c, E_s`` affine over the image (as
+    the frames' motion is, :func:`stabilise_frames`), ``Δφ`` is linear in their twelve
+    coefficients, and its pattern (the texture's gradient beating with the fringe) is unlike
+    the surface's smooth phase and unlike the relief, whose ridges are in phase with the
+    texture (the print reads them; they are kept): the coefficients are fitted by least
+    squares to the phase's high-pass.
+
+    Parameters
+    ----------
+    a, c, s : (H, W) float
+        A group's per-pixel fit ``a + C cos δ − S sin δ``
+        (:func:`~nail2nail.scan.motion.fit_pixel_shifts`).
+    weight : (H, W) float
+        Pixels that take part (> 0): lit skin, away from the silhouette.
+    sigma_px : float
+        The high-pass's Gaussian σ, px.
+
+    Returns
+    -------
+    error : (H, W) float64
+        ``Δφ``, rad (0 where `weight` is 0); the phase is ``atan2(S, C) − error``.
+    figures : dict
+        ``"rms_rad"`` (of the error over the pixels that took part) and ``"explained"`` (the
+        fraction of the high-passed phase's variance it accounts for).
+
+    Notes
+    -----
+    Beyond the thesis (a still finger). The error of motion-induced texture changes in phase
+    shifting: Lu, Yin, Zhang and Wang, Opt. Lasers Eng. 141, 106573 (2021).
+    """
+    sel = weight > 0
+    error = np.zeros(a.shape)
+    if sel.sum() < 1000:
+        return error, {"rms_rad": 0.0, "explained": 0.0}
+    b = np.maximum(np.hypot(c, s), 1e-9)
+    sin_phi, cos_phi = s / b, c / b
+    grad = np.gradient(ndi.gaussian_filter(a, 0.7))  # the texture's, not its noise's
+    basis = _affine_basis(a.shape)
+    patterns = np.stack([g * trig / b * q for g in grad for trig in (sin_phi, cos_phi)
+                         for q in basis])  # (12, H, W)
+
+    def high_pass(image):
+        return image - ndi.gaussian_filter(image, sigma_px)
+
+    z = cos_phi + 1j * sin_phi
+    smooth = ndi.gaussian_filter(z.real, sigma_px) + 1j * ndi.gaussian_filter(z.imag, sigma_px)
+    target = np.angle(z * np.conj(smooth))[sel]
+    design = np.stack([high_pass(p)[sel] for p in patterns], axis=1)
+    fit = np.abs(target) < 1.0  # a fringe's or an edge's jump is not this small error
+    coef, *_ = np.linalg.lstsq(design[fit], target[fit], rcond=None)
+    error[sel] = np.tensordot(coef, patterns[:, sel], axes=1)
+    explained = 1.0 - np.var(target[fit] - design[fit] @ coef) / max(np.var(target[fit]),
+                                                                      1e-30)
+    return error, {"rms_rad": round(float(np.sqrt(np.mean(error[sel] ** 2))), 4),
+                   "explained": round(float(explained), 4)}
+
+
+def stabilise_frames(frames, pattern_set: PatternSet, *, saturation: float | None = None,
+                     direction: str | None = None) -> tuple[np.ndarray, dict]:
     """Frames of a moving finger resampled so that every pixel shows one point of skin.
 
     Parameters
@@ -220,6 +309,10 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
     saturation : float, optional
         Frame value at or above which a pixel counts as unlit (it takes no part in the
         registration; a pixel whose skin is there in any frame is left dark).
+    direction : {"x", "y"}, optional
+        The direction whose phase the points will be triangulated from: the reference group
+        is that direction's finest (its last in time if several); by default the last group
+        with the most fringe periods, whatever its direction.
 
     Returns
     -------
@@ -234,7 +327,9 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
         correlation with the anchor once registered, ``"samples"``: per texture image its time
         (frame index) and mean displacement ``(dy, dx)`` px over the valid pixels;
         ``"frames_px"``: per frame the mean displacement; ``"spread_px"``: the largest
-        distance between two frames' mean displacements; ``"skipped"`` (only when the frames
+        distance between two frames' mean displacements; ``"texture_phase"``: per group with
+        the most fringe periods, the phase error taken out (:func:`texture_phase_error`'s
+        figures); ``"skipped"`` (only when the frames
         are returned as they are because the texture does not register: why). The reference
         is None, and the frames returned as they are, for pattern sets it cannot stabilise.
 
@@ -278,10 +373,9 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
     weight = ndi.binary_erosion(valid_all, iterations=8).astype(np.float64)
     if weight.sum() < 1000:
         return frames.copy(), info
+    reference, info["direction"] = _reference_group(pattern_set, direction)
     most = max(table[idx[0]].periods for _, idx in groups)
-    reference = [label for label, idx in groups if table[idx[0]].periods == most][-1]
     info["reference"] = reference
-    info["direction"] = table[fits[reference][0][0]].direction
 
     # 2. every texture image's affine motion against one anchor image
     basis = _affine_basis((height, width))
@@ -340,12 +434,18 @@ def stabilise_frames(frames, pattern_set: PatternSet, *,
         cols_k = np.arange(width)[None, :] + d[1]
         inside &= (rows_k >= 0) & (rows_k <= height - 1) & (cols_k >= 0) & (cols_k <= width - 1)
         inside &= _warp(lit, d[0], d[1]) >= 1.0 - 1e-9
-    for idx, nominal, c, s, _ in fits.values():
+    info["texture_phase"] = {}
+    for label, (idx, nominal, c, s, _) in fits.items():
         d = np.einsum("kjb,bhw->kjhw", per_frame[idx], basis)  # (N, 2, H, W)
         moved = np.stack([_warp(values[k], d[j, 0], d[j, 1]) for j, k in enumerate(idx)])
         gy, gx = phase_gradient(c, s)
         dev = d - d.mean(axis=0, keepdims=True)
         a2, c2, s2 = fit_pixel_shifts(moved, nominal + gy * dev[:, 0] + gx * dev[:, 1])
+        if table[idx[0]].periods == most:  # the geometry's phase: what the texture left
+            error, info["texture_phase"][label] = texture_phase_error(
+                a2, c2, s2, weight * inside)
+            turned = (c2 + 1j * s2) * np.exp(-1j * error)
+            c2, s2 = turned.real, turned.imag
         synthetic = a2 + c2 * np.cos(nominal) - s2 * np.sin(nominal)
         out[idx] = np.where(inside, synthetic, 0.0)
     if np.issubdtype(frames.dtype, np.integer):
