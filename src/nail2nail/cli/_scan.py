@@ -77,10 +77,11 @@ def add_scan_options(p) -> None:
                    "(docs/motion.md)")
     p.add_argument("--stabilise-motion", action="store_true",
                    help="resample a moving finger's frames so that every pixel shows one point "
-                   "of skin at the time of the finest group shown last (its motion measured "
-                   "from the skin's texture), then compensate as --compensate-motion does; the "
-                   "points are triangulated from that group's direction (yp for the default "
-                   "patterns; docs/motion.md)")
+                   "of skin at the time of one finest group (its motion measured from the "
+                   "skin's texture), then compensate as --compensate-motion does; the points "
+                   "are triangulated from that group's direction: --use xp or yp chooses it, "
+                   "by default the finest group shown last (yp for the default patterns; "
+                   "docs/motion.md)")
     p.add_argument("--frame", default="world", metavar="world|CAMERA",
                    help="frame of the points written (scans, super scan): 'world' (the "
                    "calibration's, default) or a camera's name, x_cam = R x_world + t of that "
