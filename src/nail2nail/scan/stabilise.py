@@ -109,7 +109,7 @@ def _reference_group(pattern_set: PatternSet, direction: str | None) -> tuple[st
                          + (f" in direction {direction!r}" if direction is not None else ""))
     most = max(table[idx[0]].periods for _, idx in groups)
     label, idx = [(label, idx) for label, idx in groups if table[idx[0]].periods == most][-1]
-    return label, table[idx[0]].direction
+    return label, str(table[idx[0]].direction)
 
 
 def phase_gradient(c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
