@@ -20,7 +20,7 @@ import numpy as np
 
 from nail2nail._progress import progress_bar
 from nail2nail._timing import StepClock
-from nail2nail.calibration.camera_models import Pinhole
+from nail2nail.calibration.camera_models import Pinhole, projection_matrix
 from nail2nail.calibration.distortion import ProjectorDistortion
 from nail2nail.calibration.files import CameraCalibration, RigCalibration, check_handedness
 from nail2nail.io.masks import check_mask_names, read_mask
@@ -43,7 +43,12 @@ from nail2nail.scan.results import (
     NO_POINT,
     Scan,
 )
-from nail2nail.scan.stabilise import reference_direction, stabilise_frames
+from nail2nail.scan.stabilise import (
+    affine_image_motion,
+    reference_direction,
+    rigid_motion,
+    stabilise_frames,
+)
 from nail2nail.scan.triangulation import (
     _check_use,
     _reconstruct_into,
@@ -530,24 +535,33 @@ def scan_capture(
         if name in masks:
             masks[name] = _user_mask(masks[name], name, size[::-1])
     clock("read_frames")
-    scans = []
-    for name in progress_bar(names, desc="scan", unit="camera", enabled=progress):
-        scans.append(_scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
-                                  method=method, decode_options=decode_options, clock=clock,
-                                  detect_motion=detect_motion or max_motion_mm is not None,
-                                  compensate_motion=compensate_motion,
-                                  stabilise_motion=stabilise_motion))
+    def one(name: str, motion=None) -> Scan:
+        scan = _scan_camera(capture, name, calibration, use=use, max_gradient=max_gradient,
+                            method=method, decode_options=decode_options, clock=clock,
+                            detect_motion=detect_motion or max_motion_mm is not None,
+                            compensate_motion=compensate_motion,
+                            stabilise_motion=stabilise_motion, motion=motion)
         if name in masks:
-            _apply_user_mask(scans[-1], masks[name])
-        used = ((scans[-1].motion or {}).get("stabilisation") or {}).get("use", use)
+            _apply_user_mask(scan, masks[name])
+        used = ((scan.motion or {}).get("stabilisation") or {}).get("use", use)
         if used in ("xp", "yp"):
-            _warn_ill_conditioned(scans[-1], calibration.camera(name), used)
-        kept, lit = kept_fraction(scans[-1], decode_options.get("min_modulation", 0.03))
+            _warn_ill_conditioned(scan, calibration.camera(name), used)
+        kept, lit = kept_fraction(scan, decode_options.get("min_modulation", 0.03))
         if lit and kept < MIN_KEPT_FRACTION * lit:
             warnings.warn(
                 f"{capture.path}: camera {name!r} keeps {kept} of {lit} lit pixels "
                 f"({100 * kept / lit:.1f} %, less than {100 * MIN_KEPT_FRACTION:.0f} %)",
-                UserWarning, stacklevel=2)
+                UserWarning, stacklevel=3)
+        return scan
+
+    scans = [one(name) for name in progress_bar(names, desc="scan", unit="camera",
+                                                enabled=progress)]
+    if stabilise_motion:
+        # a camera whose own texture did not register takes the motion the others measured
+        for k, maps, sources in _motion_from_other_cameras(scans, calibration):
+            reason = (scans[k].motion or {})["stabilisation"]["skipped"]
+            scans[k] = one(names[k], motion=maps)
+            (scans[k].motion or {})["stabilisation"].update(motion_from=sources, texture=reason)
     _check_motion(scans, capture.path, max_motion_mm)
     if timings is not None:
         for key, seconds in clock.seconds.items():
@@ -640,7 +654,8 @@ def _apply_user_mask(scan: Scan, mask: np.ndarray) -> None:
 
 def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gradient, method,
                  decode_options, clock: StepClock, detect_motion: bool = True,
-                 compensate_motion: bool = False, stabilise_motion: bool = False) -> Scan:
+                 compensate_motion: bool = False, stabilise_motion: bool = False,
+                 motion=None) -> Scan:
     """One camera of :func:`scan_capture`: its frames' integer values in memory (not cached),
     decoded as they are (``method="numba"``) or made float band by band
     (:func:`~nail2nail.io.capture.frame_intensities`); frames the capture has cached are used
@@ -662,7 +677,7 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     if stabilise_motion:
         frames, stabilisation = stabilise_frames(
             frames, capture.pattern_set, saturation=saturation * top,
-            direction=_stabilised_use(use, capture.pattern_set)[0])
+            direction=_stabilised_use(use, capture.pattern_set)[0], motion=motion)
         # resampled: one time, the reference direction's phase; not resampled (no texture to
         # register): the frames as captured, triangulated as asked
         if stabilisation["reference"] is not None and "skipped" not in stabilisation:
@@ -702,6 +717,41 @@ def _stabilised_use(use: str, pattern_set) -> str:
             raise ValueError(f"use={use!r}: the capture's patterns have no phase-shift group in "
                              f"direction {use[0]!r} to stabilise to") from None
     return reference_direction(pattern_set) + "p"
+
+
+#: Every how many valid pixels of a camera take part in :func:`_motion_from_other_cameras`
+MOTION_SAMPLE_STRIDE = 16
+
+
+def _motion_from_other_cameras(scans, calibration) -> list[tuple[int, np.ndarray, list[str]]]:
+    """For each stabilised scan whose own texture did not register (``skipped``), its frames'
+    affine maps from the rigid motion that the registered cameras' maps and points give
+    (:func:`~nail2nail.scan.stabilise.rigid_motion`): ``[(index, maps, source cameras)]``;
+    empty when no camera registered."""
+    views, points, skipped = [], [], []
+    for k, scan in enumerate(scans):
+        info = (scan.motion or {}).get("stabilisation") or {}
+        if info.get("reference") is None:
+            continue
+        rows, cols = np.nonzero(scan.mask)
+        rows, cols = rows[::MOTION_SAMPLE_STRIDE], cols[::MOTION_SAMPLE_STRIDE]
+        if not len(rows):
+            continue
+        view = (np.asarray(info.get("frames_affine", ()), dtype=np.float64),
+                scan.xyz[rows, cols].astype(np.float64), rows, cols,
+                projection_matrix(calibration.camera(scan.name).camera), scan.mask.shape)
+        if "skipped" in info:
+            skipped.append((k, view))
+        else:
+            views.append((scan.name, view))
+            points.append(view[1])
+    if not views or not skipped:
+        return []
+    center = np.concatenate(points).mean(axis=0)
+    rigid = rigid_motion([view for _, view in views], center)
+    sources = [name for name, _ in views]
+    return [(k, affine_image_motion(rigid, *view[1:], center=center), sources)
+            for k, view in skipped]
 
 
 def _require_pattern_set(capture) -> None:

@@ -62,7 +62,8 @@ from nail2nail.scan.motion import _band, dc_groups, fit_pixel_shifts
 from nail2nail.scan.patterns import PatternSet, frame_table
 
 __all__ = ["MIN_TEXTURE_CORRELATION", "STABILISE_BAND_PX", "TEXTURE_PHASE_SIGMA_PX",
-           "phase_gradient", "reference_direction", "stabilise_frames", "texture_phase_error"]
+           "affine_image_motion", "phase_gradient", "reference_direction", "rigid_motion",
+           "stabilise_frames", "texture_phase_error"]
 
 #: Band-pass of the texture images, σ of the difference of Gaussians, camera px: keeps the
 #: ridges (7–16 px per period from half to full resolution on the thesis rig), leaves out the
@@ -295,8 +296,124 @@ def texture_phase_error(a: np.ndarray, c: np.ndarray, s: np.ndarray, weight: np.
                    "explained": round(float(explained), 4)}
 
 
+def _motion_jacobian(xyz: np.ndarray, matrix: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """``(P, 2, 6)``: the image motion ``(d row, d col)`` of points `xyz` ``(P, 3)`` (mm) seen
+    through the 3 × 4 projection `matrix` (eq. 3.1–3.2) per small rigid motion ``(ω, t)`` about
+    `center`: ``X → X + ω × (X − c) + t``."""
+    m = np.asarray(matrix, dtype=np.float64)
+    h = xyz @ m[:, :3].T + m[:, 3]
+    col, row = h[:, 0] / h[:, 2], h[:, 1] / h[:, 2]
+    d_col = (m[0, :3] - col[:, None] * m[2, :3]) / h[:, 2:3]  # (P, 3)
+    d_row = (m[1, :3] - row[:, None] * m[2, :3]) / h[:, 2:3]
+    a = xyz - center
+    # ω × a = −[a]× ω: the rows of [a]× with the sign turned
+    turn = np.stack([np.stack([np.zeros(len(a)), a[:, 2], -a[:, 1]], -1),
+                     np.stack([-a[:, 2], np.zeros(len(a)), a[:, 0]], -1),
+                     np.stack([a[:, 1], -a[:, 0], np.zeros(len(a))], -1)], axis=1)  # (P, 3, 3)
+    motion = np.concatenate([turn, np.broadcast_to(np.eye(3), turn.shape)], axis=2)  # (P, 3, 6)
+    return np.stack([np.einsum("pi,pij->pj", d_row, motion),
+                     np.einsum("pi,pij->pj", d_col, motion)], axis=1)
+
+
+def rigid_motion(views, center) -> np.ndarray:
+    """The finger's small rigid motion per frame from cameras whose image motion is known.
+
+    A rigid finger moves every camera's image alike: each camera's per-frame affine maps
+    (:func:`stabilise_frames`'s ``info["frames_affine"]``) at its scan's points are the image
+    motion of one 3D motion ``X → X + ω × (X − c) + t`` per frame (small, linearised), solved
+    for by least squares over every camera given. Two cameras 45° apart fix all six numbers;
+    one alone leaves its viewing direction weak (a little ridge damping keeps it bounded).
+
+    Parameters
+    ----------
+    views : sequence of (maps, xyz, rows, cols, matrix, shape)
+        Per camera: its ``(n_frames, 2, 3)`` affine maps, ``(P, 3)`` points (mm, world frame,
+        at the reference time) seen at pixels ``rows, cols`` ``(P,)`` (row and column
+        indices), its 3 × 4 projection `matrix` (world mm to pixels) and its image's
+        ``(H, W)`` (the maps' coordinates, :func:`stabilise_frames`).
+    center : (3,) array
+        The rotation's centre, mm (the points' mean is a good one).
+
+    Returns
+    -------
+    (n_frames, 6) float64
+        ``ω`` (rad) and ``t`` (mm) per frame.
+    """
+    center = np.asarray(center, dtype=np.float64)
+    jac, obs = [], []
+    for maps, xyz, rows, cols, matrix, shape in views:
+        h, w = shape
+        b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h])  # (3, P)
+        d = np.einsum("kjb,bp->kpj", np.asarray(maps, float), b)  # (n_frames, P, 2)
+        jac.append(_motion_jacobian(np.asarray(xyz, float), matrix, center).reshape(-1, 6))
+        obs.append(d.reshape(len(d), -1))
+    g = np.concatenate(jac)
+    normal = g.T @ g
+    normal += 1e-6 * np.trace(normal) / 6 * np.eye(6)
+    return np.linalg.solve(normal, g.T @ np.concatenate(obs, axis=1).T).T
+
+
+def affine_image_motion(rigid: np.ndarray, xyz: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                        matrix: np.ndarray, shape, center) -> np.ndarray:
+    """A camera's per-frame affine maps ``(n_frames, 2, 3)`` (:func:`stabilise_frames`'s
+    `motion`) of the rigid motion `rigid` (:func:`rigid_motion`), fitted to the image motion
+    of its points `xyz` ``(P, 3)`` at pixels ``rows, cols`` of an image of `shape`."""
+    h, w = shape
+    d = np.einsum("pjs,ks->kpj", _motion_jacobian(np.asarray(xyz, float), matrix,
+                                                  np.asarray(center, float)), rigid)
+    b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h], axis=1)  # (P, 3)
+    coef, *_ = np.linalg.lstsq(b, d.transpose(1, 0, 2).reshape(len(rows), -1), rcond=None)
+    return coef.reshape(3, len(rigid), 2).transpose(1, 2, 0)
+
+
+def _texture_motion(textures, fits, reference, table, weight, basis, n_frames: int,
+                    info: dict) -> np.ndarray | None:
+    """Steps 2–3 of :func:`stabilise_frames`: every texture image's affine motion against one
+    anchor, then every frame's (``(n_frames, 2, 3)``); None (and ``info["skipped"]``) when the
+    texture does not register."""
+    # every image is registered to one anchor, then the reference group's mean is made 0. The
+    # anchor is a 3-step group's mean, whose fringes are coarse: an opposite-step pair of a
+    # fine group keeps a little of its fringe where the finger moved between the two steps,
+    # and two pairs of one group (or an average holding the image itself) would pull each
+    # other's displacement across the fringes towards their own
+    in_reference = [i for i, (_, _, label, _) in enumerate(textures) if label == reference]
+    t_ref = float(np.mean([textures[i][0] for i in in_reference]))
+    direction = info["direction"]
+    candidates = ([i for i, (_, _, label, _) in enumerate(textures) if len(fits[label][0]) == 3]
+                  or [i for i, (_, _, label, _) in enumerate(textures)
+                      if table[fits[label][0][0]].direction != direction]
+                  or in_reference)
+    anchor = textures[min(candidates, key=lambda i: abs(textures[i][0] - t_ref))][1]
+    times = np.array([t for t, _, _, _ in textures])
+    params = np.stack([_register_affine(image, anchor, weight, basis)
+                       for _, image, _, _ in textures])  # (n_images, 2, 3)
+    # how well each image matches the anchor once moved: skin without ridges (or noise
+    # alone) gives a "motion" that is anywhere, and no image is resampled with it
+    sel = weight > 0
+    correlation = []
+    for (_, image, _, _), p in zip(textures, params, strict=True):
+        d = np.einsum("jb,bhw->jhw", p, basis)
+        moved = _warp(image, d[0], d[1])[sel]
+        correlation.append(float(np.dot(moved, anchor[sel]) / max(
+            np.linalg.norm(moved) * np.linalg.norm(anchor[sel]), 1e-12)))
+    info["correlation"] = [round(c, 3) for c in correlation]
+    if min(correlation) < MIN_TEXTURE_CORRELATION:
+        info["skipped"] = (f"the skin's texture does not register (correlation "
+                           f"{min(correlation):.2f} < {MIN_TEXTURE_CORRELATION})")
+        return None
+    params -= params[in_reference].mean(axis=0)
+
+    # 3. every frame's motion: the smoothest trajectory whose averages are the images'
+    info["samples"] = [{"time": round(float(t), 2),
+                        "mean_px": [round(float(v), 3)
+                                    for v in p @ basis[:, sel].mean(axis=1)]}
+                       for t, p in zip(times, params, strict=True)]
+    return _trajectory(n_frames, [members for _, _, _, members in textures], params)
+
+
 def stabilise_frames(frames, pattern_set: PatternSet, *, saturation: float | None = None,
-                     direction: str | None = None) -> tuple[np.ndarray, dict]:
+                     direction: str | None = None,
+                     motion: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Frames of a moving finger resampled so that every pixel shows one point of skin.
 
     Parameters
@@ -313,6 +430,11 @@ def stabilise_frames(frames, pattern_set: PatternSet, *, saturation: float | Non
         The direction whose phase the points will be triangulated from: the reference group
         is that direction's finest (its last in time if several); by default the last group
         with the most fringe periods, whatever its direction.
+    motion : (n_frames, 2, 3) array, optional
+        Every frame's affine map (``info["frames_affine"]``'s convention), when known from
+        elsewhere (the other cameras' motion, :func:`rigid_motion` and
+        :func:`affine_image_motion`): the frames are resampled with it and their own texture
+        is not registered (``info["correlation"]`` is empty).
 
     Returns
     -------
@@ -377,48 +499,23 @@ def stabilise_frames(frames, pattern_set: PatternSet, *, saturation: float | Non
     most = max(table[idx[0]].periods for _, idx in groups)
     info["reference"] = reference
 
-    # 2. every texture image's affine motion against one anchor image
+    # 2-3. every frame's affine motion, from the skin's texture unless given
     basis = _affine_basis((height, width))
-    # every image is registered to one anchor, then the reference group's mean is made 0. The
-    # anchor is a 3-step group's mean, whose fringes are coarse: an opposite-step pair of a
-    # fine group keeps a little of its fringe where the finger moved between the two steps,
-    # and two pairs of one group (or an average holding the image itself) would pull each
-    # other's displacement across the fringes towards their own
-    in_reference = [i for i, (_, _, label, _) in enumerate(textures) if label == reference]
-    t_ref = float(np.mean([textures[i][0] for i in in_reference]))
-    direction = info["direction"]
-    candidates = ([i for i, (_, _, label, _) in enumerate(textures) if len(fits[label][0]) == 3]
-                  or [i for i, (_, _, label, _) in enumerate(textures)
-                      if table[fits[label][0][0]].direction != direction]
-                  or in_reference)
-    anchor = textures[min(candidates, key=lambda i: abs(textures[i][0] - t_ref))][1]
-    times = np.array([t for t, _, _, _ in textures])
-    params = np.stack([_register_affine(image, anchor, weight, basis)
-                       for _, image, _, _ in textures])  # (n_images, 2, 3)
-    # how well each image matches the anchor once moved: skin without ridges (or noise
-    # alone) gives a "motion" that is anywhere, and no image is resampled with it
     sel = weight > 0
-    correlation = []
-    for (_, image, _, _), p in zip(textures, params, strict=True):
-        d = np.einsum("jb,bhw->jhw", p, basis)
-        moved = _warp(image, d[0], d[1])[sel]
-        correlation.append(float(np.dot(moved, anchor[sel]) / max(
-            np.linalg.norm(moved) * np.linalg.norm(anchor[sel]), 1e-12)))
-    info["correlation"] = [round(c, 3) for c in correlation]
-    if min(correlation) < MIN_TEXTURE_CORRELATION:
-        info["skipped"] = (f"the skin's texture does not register (correlation "
-                           f"{min(correlation):.2f} < {MIN_TEXTURE_CORRELATION})")
-        return frames.copy(), info
-    params -= params[in_reference].mean(axis=0)
-
-    # 3. every frame's motion: the smoothest trajectory whose averages are the images'
-    per_frame = _trajectory(n_frames, [members for _, _, _, members in textures], params)
+    if motion is None:
+        per_frame = _texture_motion(textures, fits, reference, table, weight, basis, n_frames,
+                                    info)
+        if per_frame is None:
+            return frames.copy(), info
+    else:
+        per_frame = np.asarray(motion, dtype=np.float64)
+        if per_frame.shape != (n_frames, 2, 3):
+            raise ValueError(f"motion: expected ({n_frames}, 2, 3) affine maps, got "
+                             f"{per_frame.shape}")
+        info["correlation"] = []
     mean_d = np.einsum("kjb,b->kj", per_frame, basis[:, sel].mean(axis=1))  # (n_frames, 2)
-    info["samples"] = [{"time": round(float(t), 2),
-                        "mean_px": [round(float(v), 3)
-                                    for v in p @ basis[:, sel].mean(axis=1)]}
-                       for t, p in zip(times, params, strict=True)]
     info["frames_px"] = [[round(float(v), 3) for v in row] for row in mean_d]
+    info["frames_affine"] = np.round(per_frame, 5).tolist()
     info["spread_px"] = round(float(np.max(np.linalg.norm(
         mean_d[:, None] - mean_d[None], axis=-1))), 3)
 
