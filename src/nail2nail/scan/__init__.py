@@ -21,7 +21,8 @@ Modules, in the order the data flows through them:
 - :mod:`~nail2nail.scan.motion`: did the finger move while the frames were shown? (the
   frame groups' DC images registered against each other);
 - :mod:`~nail2nail.scan.stabilise`: a moving finger's frames resampled so that every pixel
-  shows one point of skin (its motion measured from the skin's texture);
+  shows one point of skin (its motion measured from the skin's texture, or from the other
+  cameras' through one rigid motion);
 - :mod:`~nail2nail.scan.capture`: :func:`scan_capture`, a capture and its calibration to a
   :class:`Scan` per camera.
 
