@@ -33,6 +33,8 @@ Usage::
         [--out bench-output/motion_texture]
     # held out: random conditions, each its own tremor; compensation against stabilisation
     .venv/bin/python bench/motion_texture.py --conditions 6 --seed0 600
+    # one camera registered, the others made to skip: the motion transfer against none
+    .venv/bin/python bench/motion_texture.py --one-camera
 
 Cost (half resolution, two cores): four captures of every frame intersected anew, about
 5 minutes each on one core (two at a time), then ten ``process`` jobs of about a minute.
@@ -217,10 +219,33 @@ def process_one(job: dict) -> dict:
             "merge_median_um": round(1000 * max(merge), 1)}
 
 
-def run_jobs(work: list[dict], workers: int, path: Path) -> dict:
-    """:func:`process_one` of every job, written to `path`; ``{(row, use): result}``."""
-    with ProcessPoolExecutor(workers) as pool:
-        results = list(pool.map(process_one, work))
+def forced_skip_one(job: dict) -> dict:
+    """``--stabilise-motion`` with the cameras ``job["skip"]`` (indices) made to skip, as a
+    camera whose texture does not register does; ``job["transfer"]``: whether they take the
+    registered cameras' motion (the library's default) or keep their frames (as before)."""
+    import nail2nail.scan.capture as capture_module
+
+    real, calls = capture_module.stabilise_frames, {"n": 0}
+
+    def stabilise(frames, pattern_set, **options):
+        out, info = real(frames, pattern_set, **options)
+        if options.get("motion") is None:  # the first pass, one call per camera in order
+            k, calls["n"] = calls["n"], calls["n"] + 1
+            if k in job["skip"]:
+                return frames.copy(), {**{key: info[key] for key in ("reference", "direction")},
+                                       "skipped": "made to skip (bench)"}
+        return out, info
+
+    capture_module.stabilise_frames = stabilise
+    if not job["transfer"]:
+        capture_module._motion_from_other_cameras = lambda scans, calibration: []
+    return process_one(job)
+
+
+def run_jobs(work: list[dict], workers: int, path: Path, one=process_one) -> dict:
+    """`one` (:func:`process_one`) of every job, written to `path`; ``{(row, use): result}``."""
+    with ProcessPoolExecutor(workers, max_tasks_per_child=1) as pool:
+        results = list(pool.map(one, work))
     path.write_text(json.dumps(results, indent=1))
     return {(r["row"], r["use"]): r for r in results}
 
@@ -236,10 +261,15 @@ def main(argv=None) -> int:
                    "from --seed0, each its own tremor), the compensation against the "
                    "stabilisation")
     p.add_argument("--seed0", type=int, default=600)
+    p.add_argument("--one-camera", action="store_true",
+                   help="instead: the ridged capture stabilised with all but one camera made "
+                   "to skip, with and without the motion taken from the registered camera")
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.conditions:
         return held_out(args)
+    if args.one_camera:
+        return one_camera(args)
     jobs = [{"dir": str(args.out / name.replace(" ", "_") / "capture"), "scene": scene,
              "moving": moving, "amplitude_um": args.amplitude, "scale": args.scale}
             for name, (scene, moving) in CAPTURES.items()]
@@ -274,6 +304,29 @@ def main(argv=None) -> int:
         c = by[(key, "stabilised")]
         print(f"| {labels[key]}, `--stabilise-motion` (yp) | {c['aligned']['rms_um']:.1f} "
               f"(p95 {c['aligned']['p95_um']:.1f}) | {c['merge_median_um']:.1f} |")
+    return 0
+
+
+def one_camera(args) -> int:
+    """The ridged capture (made first if missing) with one camera registered and the other two
+    made to skip: the motion taken from the one against frames left to the compensation."""
+    job = {"dir": str(args.out / "ridged" / "capture"), "scene": CAPTURES["ridged"][0],
+           "moving": True, "amplitude_um": args.amplitude, "scale": args.scale}
+    capture = simulate_one(job)
+    work = [{"row": kept, "capture": capture, "use": "stabilised", "scale": args.scale,
+             "skip": [k for k in range(3) if k != kept], "transfer": transfer,
+             "dir": str(args.out / "one_camera" / f"cam{kept}_{'on' if transfer else 'off'}")}
+            for kept in range(3) for transfer in (True, False)]
+    with ProcessPoolExecutor(args.workers, max_tasks_per_child=1) as pool:
+        results = list(pool.map(forced_skip_one, work))
+    (args.out / "one_camera.json").write_text(json.dumps(results, indent=1))
+    print("\n| camera registered | motion taken from it: aligned / worst merge µm | "
+          "frames left to the compensation |")
+    print("| --- | --- | --- |")
+    for kept in range(3):
+        a, b = results[2 * kept], results[2 * kept + 1]
+        print(f"| cam{kept} | {a['aligned']['rms_um']:.1f} / {a['merge_median_um']:.1f} | "
+              f"{b['aligned']['rms_um']:.1f} / {b['merge_median_um']:.1f} |")
     return 0
 
 
