@@ -246,6 +246,27 @@ def _phase(frames, table, idx):
     return np.arctan2(coef[2], coef[1])
 
 
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(3, 8), jitter=st.floats(0.0, 0.4), seed=st.integers(0, 2**31 - 1))
+def test_per_pixel_phase_fit_is_the_least_squares_solution(n, jitter, seed):
+    """The cofactor solution of the 3 × 3 normal equations is each pixel's least squares fit,
+    and recovers a, C, S exactly from noise-free frames."""
+    from nail2nail.scan.motion import fit_pixel_shifts
+
+    rng = np.random.default_rng(seed)
+    shifts = (2 * np.pi * np.arange(n)[:, None, None] / n
+              + rng.uniform(-jitter, jitter, (n, 4, 5)))
+    truth = rng.normal(0, 1, (3, 4, 5)) + np.array([5.0, 0, 0])[:, None, None]
+    frames = truth[0] + truth[1] * np.cos(shifts) - truth[2] * np.sin(shifts)
+    np.testing.assert_allclose(fit_pixel_shifts(frames, shifts), truth, atol=1e-9)
+    noisy = frames + rng.normal(0, 0.1, frames.shape)
+    got = fit_pixel_shifts(noisy, shifts)
+    for r, c in ((0, 0), (3, 4)):
+        design = np.stack([np.ones(n), np.cos(shifts[:, r, c]), -np.sin(shifts[:, r, c])], 1)
+        expected, *_ = np.linalg.lstsq(design, noisy[:, r, c], rcond=None)
+        np.testing.assert_allclose(got[:, r, c], expected, atol=1e-9)
+
+
 def test_compensation_removes_per_frame_phase_offsets():
     pattern_set = PatternSet(x=(Frequency(1, 3), Frequency(64, 6)), gamma=None)
     frames, table, idx, truth = _offset_frames(pattern_set, offsets=True)
