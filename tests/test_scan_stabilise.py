@@ -10,7 +10,12 @@ import scipy.ndimage as ndi
 from nail2nail.io.capture import read_capture
 from nail2nail.scan.capture import scan_capture
 from nail2nail.scan.patterns import Frequency, PatternSet, default_pattern_set, frame_table
-from nail2nail.scan.stabilise import _trajectory, reference_direction, stabilise_frames
+from nail2nail.scan.stabilise import (
+    _affine_basis_at,
+    _trajectory,
+    reference_direction,
+    stabilise_frames,
+)
 
 H, W = 240, 320
 #: the finest fringe's period, px (the thesis rig's at half resolution: 12–14 px)
@@ -244,7 +249,7 @@ def _rig_views(rotation, translation, scale: float = 0.25):
         flow = np.stack([project_dlt(m, pts + np.cross(om, pts - center) + t)[:, ::-1]
                          - np.stack([rows, cols], -1)
                          for om, t in zip(rotation, translation, strict=True)])
-        b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h], 1)
+        b = _affine_basis_at(rows, cols, (h, w)).T
         coef, *_ = np.linalg.lstsq(b, flow.transpose(1, 0, 2).reshape(len(rows), -1), rcond=None)
         maps = coef.reshape(3, len(rotation), 2).transpose(1, 2, 0)
         views.append((maps, pts, rows, cols, m, (h, w)))
@@ -267,8 +272,7 @@ def test_one_rigid_motion_moves_every_camera_alike():
     assert np.sqrt(np.mean((found - true) ** 2)) < 0.1 * np.sqrt(np.mean(true**2))
     maps, pts, rows, cols, m, shape = views[2]
     predicted = affine_image_motion(rigid, pts, rows, cols, m, shape, center)
-    h, w = shape
-    b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h])
+    b = _affine_basis_at(rows, cols, shape)
     error = np.einsum("kjb,bp->kpj", predicted - maps, b)
     motion = np.einsum("kjb,bp->kpj", maps, b)
     # every map is an affine fit of a perspective flow (6 % of it here, 0.05 px of 0.74): the
@@ -300,9 +304,8 @@ def test_a_camera_without_texture_takes_the_others_motion():
                                      motion={"stabilisation": info}))
     (index, maps, sources), = _motion_from_other_cameras(scans, calib)
     assert index == 2 and sources == [calib.cameras[0].name, calib.cameras[1].name]
-    h, w = views[2][5]
     rows, cols = np.nonzero(scans[2].mask)
-    b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h])
+    b = _affine_basis_at(rows, cols, views[2][5])
     error = np.einsum("kjb,bp->kpj", maps - views[2][0], b)
     motion = np.einsum("kjb,bp->kpj", views[2][0], b)
     assert np.sqrt(np.mean(error**2)) < 0.1 * np.sqrt(np.mean(motion**2))

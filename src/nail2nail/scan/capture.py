@@ -543,7 +543,7 @@ def scan_capture(
                             stabilise_motion=stabilise_motion, motion=motion)
         if name in masks:
             _apply_user_mask(scan, masks[name])
-        used = ((scan.motion or {}).get("stabilisation") or {}).get("use", use)
+        used = _stabilisation(scan).get("use", use)
         if used in ("xp", "yp"):
             _warn_ill_conditioned(scan, calibration.camera(name), used)
         kept, lit = kept_fraction(scan, decode_options.get("min_modulation", 0.03))
@@ -559,9 +559,9 @@ def scan_capture(
     if stabilise_motion:
         # a camera whose own texture did not register takes the motion the others measured
         for k, maps, sources in _motion_from_other_cameras(scans, calibration):
-            reason = (scans[k].motion or {})["stabilisation"]["skipped"]
+            reason = _stabilisation(scans[k])["skipped"]
             scans[k] = one(names[k], motion=maps)
-            (scans[k].motion or {})["stabilisation"].update(motion_from=sources, texture=reason)
+            _stabilisation(scans[k]).update(motion_from=sources, texture=reason)
     _check_motion(scans, capture.path, max_motion_mm)
     if timings is not None:
         for key, seconds in clock.seconds.items():
@@ -675,13 +675,14 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
     saturation = options.get("saturation", SATURATION)
     top = (2 ** capture.bit_depth - 1) if not cached and capture.bit_depth else 1.0
     if stabilise_motion:
+        stabilised_use = _stabilised_use(use, capture.pattern_set)
         frames, stabilisation = stabilise_frames(
             frames, capture.pattern_set, saturation=saturation * top,
-            direction=_stabilised_use(use, capture.pattern_set)[0], motion=motion)
+            direction=stabilised_use[0], motion=motion)
         # resampled: one time, the reference direction's phase; not resampled (no texture to
         # register): the frames as captured, triangulated as asked
         if stabilisation["reference"] is not None and "skipped" not in stabilisation:
-            use = _stabilised_use(use, capture.pattern_set)
+            use = stabilised_use
         stabilisation["use"] = use
         clock("stabilise")
     if compensate_motion or stabilise_motion:
@@ -703,6 +704,11 @@ def _scan_camera(capture, name: str, calibration: RigCalibration, *, use, max_gr
         scan.motion = {**(scan.motion or {}), "stabilisation": stabilisation}
     scan.fringe_periods = fringe_periods(capture.pattern_set)
     return scan
+
+
+def _stabilisation(scan: Scan) -> dict:
+    """The scan's ``motion["stabilisation"]`` record, itself (empty when not stabilised)."""
+    return (scan.motion or {}).get("stabilisation") or {}
 
 
 def _stabilised_use(use: str, pattern_set) -> str:
@@ -730,7 +736,7 @@ def _motion_from_other_cameras(scans, calibration) -> list[tuple[int, np.ndarray
     empty when no camera registered."""
     views, points, skipped = [], [], []
     for k, scan in enumerate(scans):
-        info = (scan.motion or {}).get("stabilisation") or {}
+        info = _stabilisation(scan)
         if info.get("reference") is None:
             continue
         rows, cols = np.nonzero(scan.mask)

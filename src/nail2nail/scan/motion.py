@@ -400,6 +400,12 @@ def fit_pixel_shifts(values: np.ndarray, shifts: np.ndarray) -> np.ndarray:
     (3, H, W) float64
         ``a, C, S`` (not finite where a pixel's shifts leave the system singular: fewer than
         three distinct shifts modulo 2π).
+
+    Notes
+    -----
+    The thesis's PMP model (chapter two) with each pixel's own shifts; for the nominal, equally
+    spaced shifts of a still finger it is :func:`nail2nail.scan.phase_shift.wrapped_phase`'s
+    fit (tested against per-pixel least squares in ``tests/test_simulation_motion.py``).
     """
     shifts = np.broadcast_to(shifts, np.shape(values))
     cos, sin = np.cos(shifts), -np.sin(shifts)

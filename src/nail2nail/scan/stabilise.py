@@ -146,10 +146,19 @@ def _fringe_frequency(c: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
     return float(np.fft.fftfreq(c.shape[0])[row]), float(np.fft.fftfreq(c.shape[1])[col])
 
 
+def _affine_basis_at(rows, cols, shape) -> np.ndarray:
+    """``(3, …)``: the affine maps' basis ``(1, x̂, ŷ)`` at pixels ``rows, cols`` (any equal
+    shapes) of an image of ``shape = (H, W)``: ``x̂ = (col − W/2) / W``, ``ŷ = (row − H/2) / H``
+    (the module's convention, one place for it)."""
+    h, w = shape
+    return np.stack([np.ones(np.shape(rows)), (cols - w / 2) / w, (rows - h / 2) / h])
+
+
 def _affine_basis(shape) -> np.ndarray:
+    """``(3, H, W)``: :func:`_affine_basis_at` at every pixel."""
     h, w = shape
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
-    return np.stack([np.ones((h, w)), (cols - w / 2) / w, (rows - h / 2) / h])
+    return _affine_basis_at(rows, cols, shape)
 
 
 def _warp(image: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
@@ -338,12 +347,18 @@ def rigid_motion(views, center) -> np.ndarray:
     -------
     (n_frames, 6) float64
         ``ω`` (rad) and ``t`` (mm) per frame.
+
+    Notes
+    -----
+    Beyond the thesis (a still finger). A point's image motion is the derivative of the DLT
+    projection (thesis eq. 3.1–3.2, ``u = (m₁·X̃)/(m₃·X̃)``, ``v = (m₂·X̃)/(m₃·X̃)``):
+    ``∂u/∂X = (m₁ − u m₃)/(m₃·X̃)`` (lens distortion left out: it bends the motion by less
+    than the fit's noise), times the small rigid motion's ``∂X = −[X − c]× ω + t``.
     """
     center = np.asarray(center, dtype=np.float64)
     jac, obs = [], []
     for maps, xyz, rows, cols, matrix, shape in views:
-        h, w = shape
-        b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h])  # (3, P)
+        b = _affine_basis_at(rows, cols, shape)  # (3, P)
         d = np.einsum("kjb,bp->kpj", np.asarray(maps, float), b)  # (n_frames, P, 2)
         jac.append(_motion_jacobian(np.asarray(xyz, float), matrix, center).reshape(-1, 6))
         obs.append(d.reshape(len(d), -1))
@@ -355,13 +370,34 @@ def rigid_motion(views, center) -> np.ndarray:
 
 def affine_image_motion(rigid: np.ndarray, xyz: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                         matrix: np.ndarray, shape, center) -> np.ndarray:
-    """A camera's per-frame affine maps ``(n_frames, 2, 3)`` (:func:`stabilise_frames`'s
-    `motion`) of the rigid motion `rigid` (:func:`rigid_motion`), fitted to the image motion
-    of its points `xyz` ``(P, 3)`` at pixels ``rows, cols`` of an image of `shape`."""
-    h, w = shape
+    """One camera's per-frame affine maps of a rigid motion: what its frames would have
+    measured of it.
+
+    Parameters
+    ----------
+    rigid : (n_frames, 6) array
+        ``ω`` (rad) and ``t`` (mm) per frame (:func:`rigid_motion`).
+    xyz : (P, 3) array
+        The camera's points, mm, world frame (its scan's, stabilised or not: they only place
+        the image motion).
+    rows, cols : (P,) array
+        Their pixels (row and column indices).
+    matrix : (3, 4) array
+        The camera's projection, world mm to pixels (eq. 3.1–3.2).
+    shape : (int, int)
+        The image's ``(H, W)``.
+    center : (3,) array
+        The rotation's centre, mm, as given to :func:`rigid_motion`.
+
+    Returns
+    -------
+    (n_frames, 2, 3) float64
+        Per frame the least-squares affine map ``(dy, dx) = P · (1, x̂, ŷ)`` of the points'
+        image motion, px (:func:`stabilise_frames`'s `motion` and ``info["frames_affine"]``).
+    """
     d = np.einsum("pjs,ks->kpj", _motion_jacobian(np.asarray(xyz, float), matrix,
                                                   np.asarray(center, float)), rigid)
-    b = np.stack([np.ones(len(rows)), (cols - w / 2) / w, (rows - h / 2) / h], axis=1)  # (P, 3)
+    b = _affine_basis_at(rows, cols, shape).T  # (P, 3)
     coef, *_ = np.linalg.lstsq(b, d.transpose(1, 0, 2).reshape(len(rows), -1), rcond=None)
     return coef.reshape(3, len(rigid), 2).transpose(1, 2, 0)
 
