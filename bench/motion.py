@@ -13,7 +13,8 @@ measure motion, not calibration):
    same pixel's ray, pixels valid in both; and after one rigid alignment of all the scans to
    the truth, which takes out the pose the finger had at the frames' mean time), the points
    kept (fraction of the still capture's),
-   the merge median and p95 (pairs that share the projector), the motion the check measured,
+   the merge median and p95 (pairs that share the projector; as the job paired them, and
+   by both projector coordinates, the thesis's pairing), the motion the check measured,
    and SourceAFIS score(unrolled print, true print) as a fraction of the still finger's under
    the same strategy.
 2. **No false alarm.** Still captures under random conditions (seeds that no tuning used,
@@ -178,6 +179,7 @@ def run_amplitude(job: dict) -> list[dict]:
                 process_capture(str(capture_dir), calib, job_dir, **options)
         summary = json.loads((job_dir / "process.json").read_text())
         merge = [v["distance_mm"] for key, v in summary["merge"].items()]
+        thesis = merge_by_both_coordinates(job_dir, base / "merge_xpyp")
         rows.append({
             "amplitude_um": job["amplitude_um"], "strategy": name, "strategy_index": k,
             "frames": pattern_set.n_frames, "span_s": round(pattern_set.n_frames / 120, 4),
@@ -185,6 +187,10 @@ def run_amplitude(job: dict) -> list[dict]:
             "scan": scan_rms(capture_dir, job_dir),
             "merge_median_um": [round(1000 * m["median"], 2) for m in merge],
             "merge_p95_um": [round(1000 * m["p95"], 2) for m in merge],
+            "pair_by": sorted({v.get("pair_by", "xpyp") for v in json.loads(
+                (job_dir / "merge" / "merge.json").read_text())["merge"].values()}),
+            "merge_xpyp_median_um": [round(1000 * m["median"], 2) for m in thesis],
+            "merge_xpyp_p95_um": [round(1000 * m["p95"], 2) for m in thesis],
             "motion": summary.get("motion"),
             "print": str(job_dir / "print" / "print.png"),
             "truth": str(capture_dir / "truth" / "rolled_print.png"),
@@ -193,6 +199,17 @@ def run_amplitude(job: dict) -> list[dict]:
             f"{(summary.get('motion') or {}).get('motion_mm')} mm, 3D RMS "
             f"{[c['rms_um'] for c in rows[-1]['scan'].values()]} µm")  # the last: aligned
     return rows
+
+
+def merge_by_both_coordinates(job_dir: Path, out: Path) -> list[dict]:
+    """The job's merge statistics with the thesis's pairing, by both projector coordinates
+    (``pair_by="xpyp"``), whatever the job paired by: its pairs' ``distance_mm``."""
+    from nail2nail.io.scans import load_scans
+    from nail2nail.merge import write_merge
+
+    merged = write_merge(load_scans(job_dir / "scans"), out, figures=False, data=False,
+                         super_scan=False, pair_by="xpyp")
+    return [v["distance_mm"] for v in merged["merge"].values()]
 
 
 def run_still(job: dict) -> dict:
@@ -274,8 +291,9 @@ def plot(path: Path, rows: list[dict]) -> None:
 
 def markdown(rows: list[dict], still: list[dict]) -> str:
     lines = ["| strategy | frames (s at 120 fps) | tremor RMS µm | motion read (mm) | 3D RMS µm "
-             "(cameras) | points kept | merge median / p95 µm | print score (of still) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "(cameras) | points kept | merge median / p95 µm (paired by) | the same paired by "
+             "(xp, yp) | print score (of still) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     valid0 = {r["strategy"]: {c: v["valid"] for c, v in r["scan"].items() if c != "aligned"}
               for r in rows if r["amplitude_um"] == 0}
     for r in sorted(rows, key=lambda r: (r["strategy_index"], r["amplitude_um"])):
@@ -289,6 +307,8 @@ def markdown(rows: list[dict], still: list[dict]) -> str:
             f"| {rms} "
             f"| {100 * kept:.0f} % "
             f"| {max(r['merge_median_um']):.1f} / {max(r['merge_p95_um']):.1f} "
+            f"({', '.join(r['pair_by'])}) "
+            f"| {max(r['merge_xpyp_median_um']):.1f} / {max(r['merge_xpyp_p95_um']):.1f} "
             f"| {r.get('score', '—')} ({r.get('score_fraction', '—')}) |")
     if still:
         mm = [s.get("motion_mm") or 0.0 for s in still]

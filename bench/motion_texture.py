@@ -25,7 +25,8 @@ and from ``yp`` alone):
    capture.
 
 Figures per row: all scans' 3D RMS against the true surface after one rigid alignment
-(``bench/motion.py``'s ``aligned_rms``, µm) and the worst reported pair's merge median (µm).
+(``bench/motion.py``'s ``aligned_rms``, µm) and the worst reported pair's merge median (µm; as
+the job paired them, and in brackets by both projector coordinates where it paired by one).
 
 Usage::
 
@@ -57,7 +58,7 @@ import scipy.ndimage as ndi
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _measure import log
-from motion import FINGER_SEED, MOTION_SEED, aligned_rms
+from motion import FINGER_SEED, MOTION_SEED, aligned_rms, merge_by_both_coordinates
 
 #: the captures: name, scene options, tremor on
 CAPTURES = {
@@ -214,9 +215,14 @@ def process_one(job: dict) -> dict:
             process_capture(str(capture_dir), calib, job_dir, unroll=False, **options)
     summary = json.loads((job_dir / "process.json").read_text())
     merge = [v["distance_mm"]["median"] for v in summary["merge"].values()]
+    thesis = [m["median"] for m in merge_by_both_coordinates(job_dir, job_dir.parent / (
+        job_dir.name + "_merge_xpyp"))]
     return {"row": job["row"], "use": job["use"],
             "aligned": aligned_rms(capture_dir, job_dir),
-            "merge_median_um": round(1000 * max(merge), 1)}
+            "merge_median_um": round(1000 * max(merge), 1),
+            "pair_by": sorted({v.get("pair_by", "xpyp") for v in json.loads(
+                (job_dir / "merge" / "merge.json").read_text())["merge"].values()}),
+            "merge_xpyp_median_um": round(1000 * max(thesis), 1)}
 
 
 def forced_skip_one(job: dict) -> dict:
@@ -240,6 +246,15 @@ def forced_skip_one(job: dict) -> dict:
     if not job["transfer"]:
         capture_module._motion_from_other_cameras = lambda scans, calibration: []
     return process_one(job)
+
+
+def merge_cell(result: dict) -> str:
+    """The worst pair's merge median, µm, and in brackets the thesis's pairing by both projector
+    coordinates where the job paired by one."""
+    cell = f"{result['merge_median_um']:.1f}"
+    if result.get("pair_by", ["xpyp"]) != ["xpyp"]:
+        cell += f" [{result['merge_xpyp_median_um']:.1f}]"
+    return cell
 
 
 def run_jobs(work: list[dict], workers: int, path: Path, one=process_one) -> dict:
@@ -299,11 +314,11 @@ def main(argv=None) -> int:
     for key in captures:
         a, b = by[(key, "xpyp")], by[(key, "yp")]
         print(f"| {labels[key]} | {a['aligned']['rms_um']:.1f} / {b['aligned']['rms_um']:.1f} "
-              f"| {a['merge_median_um']:.1f} / {b['merge_median_um']:.1f} |")
+              f"| {merge_cell(a)} / {merge_cell(b)} |")
     for key in ("ridged", "no texture", "still"):
         c = by[(key, "stabilised")]
         print(f"| {labels[key]}, `--stabilise-motion` (yp) | {c['aligned']['rms_um']:.1f} "
-              f"(p95 {c['aligned']['p95_um']:.1f}) | {c['merge_median_um']:.1f} |")
+              f"(p95 {c['aligned']['p95_um']:.1f}) | {merge_cell(c)} |")
     return 0
 
 
@@ -325,8 +340,8 @@ def one_camera(args) -> int:
     print("| --- | --- | --- |")
     for kept in range(3):
         a, b = results[2 * kept], results[2 * kept + 1]
-        print(f"| cam{kept} | {a['aligned']['rms_um']:.1f} / {a['merge_median_um']:.1f} | "
-              f"{b['aligned']['rms_um']:.1f} / {b['merge_median_um']:.1f} |")
+        print(f"| cam{kept} | {a['aligned']['rms_um']:.1f} / {merge_cell(a)} | "
+              f"{b['aligned']['rms_um']:.1f} / {merge_cell(b)} |")
     return 0
 
 
@@ -353,13 +368,15 @@ def held_out(args) -> int:
     print("| --- | --- | --- | --- |")
     for seed in seeds:
         rows = [by[(seed, u)] for u in ("xpyp", "yp", "stabilised")]
-        cells = [f"{r['aligned']['rms_um']:.1f} / {r['merge_median_um']:.1f}" for r in rows]
+        cells = [f"{r['aligned']['rms_um']:.1f} / {merge_cell(r)}" for r in rows]
         print(f"| {seed} | " + " | ".join(cells) + " |")
     for u in ("xpyp", "yp", "stabilised"):
         a = [by[(seed, u)]["aligned"]["rms_um"] for seed in seeds]
         m = [by[(seed, u)]["merge_median_um"] for seed in seeds]
+        t = [by[(seed, u)].get("merge_xpyp_median_um", np.nan) for seed in seeds]
         print(f"{u}: aligned median {np.median(a):.1f} worst {max(a):.1f}; merge median "
-              f"{np.median(m):.1f} worst {max(m):.1f}")
+              f"{np.median(m):.1f} worst {max(m):.1f} (paired by xp, yp: median "
+              f"{np.median(t):.1f} worst {max(t):.1f})")
     return 0
 
 

@@ -507,3 +507,124 @@ def test_issue9_local_outliers_follow_a_smooth_offset():
     d[[100, 2000, 4000]] += 0.1
     out = local_outliers(rows, cols, d, block_px=16)
     assert np.flatnonzero(out).tolist() == [100, 2000, 4000]
+
+
+# -- issue 25: scans triangulated from one projector coordinate -------------------------------
+def _one_coordinate(scans, used="yp"):
+    return [replace(s, triangulated_from=used) for s in scans]
+
+
+def test_pairing_by_one_coordinate_ignores_the_other_coordinates_error(clean):
+    """A child whose xp is off by 0.6 panel px (decoded at another time: a moving finger's
+    stabilised scan, triangulated from yp) but whose points are right: the thesis's pairing
+    by (xp, yp) reads the xp error as a tangential distance; pairing by yp and the surface
+    finds the parent's point on the child's surface."""
+    parent, child = _one_coordinate(clean[:2])
+    child = replace(child, xp=(child.xp + np.float32(0.6)).astype(np.float32))
+    thesis = correspond(parent, child, pair_by="xpyp", outlier_mm=None)
+    by_yp = correspond(parent, child, outlier_mm=None)  # auto: both scans say yp
+    assert thesis.pair_by == "xpyp" and by_yp.pair_by == "yp"
+    assert by_yp.statistics()["pair_by"] == "yp"
+    # 0.6 px at ≈ 0.031 mm per panel px at the finger (the fixture's sampling): ≈ 18 µm
+    assert np.median(thesis.distance_mm) > 0.015
+    # the still pair's own figure (the bilinear interpolation's, about 1 µm here)
+    still = np.median(correspond(*clean[:2], outlier_mm=None).distance_mm)
+    assert np.median(by_yp.distance_mm) == pytest.approx(still, abs=2e-4)
+    assert np.all(by_yp.residual_px < 1e-6)  # the yp residual alone, solved
+    assert by_yp.n_pairs >= 0.95 * thesis.n_pairs
+
+
+def test_pairing_by_one_coordinate_keeps_the_surfaces_distance(clean):
+    """Points of the child moved 30 µm along its normal: pairing by yp and the surface still
+    measures (nearly) the 30 µm, it only leaves out the distance along the other coordinate."""
+    from nail2nail.merge import grid_normals
+
+    parent, child = _one_coordinate(clean[:2])
+    normals = grid_normals(child.xyz, camera_center=child.camera_center)
+    moved = replace(child, xyz=(child.xyz + np.float32(0.03) * normals).astype(np.float32))
+    d = correspond(parent, moved, outlier_mm=None).distance_mm
+    assert np.median(d) == pytest.approx(0.03, abs=0.0015)
+    # and on the still scans pairing by one coordinate agrees with the thesis's pairing
+    both = correspond(*clean[:2], outlier_mm=None).distance_mm
+    one = correspond(parent, child, outlier_mm=None).distance_mm
+    assert np.median(one) <= np.median(both) + 1e-4
+
+
+@pytest.mark.parametrize("used, other, pair_by, expected", [
+    ("yp", "yp", "auto", "yp"), ("xp", "xp", "auto", "xp"), ("yp", "xp", "auto", "xpyp"),
+    ("xpyp", "xpyp", "auto", "xpyp"), (None, "yp", "auto", "xpyp"), (None, None, "auto", "xpyp"),
+    ("yp", "yp", "xpyp", "xpyp"), (None, None, "xp", "xp"),
+])
+def test_pairing_coordinates(clean, used, other, pair_by, expected):
+    from nail2nail.merge import pairing_coordinates
+
+    a = replace(clean[0], triangulated_from=used)
+    b = replace(clean[1], triangulated_from=other)
+    assert pairing_coordinates(a, b, pair_by) == expected
+
+
+def test_pairing_refuses_an_unknown_coordinate(clean, tmp_path):
+    from nail2nail.merge.report import write_merge
+
+    with pytest.raises(ValueError, match="pair_by: expected 'auto', 'xpyp', 'xp' or 'yp'"):
+        correspond(clean[0], clean[1], pair_by="zp")
+    with pytest.raises(ValueError, match="pair_by"):
+        write_merge(clean, tmp_path / "m", pair_by="both")
+    assert not (tmp_path / "m").exists()
+
+
+def test_write_merge_and_cli_name_the_pairing(scan_dir, tmp_path, capsys):
+    import json
+
+    from nail2nail.cli._main import main
+    from nail2nail.io.scans import load_scans, save_scans
+
+    scans = _one_coordinate(load_scans(scan_dir))
+    save_scans(tmp_path / "scan", scans, mat5=False, ply=False)
+    assert [s.triangulated_from for s in load_scans(tmp_path / "scan")] == ["yp"] * 3
+    assert main(["merge", str(tmp_path / "scan"), "--out", str(tmp_path / "m"), "--json",
+                 "--no-figures"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert {m["pair_by"] for m in summary["merge"].values()} == {"yp"}
+    assert main(["merge", str(tmp_path / "scan"), "--out", str(tmp_path / "t"), "--json",
+                 "--no-figures", "--pair-by", "xpyp"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert {m["pair_by"] for m in summary["merge"].values()} == {"xpyp"}
+    with pytest.raises(SystemExit):
+        main(["merge", str(tmp_path / "scan"), "--out", str(tmp_path / "u"), "--pair-by", "z"])
+    assert "invalid choice: 'z'" in capsys.readouterr().err
+    assert not (tmp_path / "u").exists()
+
+
+def test_scan_json_refuses_a_bad_triangulation_record(scan_dir, tmp_path):
+    import json
+    import shutil
+
+    from nail2nail.io.scans import load_scans
+
+    bad = tmp_path / "scan"
+    shutil.copytree(scan_dir, bad)
+    manifest = json.loads((bad / "scan.json").read_text())
+    manifest["cameras"][1]["triangulated_from"] = "zp"
+    (bad / "scan.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match=r"scan\.json: cameras\[1\]\.triangulated_from"):
+        load_scans(bad)
+
+
+@settings(max_examples=15, deadline=None)
+@given(offset=st.floats(-1.0, 1.0), tilt=st.floats(-0.01, 0.01),
+       used=st.sampled_from(["xp", "yp"]))
+def test_pairing_by_one_coordinate_is_blind_to_the_others_error(clean, offset, tilt, used):
+    """Any smooth error of the coordinate not triangulated from (an offset and a tilt across
+    the image, panel px) leaves the merge error of one-coordinate pairing where the still
+    scans have it."""
+    other = "xp" if used == "yp" else "yp"
+    parent, child = _one_coordinate(clean[:2], used)
+    cols = np.arange(child.shape[1], dtype=np.float32)
+    wrong = getattr(child, other) + np.float32(offset) + np.float32(tilt) * cols
+    child = replace(child, **{other: wrong.astype(np.float32)})
+    m = correspond(parent, child, outlier_mm=None)
+    still = correspond(*_one_coordinate(clean[:2], used), outlier_mm=None)
+    assert m.pair_by == used
+    assert m.n_pairs >= 0.95 * still.n_pairs
+    assert np.median(m.distance_mm) == pytest.approx(np.median(still.distance_mm), abs=3e-4)

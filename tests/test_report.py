@@ -202,6 +202,8 @@ def test_report_has_every_section_and_is_self_contained(report_html, processed_f
     for key, m in merged["merge"].items():  # the table shows merge.json's figures
         assert f"<td>{key}</td>" in html
         assert f"<td>{1e3 * m['distance_mm']['median']:.2f}</td>" in html
+        assert m["pair_by"] == "xpyp"  # a still capture triangulated from both coordinates
+    assert "<td>xp, yp</td>" in html
     meta = json.loads((processed_finger / "print" / "print.json").read_text())
     assert f"{meta['shape'][1]} × {meta['shape'][0]} px" in html
     assert html.count("data:image/png;base64,") >= 6
@@ -350,6 +352,24 @@ def test_missing_statistics_are_shown_as_dashes(processed_finger, tmp_path):
     html = build_report(out, max_points=2_000)
     assert f"merge {pair}: no matched pixels" in html
     assert "—, — over" in html  # the print's clarity
+
+
+def test_merge_table_names_the_pairing_and_refuses_an_unknown_one(processed_finger, tmp_path):
+    out = tmp_path / "job"
+    shutil.copytree(processed_finger, out, ignore=shutil.ignore_patterns("report.html"))
+    merge_json = out / "merge" / "merge.json"
+    summary = json.loads(merge_json.read_text())
+    first, second = list(summary["merge"])[:2]
+    summary["merge"][first]["pair_by"] = "yp"
+    del summary["merge"][second]["pair_by"]  # a merge written before the field: the thesis's
+    merge_json.write_text(json.dumps(summary))
+    html = build_report(out, max_points=2_000)
+    assert "<td>yp + surface</td>" in html and "<td>xp, yp</td>" in html
+    summary["merge"][first]["pair_by"] = "<b>zp</b>"
+    merge_json.write_text(json.dumps(summary))
+    with pytest.warns(UserWarning, match=f"merge.{first}.pair_by: expected one of"):
+        html = build_report(out, max_points=2_000)
+    assert f"merge.{first}.pair_by: expected one of" in html and "<b>zp</b>" not in html
 
 
 def test_projector_panel_from_the_capture(processed_finger, tmp_path):

@@ -69,6 +69,7 @@ def process_capture(
     min_modulation: float = 0.03,
     allow_mirrored: bool = False,
     pairs=None,
+    pair_by: str = "auto",
     figures: bool = False,
     mat5: bool = False,
     ply: bool = False,
@@ -108,6 +109,8 @@ def process_capture(
         (:func:`nail2nail.merge.parse_pairs`); default the neighbours, ``0-1, 1-2, …`` (with
         several projectors, the neighbouring cameras of each projector and the neighbouring
         projectors of each camera).
+    pair_by : {"auto", "xpyp", "xp", "yp"}
+        What pairs two cameras' pixels in the merge (:func:`nail2nail.merge.correspond`).
     figures : bool
         Write the merge figures (off by default: the job's own output is the data).
     mat5 : bool
@@ -168,6 +171,8 @@ def process_capture(
     if unroll and method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
     check_print_size(ppi, length_mm)  # the unroll's bounds, before the scan and merge run
+    if pair_by not in ("auto", "xpyp", "xp", "yp"):
+        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
     out = check_output_directory(out, marker="process.json")
     times = StepClock()
 
@@ -230,7 +235,7 @@ def process_capture(
                     **(decode_options or {}),
                     "masks": {k: (str(v) if isinstance(v, (str, os.PathLike)) else "array")
                               for k, v in (masks or {}).items()},
-                    "figures": figures, "unroll": unroll,
+                    "pair_by": pair_by, "figures": figures, "unroll": unroll,
                     **({"method": method, "ppi": ppi, "length_mm": length_mm,
                         **(ridge_options or {})} if unroll else {})},
         "cameras": {s.name: int(s.mask.sum()) for s in scans},
@@ -247,14 +252,16 @@ def process_capture(
                        cameras=cameras if several else None)
         say("merge and fuse the super scan")
         with times.stage("merge"):
-            merged = write_merge(scans, tmp / "merge", pairs=pairs, figures=figures,
+            merged = write_merge(scans, tmp / "merge", pairs=pairs, pair_by=pair_by,
+                                 figures=figures,
                                  super_scan=True, mat5=mat5, frame=frame,
                                  seamless_mesh=seamless_mesh,
                                  transform=transform, progress=progress,
                                  final_dir=out / "merge",  # the job directory once renamed
                                  projectors=projectors if several else None,
                                  cameras=cameras if several else None)
-        summary["merge"] = {key: {k: v[k] for k in ("kind", "pairs", "distance_mm", "rejected")
+        summary["merge"] = {key: {k: v[k] for k in ("kind", "pair_by", "pairs", "distance_mm",
+                                                 "rejected")
                                   if k in v}
                             for key, v in merged["merge"].items()}
         summary["super_scan"] = {k: v for k, v in merged["super_scan"].items()

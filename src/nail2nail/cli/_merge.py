@@ -43,6 +43,11 @@ def add_parser(sub) -> None:
                    help="largest projector residual of a pair, panel px (decoding noise)")
     p.add_argument("--border", type=int, default=2,
                    help="erosion of each camera's valid region, px")
+    p.add_argument("--pair-by", choices=("auto", "xpyp", "xp", "yp"), default="auto",
+                   help="what pairs two cameras' pixels: both projector coordinates (xpyp, the "
+                   "thesis), or one and the surface along it (xp, yp); auto (default): the "
+                   "one the scans were triangulated from when it is one (a stabilised moving "
+                   "capture), else both")
     p.add_argument("--no-super", action="store_true", help="skip the super scan")
     p.add_argument("--seamless-mesh", action="store_true",
                    help="mesh super.ply as one surface, the seams between the cameras closed "
@@ -79,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         scans, args.out, pairs=pairs, stride=args.stride, max_residual_px=args.max_residual,
         border_px=args.border, figures=args.figures, super_scan=not args.no_super,
         progress=True, frame=frame, transform=transform, seamless_mesh=args.seamless_mesh,
-        projectors=projectors, cameras=cameras,
+        projectors=projectors, cameras=cameras, pair_by=args.pair_by,
     )
     summary = {"scan_dir": str(dirs[0]) if len(dirs) == 1 else [str(d) for d in dirs],
                **summary}

@@ -57,6 +57,11 @@ def add_process_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pairs", default=None,
                    help="merge report camera pairs PARENT-CHILD, comma separated "
                    "(default: 0-1,1-2,…)")
+    p.add_argument("--pair-by", choices=("auto", "xpyp", "xp", "yp"), default="auto",
+                   help="what pairs two cameras' pixels: both projector coordinates (xpyp, the "
+                   "thesis), or one and the surface along it (xp, yp); auto (default): the "
+                   "one the scans were triangulated from when it is one (a stabilised moving "
+                   "capture), else both")
     p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
                    help="write the merge figures (default: off, the data only)")
     p.add_argument("--mat5", action="store_true",
@@ -87,7 +92,8 @@ def process_options(args: argparse.Namespace) -> dict:
             raise ValueError(str(exc).split(f" among 0..{_ANY_COUNT - 1}")[0]) from None
     return dict(use=args.use, max_gradient=max_gradient(args), min_modulation=min_modulation,
                 decode_options=options, masks=masks(args), allow_mirrored=args.allow_mirrored,
-                pairs=args.pairs, figures=args.figures, mat5=args.mat5, ply=args.ply,
+                pairs=args.pairs, pair_by=args.pair_by, figures=args.figures, mat5=args.mat5,
+                ply=args.ply,
                 seamless_mesh=args.seamless_mesh,
                 unroll=args.unroll, method=args.method, ppi=args.ppi,
                 tip_direction=args.tip_direction, length_mm=args.length, wsq=not args.no_wsq,

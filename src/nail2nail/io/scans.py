@@ -290,6 +290,8 @@ def _write_scans(out: Path, scans: list[Scan], *, mat5: bool, ply: bool, extra,
             entry["motion"] = scan.motion
         if scan.fringe_periods:
             entry["fringe_periods_px"] = dict(scan.fringe_periods)
+        if scan.triangulated_from is not None:
+            entry["triangulated_from"] = scan.triangulated_from
         return entry
 
     cameras = _map_in_threads(write, scans)
@@ -308,6 +310,13 @@ def _fringe_periods(value, where: str) -> dict | None:
         raise ValueError(f"{where}.fringe_periods_px: expected {{'x': T, 'y': T}} with periods "
                          f"> 0 in panel px, got {value!r}")
     return {k: float(v) for k, v in value.items()}
+
+
+def _triangulated_from(value, where: str) -> str | None:
+    """A manifest's ``triangulated_from`` (absent: None, as in scans written before it)."""
+    if value is None or value in ("xpyp", "xp", "yp"):
+        return value
+    raise ValueError(f"{where}.triangulated_from: expected 'xpyp', 'xp' or 'yp', got {value!r}")
 
 
 def _map_in_threads(task, items: list) -> list:
@@ -409,6 +418,8 @@ def load_scans(scan_dir: str | os.PathLike, *, frame: str = "world") -> list[Sca
         scan.motion = cam.get("motion") if isinstance(cam.get("motion"), dict) else None
         scan.fringe_periods = _fringe_periods(cam.get("fringe_periods_px"),
                                               f"{manifest_path}: cameras[{i}]")
+        scan.triangulated_from = _triangulated_from(cam.get("triangulated_from"),
+                                                    f"{manifest_path}: cameras[{i}]")
     if frame == "stored":
         return scans
     world_from_frame = invert_transform(T)

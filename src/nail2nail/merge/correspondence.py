@@ -61,6 +61,7 @@ __all__ = [
     "nearest_bruteforce",
     "nearest_grid",
     "nearest_kdtree",
+    "pairing_coordinates",
     "refine_subpixel",
     "sample_pixels",
     "valid_mask",
@@ -76,6 +77,8 @@ REJECT_REASONS = ("view_angle", "incidence", "modulation", "outlier")
 DROP_REASONS = ("parent_border", "child_border", "residual", *REJECT_REASONS)
 
 _MAX_SHIFT_PX = 1.5  # a refined position further than this from the nearest pixel is not trusted
+_ALONG = {"xpyp": 0, "xp": 1, "yp": 2}  # pair_by → the pairs kernel's `along`
+_SLIDE_STEPS = 3  # iterations of the slide along one coordinate's curve (pair_by "xp", "yp")
 _NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
 
 
@@ -1206,15 +1209,75 @@ def _bilinear_xyz(xyz, r, c, out):
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _bilinear_gradient(image, r, c):
+    """Bilinear value of `image` (H, W) at ``(r, c)`` and its derivatives along the row and the
+    column, float64 (the cell clamped into the image)."""
+    f8 = np.float64
+    h, w = image.shape
+    ri = min(max(int(np.floor(r)), 0), h - 2)
+    ci = min(max(int(np.floor(c)), 0), w - 2)
+    fr, fc = r - ri, c - ci
+    v00, v01 = f8(image[ri, ci]), f8(image[ri, ci + 1])
+    v10, v11 = f8(image[ri + 1, ci]), f8(image[ri + 1, ci + 1])
+    top = v00 + (v01 - v00) * fc
+    bottom = v10 + (v11 - v10) * fc
+    return (top + (bottom - top) * fr, bottom - top,
+            (v01 - v00) * (1 - fr) + (v11 - v10) * fr)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
+    """From ``(r, c)``, the child position on the curve ``p = target`` nearest in the world to
+    `point` (3,): ``(row, col, |p − target|, bad)``.
+
+    Each iteration takes one Newton step onto the curve along the gradient of `p`, then one
+    Gauss–Newton step along the curve's tangent towards `point` (the child's surface
+    linearised there); the position stays within `max_shift` of ``(r0, c0)``.
+    """
+    h, w = p.shape
+    for _ in range(iterations):
+        f, gr, gc = _bilinear_gradient(p, r, c)
+        g2 = gr * gr + gc * gc
+        if not (np.isfinite(f) and np.isfinite(g2)) or g2 == 0.0:
+            return r, c, np.nan, True
+        step = (target - f) / g2
+        r = min(max(r + step * gr, r0 - max_shift), r0 + max_shift)
+        c = min(max(c + step * gc, c0 - max_shift), c0 + max_shift)
+        r = min(max(r, 0.0), h - 1.0)
+        c = min(max(c, 0.0), w - 1.0)
+        norm = np.sqrt(g2)
+        tr, tc = -gc / norm, gr / norm  # the curve's direction, (row, col)
+        num = den = 0.0
+        for j in range(3):
+            x, xr, xc = _bilinear_gradient(xyz[:, :, j], r, c)
+            d = xr * tr + xc * tc
+            num += (point[j] - x) * d
+            den += d * d
+        if not (np.isfinite(num) and np.isfinite(den)) or den == 0.0:
+            return r, c, np.nan, True
+        s = num / den
+        r = min(max(r + s * tr, r0 - max_shift), r0 + max_shift)
+        c = min(max(c + s * tc, c0 - max_shift), c0 + max_shift)
+        r = min(max(r, 0.0), h - 1.0)
+        c = min(max(c, 0.0), w - 1.0)
+    f, _, _ = _bilinear_gradient(p, r, c)
+    res = abs(f - target)
+    return r, c, res, not np.isfinite(res)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxyz, iterations,
-                  max_shift, max_residual, parent_rc, child_nearest, child_rc, xyz_parent,
-                  xyz_child, residual, distance, code):
+                  max_shift, max_residual, along, parent_rc, child_nearest, child_rc,
+                  xyz_parent, xyz_child, residual, distance, code):
     """The pairs of :func:`correspond` after the nearest-neighbour search, in one pass.
 
     For each parent pixel ``(rows, cols)`` and its nearest child pixel ``(nr, nc)``: dropped
     (``child_border``) unless the child pixel is in `child_inner` and the refinement
     (:func:`_refine_one`, target the parent's ``xp, yp``) and the interpolated child point are
     finite, dropped (``residual``) when the residual is not within `max_residual`; else a pair.
+    `along` 1 (``xp``) or 2 (``yp``): from the refined position, the child position keeping
+    that coordinate's value nearest in the world to the parent's point (:func:`_slide_one`),
+    the residual that coordinate's alone; 0: both coordinates (the thesis).
     The pairs go, in input order, to the first rows of the outputs (parent and child pixels,
     sub-pixel child position, the two world points, residual, world distance, all as the
     NumPy formulation computes them); returns their number and the two drop counts. `code`
@@ -1236,6 +1299,18 @@ def _pairs_kernel(rows, cols, nr, nc, child_inner, cxp, cyp, cxyz, pxp, pyp, pxy
         if bad:
             border += 1
             continue
+        if along != 0:
+            for j in range(3):
+                point[j] = f8(pxyz[pr, pc, j])
+            if along == 1:
+                r, c, res, bad = _slide_one(cxp, cxyz, r, c, r0, c0, f8(pxp[pr, pc]), point,
+                                            _SLIDE_STEPS, max_shift)
+            else:
+                r, c, res, bad = _slide_one(cyp, cxyz, r, c, r0, c0, f8(pyp[pr, pc]), point,
+                                            _SLIDE_STEPS, max_shift)
+            if bad:
+                border += 1
+                continue
         _bilinear_xyz(cxyz, r, c, point)
         if not (np.isfinite(point[0]) and np.isfinite(point[1]) and np.isfinite(point[2])):
             border += 1
@@ -1326,6 +1401,10 @@ class Correspondence:
         that is itself restricted.
     unpaired_reason : (M,) int8 or None
         1 for ``"child_border"``, 2 for ``"residual"``.
+    pair_by : {"xpyp", "xp", "yp", "pixel"}
+        What paired the pixels: both projector coordinates (the thesis), one of them and the
+        child's surface (:func:`correspond`'s `pair_by`), or the same pixel of one camera
+        (:func:`same_pixel_pairs`).
     """
 
     parent_name: str
@@ -1346,6 +1425,7 @@ class Correspondence:
     unpaired_rc: np.ndarray | None = None
     unpaired_nearest: np.ndarray | None = None
     unpaired_reason: np.ndarray | None = None
+    pair_by: str = "xpyp"
 
     @property
     def n_pairs(self) -> int:
@@ -1391,7 +1471,7 @@ class Correspondence:
                 "residual_px")},
             n_sampled=self.n_sampled,
             dropped={k: v for k, v in self.dropped.items() if k not in REJECT_REASONS},
-            stride=self.stride,
+            stride=self.stride, pair_by=self.pair_by,
         )
 
     def statistics(self) -> dict:
@@ -1404,6 +1484,7 @@ class Correspondence:
             "parent": self.parent_name,
             "child": self.child_name,
             "stride": self.stride,
+            "pair_by": self.pair_by,
             "sampled": self.n_sampled,
             "pairs": self.n_pairs,
             "dropped": dict(self.dropped),
@@ -1412,6 +1493,29 @@ class Correspondence:
             "before_rejection": {"pairs": before.n_pairs,
                                  **merge_statistics(before.distance_mm)},
         }
+
+
+def pairing_coordinates(parent: Scan, child: Scan, pair_by: str = "auto") -> str:
+    """The projector coordinates that pair two scans: ``"xpyp"``, ``"xp"`` or ``"yp"``.
+
+    `pair_by` as :func:`correspond` takes it; ``"auto"`` is the coordinate both scans were
+    triangulated from (:attr:`~nail2nail.scan.results.Scan.triangulated_from`) when they share
+    one, and both coordinates otherwise (either scan's unknown, or triangulated from both).
+
+    Examples
+    --------
+    >>> one = np.ones((4, 4), np.float32)
+    >>> a = Scan("a", np.zeros((4, 4, 3), np.float32), one, one, one, one, one, one > 0,
+    ...          triangulated_from="yp")
+    >>> pairing_coordinates(a, a), pairing_coordinates(a, a, "xpyp")
+    ('yp', 'xpyp')
+    """
+    if pair_by not in ("auto", *_ALONG):
+        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
+    if pair_by != "auto":
+        return pair_by
+    used = parent.triangulated_from
+    return used if used in ("xp", "yp") and child.triangulated_from == used else "xpyp"
 
 
 def correspond(
@@ -1432,6 +1536,7 @@ def correspond(
     outlier_mad: float = 4.0,
     outlier_block_px: int = 32,
     cache: CorrespondenceCache | None = None,
+    pair_by: str = "auto",
 ) -> Correspondence:
     """Corresponding pixels of two scans in projector space, and their world points.
 
@@ -1463,8 +1568,9 @@ def correspond(
     stride : int
         Sample every `stride`-th row and column of the parent (the thesis used 5 and 20).
     max_residual_px : float
-        Largest projector-coordinate residual of a kept pair, panel px. Without `refine` the
-        residual is the distance to the nearest child pixel.
+        Largest projector-coordinate residual of a kept pair, panel px (of the one coordinate
+        with `pair_by` ``"xp"`` or ``"yp"``). Without `refine` the residual is the distance to
+        the nearest child pixel.
     border_px : int
         Erosion of both valid regions, px (≥ 1: refinement needs the 3 × 3 neighbourhood).
     max_jump_px : float
@@ -1500,6 +1606,16 @@ def correspond(
     cache : CorrespondenceCache, optional
         Keeps what is derived from each scan (masks, view cosine, modulation, search grid) for
         the next call with the same scan; matching one scan several times, pass one cache.
+    pair_by : {"auto", "xpyp", "xp", "yp"}
+        What a pair shares (with `refine`; without it, the nearest pixel in ``(xp, yp)``).
+        ``"xpyp"``: both projector coordinates, the thesis's pairing. ``"xp"`` or ``"yp"``:
+        that coordinate, and along it the child's point nearest in the world to the parent's
+        (the distance from the parent's point to the child's surface curve of equal
+        coordinate), for scans triangulated from that one coordinate, whose other coordinate
+        is decoded but measures no point: a moving finger's stabilised scans
+        (``docs/motion.md``) have it from another time. ``"auto"``
+        (:func:`pairing_coordinates`): the coordinate both scans were triangulated from
+        (:attr:`~nail2nail.scan.results.Scan.triangulated_from`) when it is one, else both.
 
     Returns
     -------
@@ -1534,7 +1650,7 @@ def correspond(
         max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
         min_relative_modulation=min_relative_modulation,
         outlier_mm=outlier_mm, outlier_mad=outlier_mad, outlier_block_px=outlier_block_px,
-        cache=cache,
+        cache=cache, pair_by=pair_by,
     )
 
 
@@ -1630,15 +1746,15 @@ def same_pixel_pairs(
                    max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                    outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
-                   cache=cache)
+                   cache=cache, pair_by="pixel")
 
 
 def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, stride, shapes,
             max_view_angle_deg, max_incidence_deg, min_relative_modulation, outlier_mm,
-            outlier_mad, outlier_block_px, quality, cache) -> Correspondence:
+            outlier_mad, outlier_block_px, quality, cache, pair_by) -> Correspondence:
     """The pairs found (`pairs`: the :class:`Correspondence` arrays; `distance` their world
-    distances or None) tested for reliability and split into the kept and the rejected ones
-    (:func:`correspond`'s tests); `dropped` gets the rejection counts."""
+    distances or None; found by `pair_by`) tested for reliability and split into the kept and
+    the rejected ones (:func:`correspond`'s tests); `dropped` gets the rejection counts."""
     # rejection of unreliable pairs, in the order of REJECT_REASONS
     n = pairs["parent_rc"].shape[0]
     reason = np.full(n, -1, dtype=np.int8)
@@ -1689,7 +1805,7 @@ def _tested(parent, child, pairs, distance, dropped, unpaired, *, n_sampled, str
         return Correspondence(
             parent_name=str(parent.name), child_name=str(child.name),
             parent_shape=tuple(shapes[0]), child_shape=tuple(shapes[1]),
-            **arrays, n_sampled=int(n_sampled), stride=stride, **extra)
+            **arrays, n_sampled=int(n_sampled), stride=stride, pair_by=pair_by, **extra)
 
     rejected = None
     if tests:
@@ -1806,7 +1922,8 @@ def restrict_pairs(
             extra["reason"] = m.reason[index]
         return Correspondence(
             parent_name=m.parent_name, child_name=m.child_name, parent_shape=m.parent_shape,
-            child_shape=m.child_shape, **arrays, n_sampled=n_sampled, stride=stride, **extra)
+            child_shape=m.child_shape, **arrays, n_sampled=n_sampled, stride=stride,
+            pair_by=m.pair_by, **extra)
 
     rejected = None
     if corr.rejected is not None:
@@ -1859,7 +1976,8 @@ def _relative_modulation_kernel(modulation, valid):
 def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_px, refine,
                 method="grid", workers=-1, max_view_angle_deg=70.0, max_incidence_deg=65.0,
                 min_relative_modulation=1 / 3, outlier_mm=0.025, outlier_mad=4.0,
-                outlier_block_px=32, quality=None, cache=None) -> Correspondence:
+                outlier_block_px=32, quality=None, cache=None,
+                pair_by="auto") -> Correspondence:
     """:func:`correspond`; `quality` maps ``id(scan)`` to its ``[view cosine, incidence
     cosine, relative modulation]`` images (None: not yet computed; filled here), so a caller
     matching one scan many times computes them once. `cache` (:class:`CorrespondenceCache`)
@@ -1881,6 +1999,7 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
     _check_angles(max_view_angle_deg, max_incidence_deg)
     if method not in ("grid", "kdtree", "bruteforce"):
         raise ValueError(f"method: expected 'grid', 'kdtree' or 'bruteforce', got {method!r}")
+    pair_by = pairing_coordinates(parent, child, pair_by) if refine else "xpyp"
     if cache is None:
         cache = CorrespondenceCache()
     elif not isinstance(cache, CorrespondenceCache):
@@ -1920,6 +2039,7 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
         counts = _in_chunks(
             lambda a, b: _pairs_kernel(rows[a:b], cols[a:b], nr[a:b], nc[a:b], *kernel_images,
                                        _NEWTON_STEPS, _MAX_SHIFT_PX, float(max_residual_px),
+                                       _ALONG[pair_by],
                                        *(v[a:b] for v in (*buffers, drop_code))), n, workers)
         # the chunks' pairs, moved down to follow each other (copies only when threaded)
         bounds = np.linspace(0, n, len(counts) + 1).astype(np.int64)
@@ -1963,4 +2083,4 @@ def _correspond(parent, child, *, stride, max_residual_px, border_px, max_jump_p
                    max_view_angle_deg=max_view_angle_deg, max_incidence_deg=max_incidence_deg,
                    min_relative_modulation=min_relative_modulation, outlier_mm=outlier_mm,
                    outlier_mad=outlier_mad, outlier_block_px=outlier_block_px, quality=quality,
-                   cache=cache)
+                   cache=cache, pair_by=pair_by)

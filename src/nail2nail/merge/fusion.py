@@ -1168,6 +1168,7 @@ def fuse_scans(
     outlier_mad: float = 4.0,
     projectors=None,
     cameras=None,
+    pair_by: str = "auto",
 ) -> SuperScan:
     """Fuse the scans of several cameras into one nail-to-nail point cloud and mesh.
 
@@ -1235,6 +1236,10 @@ def fuse_scans(
         index of the projector and of the camera it was measured with; scans of one camera
         share its pixel grid. Default: one projector, every scan its own camera (the thesis
         rig). No two scans may share both.
+    pair_by : {"auto", "xpyp", "xp", "yp"}
+        What pairs two scans of one projector (:func:`~nail2nail.merge.correspond`): by
+        default both projector coordinates, or the one coordinate both scans were triangulated
+        from and the surface along it.
 
     Returns
     -------
@@ -1322,7 +1327,7 @@ def fuse_scans(
                 corr[i, j] = _correspond(
                     scans[i], scans[j], stride=1, max_residual_px=max_residual_px,
                     border_px=border_px, max_jump_px=2.0, refine=True, method="grid",
-                    workers=-1, **tests)
+                    workers=-1, pair_by=pair_by, **tests)
             elif kind == "camera":
                 corr[i, j] = same_pixel_pairs(scans[i], scans[j], border_px=border_px,
                                               max_jump_px=2.0, **tests)

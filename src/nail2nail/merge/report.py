@@ -121,6 +121,7 @@ def write_merge(
     seamless_mesh: bool = False,
     projectors=None,
     cameras=None,
+    pair_by: str = "auto",
 ) -> dict:
     """Merge error of each camera pair and the fused super scan, written under `out`.
 
@@ -187,12 +188,18 @@ def write_merge(
         projector space, a pair of one camera at the same pixel
         (:func:`nail2nail.merge.same_pixel_pairs`); a pair sharing neither is refused. Each
         pair's summary names its ``kind``: ``"projector"`` or ``"camera"``.
+    pair_by : {"auto", "xpyp", "xp", "yp"}
+        What pairs two scans of one projector (:func:`nail2nail.merge.correspond`): both
+        projector coordinates (the thesis), or one coordinate and the surface along it; by
+        default the coordinate both scans were triangulated from when it is one (a stabilised
+        moving capture), both otherwise. Each pair's summary names it (``pair_by``;
+        ``"pixel"`` for a pair of one camera).
 
     Returns
     -------
     dict
-        ``{"out", "merge": {"P-C": {parent, child, stride, sampled, pairs, dropped, rejected,
-        distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
+        ``{"out", "merge": {"P-C": {parent, child, stride, pair_by, sampled, pairs, dropped,
+        rejected, distance_mm: {median, mean, rms, p90, p95, max, frac_below_0_05}, squared_mm2,
         before_rejection: {pairs, distance_mm, squared_mm2}, files}}, "super_scan": {...} |
         None, "seconds": {correspond, fuse, write, figures}, "outputs": [paths]}``
         (``fuse``: the fusion, its correspondences included; ``correspond``: the pairs'
@@ -218,6 +225,8 @@ def write_merge(
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
     border_px = as_int(border_px, "border_px", minimum=1)  # as correspond: checked up front
+    if pair_by not in ("auto", "xpyp", "xp", "yp"):
+        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
 
     transform = np.eye(4) if transform is None else _check_transform(transform)
     out = Path(out)
@@ -226,7 +235,8 @@ def write_merge(
                                max_residual_px=max_residual_px, border_px=border_px,
                                figures=figures, super_scan=super_scan, data=data,
                                mat5=mat5, progress=progress, frame=frame, transform=transform,
-                               seamless_mesh=seamless_mesh, groups=groups)
+                               seamless_mesh=seamless_mesh, groups=groups,
+                               pair_by=pair_by)
         summary = relocate_paths(summary, str(tmp), str(out if final_dir is None else final_dir))
         write_json(tmp / "merge.json", summary)
     return summary
@@ -276,7 +286,7 @@ def _check_kept(corr, stats: dict | None = None) -> None:
 
 def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px, figures,
                  super_scan, data, mat5, progress, frame="world", transform=None,
-                 seamless_mesh=False, groups=None) -> dict:
+                 seamless_mesh=False, groups=None, pair_by="auto") -> dict:
     """Write every file of :func:`write_merge` but ``merge.json`` under `out`; the summary.
 
     The figures are drawn on one thread beside the merge: matplotlib needs the GIL, the
@@ -292,7 +302,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
                                super_scan=super_scan, data=data, mat5=mat5,
                                progress=progress, drawing=drawing, frame=frame,
                                transform=transform, seamless_mesh=seamless_mesh,
-                               groups=groups or scan_groups(len(scans)))
+                               groups=groups or scan_groups(len(scans)), pair_by=pair_by)
     except BaseException:
         if drawing is not None:
             drawing.shutdown(wait=True, cancel_futures=True)
@@ -304,7 +314,7 @@ def _write_merge(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
 
 def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px, super_scan,
                  data, mat5, progress, drawing, groups, frame="world", transform=None,
-                 seamless_mesh=False) -> dict:
+                 seamless_mesh=False, pair_by="auto") -> dict:
     """:func:`_write_merge` with the figures drawn on `drawing` (an executor; None: none)."""
     summary: dict = {"out": str(out), "merge": {}, "super_scan": None, "outputs": []}
     lap = StepClock()
@@ -320,7 +330,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         # the fusion matches every ordered pair once; the statistics read those pairs
         bar.set_postfix_str("fuse")
         sup = fuse_scans(scans, max_residual_px=max_residual_px, projectors=groups[0],
-                         cameras=groups[1])
+                         cameras=groups[1], pair_by=pair_by)
         lap("fuse")
         bar.update()
     else:
@@ -335,7 +345,7 @@ def _merge_files(scans, out: Path, *, pairs, stride, max_residual_px, border_px,
         elif pair_kind(groups, i, j) == "projector":
             corr = correspond(scans[i], scans[j], stride=stride,
                               max_residual_px=max_residual_px, border_px=border_px,
-                              cache=cache)
+                              cache=cache, pair_by=pair_by)
         else:
             corr = same_pixel_pairs(scans[i], scans[j], stride=stride, border_px=border_px,
                                     cache=cache)

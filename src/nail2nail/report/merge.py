@@ -40,14 +40,23 @@ def above_threshold(distance_mm: dict) -> bool:
     return median is not None and median > THRESHOLD_MM
 
 
+#: What paired two cameras' pixels (``merge.json`` → ``pair_by``), as the table says it.
+PAIRINGS = {"xpyp": "xp, yp", "xp": "xp + surface", "yp": "yp + surface",
+            "pixel": "same pixel"}
+
+
 def _pair_rows(merge: dict) -> list[list]:
     rows = []
     for key, m in merge.items():
         d = m["distance_mm"]
         rejected = m.get("rejected", {})
         where = f"merge.{key}.distance_mm"
+        pair_by = m.get("pair_by", "xpyp")  # merges written before it: the thesis's pairing
+        if pair_by not in PAIRINGS:
+            raise ValueError(f"merge.{key}.pair_by: expected one of {', '.join(PAIRINGS)}, got "
+                             f"{quoted(pair_by)}")
         rows.append([
-            key, m.get("parent", ""), m.get("child", ""),
+            key, m.get("parent", ""), m.get("child", ""), PAIRINGS[pair_by],
             f"{number(m['pairs'], f'merge.{key}.pairs', integer=True):,.0f}",
             *(_um(d[k] if k in ("median", "mean", "p95", "max") else d.get(k), f"{where}.{k}")
               for k in ("median", "mean", "rms", "p90", "p95", "max")),
@@ -161,10 +170,12 @@ def section(inputs: ReportInputs) -> Section:
                 "warn"))
         parts.append(table_html(
             _pair_rows(merge),
-            ["pair", "parent", "child", "pairs", "median µm", "mean µm", "RMS µm", "p90 µm",
-             "p95 µm", "max µm", "% < 50 µm", "rejected"],
+            ["pair", "parent", "child", "paired by", "pairs", "median µm", "mean µm", "RMS µm",
+             "p90 µm", "p95 µm", "max µm", "% < 50 µm", "rejected"],
             caption="Merge error per camera pair: 3D distance between a parent pixel's point "
-            "and the child's point at the same projector coordinates (thesis chapter four)"))
+            "and the child's point at the same projector coordinates (thesis chapter four); "
+            "paired by one coordinate (scans triangulated from it), at the child's point of "
+            "that coordinate nearest the parent's"))
         for key in merge:
             if not isinstance(key, str) or not key or set(key) & set("/\\:") or ".." in key:
                 raise ValueError(f"merge: a camera pair named {quoted(key)}, not a plain name")

@@ -312,6 +312,7 @@ def _scan_fast(frames, pattern_set, camera: CameraCalibration, *, projector_dist
         camera_center=camera_center(camera.camera),
         projector_center=camera_center(camera.projector),
         reason=decoded.reason,
+        triangulated_from=use,
     )
 
 
@@ -388,6 +389,7 @@ def _scan_bands(band_frames, shape, pattern_set, camera: CameraCalibration, *,
         camera_center=camera_center(camera.camera),
         projector_center=camera_center(camera.projector),
         reason=reason,
+        triangulated_from=use,
     )
 
 

@@ -236,6 +236,11 @@ class Scan:
         the period of the decoder's systematic error, which the unroll takes out of the
         ridge signal (:mod:`nail2nail.unroll.fringes`); None when not known (a mat5 set, an
         older scan file).
+    triangulated_from : {"xpyp", "xp", "yp"} or None
+        The projector coordinates the points were triangulated from (``use`` of
+        :func:`nail2nail.scan.scan_frames`; a stabilised capture's is its reference
+        direction's); the merge pairs scans by these (:func:`nail2nail.merge.correspond`'s
+        `pair_by`). None when not known (a mat5 set, an older scan file): taken as both.
     """
 
     name: str
@@ -251,6 +256,7 @@ class Scan:
     motion: dict | None = field(default=None)
     fringe_periods: dict | None = field(default=None)
     projector_center: np.ndarray | None = field(default=None)
+    triangulated_from: str | None = field(default=None)
 
     @property
     def shape(self) -> tuple[int, int]:
