@@ -273,11 +273,14 @@ def plot(path: Path, rows: list[dict]) -> None:
         style.pop("label")
         axes[0].plot(a, [r["scan"]["aligned"]["rms_um"] for r in mine], "--", **style)
         axes[1].plot(a, [max(r["merge_median_um"]) for r in mine], "-", **style)
+        if any(r.get("pair_by", ["xpyp"]) != ["xpyp"] for r in mine):  # and the thesis's
+            axes[1].plot(a, [max(r["merge_xpyp_median_um"]) for r in mine], ":", **style)
         axes[2].plot(a, [r.get("score_fraction") or 0 for r in mine], "-", **style)
     axes[0].set_ylabel("3D RMS (µm): worst camera vs truth (solid),\nall scans after a rigid "
                        "alignment (dashed)")
     axes[0].set_yscale("log")
-    axes[1].set_ylabel("merge median, worst pair (µm)")
+    axes[1].set_ylabel("merge median, worst pair (µm): as paired (solid),\nby both "
+                       "projector coordinates (dotted, scans of yp)")
     axes[2].set_ylabel("print score / the still finger's")
     for ax in axes:
         ax.set_xlabel("tremor RMS (µm; 8–12 Hz, 120 fps)")

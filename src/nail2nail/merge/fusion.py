@@ -1175,9 +1175,10 @@ def fuse_scans(
     0. Spikes (:func:`spikes`: points off their neighbours' surface by more than `spike_mm`)
        are dropped from each camera's scan.
     1. Correspondence of every ordered pair of cameras in projector space
-       (:func:`nail2nail.merge.correspond`, every pixel; with several projectors, the pairs
-       of one projector so, the pairs of one camera under two projectors at the same pixel,
-       :func:`nail2nail.merge.same_pixel_pairs`), with the unreliable pairs rejected
+       (:func:`nail2nail.merge.correspond`, every pixel, paired by `pair_by`; with several
+       projectors, the pairs of one projector so, the pairs of one camera under two
+       projectors at the same pixel, :func:`nail2nail.merge.same_pixel_pairs`), with the
+       unreliable pairs rejected
        (a view beyond `max_view_angle_deg`, the projector's light beyond `max_incidence_deg`
        from the normal, modulation below `min_relative_modulation` of the
        camera's median, a distance that is a local outlier: `outlier_mm`, `outlier_mad`).
