@@ -317,7 +317,8 @@ def main(argv=None) -> int:
               f"| {merge_cell(a)} / {merge_cell(b)} |")
     for key in ("ridged", "no texture", "still"):
         c = by[(key, "stabilised")]
-        print(f"| {labels[key]}, `--stabilise-motion` (yp) | {c['aligned']['rms_um']:.1f} "
+        used = "/".join(c.get("pair_by", ["xpyp"]))  # what the scans were triangulated from
+        print(f"| {labels[key]}, `--stabilise-motion` ({used}) | {c['aligned']['rms_um']:.1f} "
               f"(p95 {c['aligned']['p95_um']:.1f}) | {merge_cell(c)} |")
     return 0
 
