@@ -55,9 +55,12 @@ reduction methods for phase shifting profilometry: a review", Opt. Lasers Eng. 1
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.ndimage as ndi
 
+from nail2nail._interpolate import bilinear_value
+from nail2nail._numba_cache import cache_enabled
 from nail2nail.scan.motion import _band, dc_groups, fit_pixel_shifts
 from nail2nail.scan.patterns import PatternSet, frame_table
 
@@ -161,34 +164,90 @@ def _affine_basis(shape) -> np.ndarray:
     return _affine_basis_at(rows, cols, shape)
 
 
-def _warp(image: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """``image(row + dy, col + dx)``, bilinear, edges repeated."""
+def _warp_affine(image: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """``image(x + P·b(x))``, `params` ``P`` ``(2, 3)`` (row 0 ``dy``, row 1 ``dx``) on the
+    basis :func:`_affine_basis_at`: bilinear, positions beyond the image read its edge
+    (``scipy.ndimage.map_coordinates(order=1, mode="nearest")``), float64, compiled without
+    the displacement images."""
+    out = np.empty(image.shape)
+    _warp_affine_kernel(np.ascontiguousarray(image), np.ascontiguousarray(params, np.float64),
+                        out)
+    return out
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _warp_affine_kernel(image, params, out):  # pragma: no cover - compiled
     h, w = image.shape
-    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
-    return ndi.map_coordinates(image, [rows + dy, cols + dx], order=1, mode="nearest")
+    for r in range(h):
+        yh = (r - h / 2) / h
+        for c in range(w):
+            xh = (c - w / 2) / w
+            dy = params[0, 0] + params[0, 1] * xh + params[0, 2] * yh
+            dx = params[1, 0] + params[1, 1] * xh + params[1, 2] * yh
+            # mode "nearest" of the bilinear warp: the position clamped into the image
+            out[r, c] = bilinear_value(image, min(max(r + dy, 0.0), h - 1.0),
+                                       min(max(c + dx, 0.0), w - 1.0))
 
 
 def _register_affine(image: np.ndarray, reference: np.ndarray, weight: np.ndarray,
-                     basis: np.ndarray, iterations: int = ITERATIONS) -> np.ndarray:
+                     iterations: int = ITERATIONS) -> np.ndarray:
     """``(2, 3)`` affine map ``P`` with ``image(x + P·b(x)) ≈ reference(x)`` (Gauss–Newton,
-    weighted least squares over the pixels; row 0 ``dy``, row 1 ``dx``)."""
+    weighted least squares over the pixels of positive `weight`, the moved image's gradient
+    as :func:`numpy.gradient` takes it; row 0 ``dy``, row 1 ``dx``, basis
+    :func:`_affine_basis_at`)."""
     params = np.zeros((2, 3))
-    sel = weight > 0
-    w = weight[sel]
-    b = basis[:, sel]
+    rows, cols = np.nonzero(weight > 0)
+    reference = np.ascontiguousarray(reference, dtype=np.float64)
+    weight = np.ascontiguousarray(weight, dtype=np.float64)
+    normal, rhs = np.empty((6, 6)), np.empty(6)
     for _ in range(iterations):
-        d = np.einsum("jb,bhw->jhw", params, basis)
-        moved = _warp(image, d[0], d[1])
-        gy, gx = np.gradient(moved)
-        jac = np.concatenate([gy[sel] * b, gx[sel] * b])  # (6, P)
-        residual = reference[sel] - moved[sel]
-        normal = (jac * w) @ jac.T
+        moved = _warp_affine(image, params)
+        _normal_equations(moved, reference, weight, rows, cols, normal, rhs)
         normal += 1e-6 * np.trace(normal) / 6 * np.eye(6)
-        step = np.linalg.solve(normal, (jac * w) @ residual).reshape(2, 3)
+        step = np.linalg.solve(normal, rhs).reshape(2, 3)
         params += np.clip(step, -2.0, 2.0)
         if np.max(np.abs(step)) < 1e-4:
             break
     return params
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _normal_equations(moved, reference, weight, rows, cols, normal, rhs):  # pragma: no cover
+    """`normal` ``JᵀWJ`` and `rhs` ``JᵀW(reference − moved)`` of :func:`_register_affine`'s
+    Gauss–Newton step over the pixels ``rows, cols``: ``J`` the moved image's gradient
+    (central differences, one-sided at the image's edges) times the basis."""
+    h, w = moved.shape
+    normal[:] = 0.0
+    rhs[:] = 0.0
+    jac = np.empty(6)
+    for k in range(rows.size):
+        r, c = rows[k], cols[k]
+        if r == 0:
+            gy = moved[1, c] - moved[0, c]
+        elif r == h - 1:
+            gy = moved[h - 1, c] - moved[h - 2, c]
+        else:
+            gy = 0.5 * (moved[r + 1, c] - moved[r - 1, c])
+        if c == 0:
+            gx = moved[r, 1] - moved[r, 0]
+        elif c == w - 1:
+            gx = moved[r, w - 1] - moved[r, w - 2]
+        else:
+            gx = 0.5 * (moved[r, c + 1] - moved[r, c - 1])
+        xh = (c - w / 2) / w
+        yh = (r - h / 2) / h
+        jac[0], jac[1], jac[2] = gy, gy * xh, gy * yh
+        jac[3], jac[4], jac[5] = gx, gx * xh, gx * yh
+        wk = weight[r, c]
+        e = wk * (reference[r, c] - moved[r, c])
+        for i in range(6):
+            rhs[i] += jac[i] * e
+            a = wk * jac[i]
+            for j in range(i, 6):
+                normal[i, j] += a * jac[j]
+    for i in range(6):
+        for j in range(i):
+            normal[i, j] = normal[j, i]
 
 
 def _fringe_free_sets(idx: list[int]) -> list[list[int]]:
@@ -421,15 +480,14 @@ def _texture_motion(textures, fits, reference, table, weight, basis, n_frames: i
                   or in_reference)
     anchor = textures[min(candidates, key=lambda i: abs(textures[i][0] - t_ref))][1]
     times = np.array([t for t, _, _, _ in textures])
-    params = np.stack([_register_affine(image, anchor, weight, basis)
+    params = np.stack([_register_affine(image, anchor, weight)
                        for _, image, _, _ in textures])  # (n_images, 2, 3)
     # how well each image matches the anchor once moved: skin without ridges (or noise
     # alone) gives a "motion" that is anywhere, and no image is resampled with it
     sel = weight > 0
     correlation = []
     for (_, image, _, _), p in zip(textures, params, strict=True):
-        d = np.einsum("jb,bhw->jhw", p, basis)
-        moved = _warp(image, d[0], d[1])[sel]
+        moved = _warp_affine(image, p)[sel]
         correlation.append(float(np.dot(moved, anchor[sel]) / max(
             np.linalg.norm(moved) * np.linalg.norm(anchor[sel]), 1e-12)))
     info["correlation"] = [round(c, 3) for c in correlation]
@@ -566,11 +624,11 @@ def stabilise_frames(frames, pattern_set: PatternSet, *, saturation: float | Non
         rows_k = np.arange(height)[:, None] + d[0]
         cols_k = np.arange(width)[None, :] + d[1]
         inside &= (rows_k >= 0) & (rows_k <= height - 1) & (cols_k >= 0) & (cols_k <= width - 1)
-        inside &= _warp(lit, d[0], d[1]) >= 1.0 - 1e-9
+        inside &= _warp_affine(lit, per_frame[k]) >= 1.0 - 1e-9
     info["texture_phase"] = {}
     for label, (idx, nominal, c, s, _) in fits.items():
         d = np.einsum("kjb,bhw->kjhw", per_frame[idx], basis)  # (N, 2, H, W)
-        moved = np.stack([_warp(values[k], d[j, 0], d[j, 1]) for j, k in enumerate(idx)])
+        moved = np.stack([_warp_affine(values[k], per_frame[k]) for k in idx])
         gy, gx = phase_gradient(c, s)
         dev = d - d.mean(axis=0, keepdims=True)
         a2, c2, s2 = fit_pixel_shifts(moved, nominal + gy * dev[:, 0] + gx * dev[:, 1])
