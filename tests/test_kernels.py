@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from _kernels import KernelCase, check_kernel
 
-from nail2nail._interpolate import bilinear, bilinear_value
+from nail2nail._interpolate import bilinear, bilinear_gradient, bilinear_value
 from nail2nail.calibration.camera_models import dlt_from_pinhole, project_dlt
 from nail2nail.scan.decoding import decode
 from nail2nail.scan.kernels import decode_fast
@@ -32,6 +32,23 @@ def _bilinear_case() -> KernelCase:
         reference=lambda: {"value": bilinear(image.astype(np.float64), r, c)[0]},
         kinds={"value": "same_float64"},
     )
+
+
+def _bilinear_gradient_case() -> KernelCase:
+    rng = np.random.default_rng(3)
+    image = rng.normal(size=(10, 12)).astype(np.float32)
+    r, c = rng.uniform(-1, 10, 200), rng.uniform(-1, 12, 200)  # some beyond the image
+
+    def compiled():
+        out = np.array([bilinear_gradient(image, a, b) for a, b in zip(r, c, strict=True)])
+        return {"value": out[:, 0], "d_dr": out[:, 1], "d_dc": out[:, 2]}
+
+    def reference():
+        value, d_dr, d_dc = bilinear(image.astype(np.float64), r, c)
+        return {"value": value, "d_dr": d_dr, "d_dc": d_dc}
+
+    return KernelCase("bilinear_gradient", compiled=compiled, reference=reference,
+                      kinds=dict.fromkeys(("value", "d_dr", "d_dc"), "same_float64"))
 
 
 def _decode_case() -> KernelCase:
@@ -69,7 +86,7 @@ def _ray_case() -> KernelCase:
     )
 
 
-CASES = [_bilinear_case, _decode_case, _ray_case]
+CASES = [_bilinear_case, _bilinear_gradient_case, _decode_case, _ray_case]
 
 
 @pytest.mark.parametrize("make", CASES, ids=lambda f: f.__name__.strip("_"))

@@ -1,7 +1,8 @@
 """Bilinear interpolation on pixel grids: the one implementation the stages share.
 
 :func:`bilinear` is the NumPy form (values and derivatives at many positions);
-:func:`bilinear_value` is the same arithmetic for one position inside compiled kernels.
+:func:`bilinear_value` and :func:`bilinear_gradient` are the same arithmetic for one position
+inside compiled kernels.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import numpy as np
 
 from nail2nail._numba_cache import cache_enabled
 
-__all__ = ["bilinear", "bilinear_value"]
+__all__ = ["bilinear", "bilinear_gradient", "bilinear_value"]
 
 
 def bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
@@ -64,3 +65,19 @@ def bilinear_value(image, r, c):  # pragma: no cover - compiled
     top = f00 + (f01 - f00) * fc
     bottom = f10 + (f11 - f10) * fc
     return top + (bottom - top) * fr
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def bilinear_gradient(image, r, c):  # pragma: no cover - compiled
+    """:func:`bilinear`'s value and derivatives ``(value, d_dr, d_dc)`` of a 2-D `image` at one
+    position ``(r, c)``, compiled; float64, extrapolated beyond the image as
+    :func:`bilinear_value` is."""
+    h, w = image.shape
+    r0 = min(max(int(np.floor(r)), 0), h - 2)
+    c0 = min(max(int(np.floor(c)), 0), w - 2)
+    fr, fc = r - r0, c - c0
+    f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
+    f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+    top = f00 + (f01 - f00) * fc
+    bottom = f10 + (f11 - f10) * fc
+    return top + (bottom - top) * fr, bottom - top, (f01 - f00) * (1 - fr) + (f11 - f10) * fr

@@ -44,7 +44,7 @@ import numpy as np
 import scipy.ndimage
 import scipy.spatial
 
-from nail2nail._interpolate import bilinear, bilinear_value
+from nail2nail._interpolate import bilinear, bilinear_gradient, bilinear_value
 from nail2nail._numba_cache import cache_enabled
 from nail2nail._validation import as_int
 from nail2nail.merge.statistics import _middle, local_outliers, merge_statistics
@@ -1209,23 +1209,6 @@ def _bilinear_xyz(xyz, r, c, out):
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
-def _bilinear_gradient(image, r, c):
-    """Bilinear value of `image` (H, W) at ``(r, c)`` and its derivatives along the row and the
-    column, float64 (the cell clamped into the image)."""
-    f8 = np.float64
-    h, w = image.shape
-    ri = min(max(int(np.floor(r)), 0), h - 2)
-    ci = min(max(int(np.floor(c)), 0), w - 2)
-    fr, fc = r - ri, c - ci
-    v00, v01 = f8(image[ri, ci]), f8(image[ri, ci + 1])
-    v10, v11 = f8(image[ri + 1, ci]), f8(image[ri + 1, ci + 1])
-    top = v00 + (v01 - v00) * fc
-    bottom = v10 + (v11 - v10) * fc
-    return (top + (bottom - top) * fr, bottom - top,
-            (v01 - v00) * (1 - fr) + (v11 - v10) * fr)
-
-
-@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
     """From ``(r, c)``, the child position on the curve ``p = target`` nearest in the world to
     `point` (3,): ``(row, col, |p − target|, bad)``.
@@ -1236,7 +1219,7 @@ def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
     """
     h, w = p.shape
     for _ in range(iterations):
-        f, gr, gc = _bilinear_gradient(p, r, c)
+        f, gr, gc = bilinear_gradient(p, r, c)
         g2 = gr * gr + gc * gc
         if not (np.isfinite(f) and np.isfinite(g2)) or g2 == 0.0:
             return r, c, np.nan, True
@@ -1249,7 +1232,7 @@ def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
         tr, tc = -gc / norm, gr / norm  # the curve's direction, (row, col)
         num = den = 0.0
         for j in range(3):
-            x, xr, xc = _bilinear_gradient(xyz[:, :, j], r, c)
+            x, xr, xc = bilinear_gradient(xyz[:, :, j], r, c)
             d = xr * tr + xc * tc
             num += (point[j] - x) * d
             den += d * d
@@ -1260,7 +1243,7 @@ def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
         c = min(max(c + s * tc, c0 - max_shift), c0 + max_shift)
         r = min(max(r, 0.0), h - 1.0)
         c = min(max(c, 0.0), w - 1.0)
-    f, _, _ = _bilinear_gradient(p, r, c)
+    f, _, _ = bilinear_gradient(p, r, c)
     res = abs(f - target)
     return r, c, res, not np.isfinite(res)
 
