@@ -49,6 +49,17 @@ def bilinear(image: np.ndarray, r: np.ndarray, c: np.ndarray):
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _cell(image, r, c):  # pragma: no cover - compiled
+    """The four values (float64) of the cell of `image` that holds ``(r, c)``, clamped into the
+    image, and the position's fractions ``fr, fc`` in it: :func:`bilinear`'s neighbours."""
+    h, w = image.shape
+    r0 = min(max(int(np.floor(r)), 0), h - 2)
+    c0 = min(max(int(np.floor(c)), 0), w - 2)
+    return (np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1]),
+            np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1]), r - r0, c - c0)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def bilinear_value(image, r, c):  # pragma: no cover - compiled
     """:func:`bilinear`'s value of a 2-D `image` at one position ``(r, c)``, compiled.
 
@@ -56,12 +67,7 @@ def bilinear_value(image, r, c):  # pragma: no cover - compiled
     positions outside the image are extrapolated from the nearest border cell, as
     :func:`bilinear` does.
     """
-    h, w = image.shape
-    r0 = min(max(int(np.floor(r)), 0), h - 2)
-    c0 = min(max(int(np.floor(c)), 0), w - 2)
-    fr, fc = r - r0, c - c0
-    f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
-    f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+    f00, f01, f10, f11, fr, fc = _cell(image, r, c)
     top = f00 + (f01 - f00) * fc
     bottom = f10 + (f11 - f10) * fc
     return top + (bottom - top) * fr
@@ -72,12 +78,7 @@ def bilinear_gradient(image, r, c):  # pragma: no cover - compiled
     """:func:`bilinear`'s value and derivatives ``(value, d_dr, d_dc)`` of a 2-D `image` at one
     position ``(r, c)``, compiled; float64, extrapolated beyond the image as
     :func:`bilinear_value` is."""
-    h, w = image.shape
-    r0 = min(max(int(np.floor(r)), 0), h - 2)
-    c0 = min(max(int(np.floor(c)), 0), w - 2)
-    fr, fc = r - r0, c - c0
-    f00, f01 = np.float64(image[r0, c0]), np.float64(image[r0, c0 + 1])
-    f10, f11 = np.float64(image[r0 + 1, c0]), np.float64(image[r0 + 1, c0 + 1])
+    f00, f01, f10, f11, fr, fc = _cell(image, r, c)
     top = f00 + (f01 - f00) * fc
     bottom = f10 + (f11 - f10) * fc
     return top + (bottom - top) * fr, bottom - top, (f01 - f00) * (1 - fr) + (f11 - f10) * fr
