@@ -187,8 +187,7 @@ def run_amplitude(job: dict) -> list[dict]:
             "scan": scan_rms(capture_dir, job_dir),
             "merge_median_um": [round(1000 * m["median"], 2) for m in merge],
             "merge_p95_um": [round(1000 * m["p95"], 2) for m in merge],
-            "pair_by": sorted({v.get("pair_by", "xpyp") for v in json.loads(
-                (job_dir / "merge" / "merge.json").read_text())["merge"].values()}),
+            "pair_by": job_pairings(job_dir),
             "merge_xpyp_median_um": [round(1000 * m["median"], 2) for m in thesis],
             "merge_xpyp_p95_um": [round(1000 * m["p95"], 2) for m in thesis],
             "motion": summary.get("motion"),
@@ -199,6 +198,13 @@ def run_amplitude(job: dict) -> list[dict]:
             f"{(summary.get('motion') or {}).get('motion_mm')} mm, 3D RMS "
             f"{[c['rms_um'] for c in rows[-1]['scan'].values()]} µm")  # the last: aligned
     return rows
+
+
+def job_pairings(job_dir: Path) -> list[str]:
+    """What the job's merge paired its cameras by (``merge.json`` → ``pair_by`` of each pair;
+    a merge written before the field paired by both coordinates, ``"xpyp"``)."""
+    merged = json.loads((job_dir / "merge" / "merge.json").read_text())["merge"]
+    return sorted({v.get("pair_by", "xpyp") for v in merged.values()})
 
 
 def merge_by_both_coordinates(job_dir: Path, out: Path) -> list[dict]:

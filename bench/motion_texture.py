@@ -58,7 +58,13 @@ import scipy.ndimage as ndi
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _measure import log
-from motion import FINGER_SEED, MOTION_SEED, aligned_rms, merge_by_both_coordinates
+from motion import (
+    FINGER_SEED,
+    MOTION_SEED,
+    aligned_rms,
+    job_pairings,
+    merge_by_both_coordinates,
+)
 
 #: the captures: name, scene options, tremor on
 CAPTURES = {
@@ -220,8 +226,7 @@ def process_one(job: dict) -> dict:
     return {"row": job["row"], "use": job["use"],
             "aligned": aligned_rms(capture_dir, job_dir),
             "merge_median_um": round(1000 * max(merge), 1),
-            "pair_by": sorted({v.get("pair_by", "xpyp") for v in json.loads(
-                (job_dir / "merge" / "merge.json").read_text())["merge"].values()}),
+            "pair_by": job_pairings(job_dir),
             "merge_xpyp_median_um": round(1000 * max(thesis), 1)}
 
 
@@ -317,7 +322,7 @@ def main(argv=None) -> int:
               f"| {merge_cell(a)} / {merge_cell(b)} |")
     for key in ("ridged", "no texture", "still"):
         c = by[(key, "stabilised")]
-        used = "/".join(c.get("pair_by", ["xpyp"]))  # what the scans were triangulated from
+        used = "/".join(c.get("pair_by", ["xpyp"]))  # auto: what they were triangulated from
         print(f"| {labels[key]}, `--stabilise-motion` ({used}) | {c['aligned']['rms_um']:.1f} "
               f"(p95 {c['aligned']['p95_um']:.1f}) | {merge_cell(c)} |")
     return 0

@@ -1167,26 +1167,11 @@ def _refine_one(xp, yp, r0, c0, tx, ty, iterations, max_shift):
     by = 0.5 * (f8(yp[r0 + 1, c0]) - f8(yp[r0 - 1, c0]))
     r, c = float(r0), float(c0)
     for k in range(iterations + 2):
-        if k > 0:
-            ri = min(max(int(np.floor(r)), 0), h - 2)
-            ci = min(max(int(np.floor(c)), 0), w - 2)
-            fr, fc = r - ri, c - ci
-            x00, x01 = f8(xp[ri, ci]), f8(xp[ri, ci + 1])
-            x10, x11 = f8(xp[ri + 1, ci]), f8(xp[ri + 1, ci + 1])
-            y00, y01 = f8(yp[ri, ci]), f8(yp[ri, ci + 1])
-            y10, y11 = f8(yp[ri + 1, ci]), f8(yp[ri + 1, ci + 1])
-            xt = x00 + (x01 - x00) * fc
-            xb = x10 + (x11 - x10) * fc
-            yt = y00 + (y01 - y00) * fc
-            yb = y10 + (y11 - y10) * fc
-            fx = xt + (xb - xt) * fr
-            fy = yt + (yb - yt) * fr
+        if k > 0:  # the bilinear model's value and derivatives (b: along rows, a: columns)
+            fx, bx, ax = bilinear_gradient(xp, r, c)
+            fy, by, ay = bilinear_gradient(yp, r, c)
             if k == iterations + 1:
                 break
-            ax = (x01 - x00) * (1 - fr) + (x11 - x10) * fr
-            ay = (y01 - y00) * (1 - fr) + (y11 - y10) * fr
-            bx = xb - xt
-            by = yb - yt
         ex, ey = tx - fx, ty - fy
         det = ax * by - bx * ay
         step_c = (by * ex - bx * ey) / det
@@ -1484,6 +1469,11 @@ def pairing_coordinates(parent: Scan, child: Scan, pair_by: str = "auto") -> str
     `pair_by` as :func:`correspond` takes it; ``"auto"`` is the coordinate both scans were
     triangulated from (:attr:`~nail2nail.scan.results.Scan.triangulated_from`) when they share
     one, and both coordinates otherwise (either scan's unknown, or triangulated from both).
+
+    The thesis pairs by both projector coordinates (chapter four, "Merging in Projector
+    Space": the nearest ``(xp, yp)``, appendix ``closest_proj_point``); pairing by one of them
+    and the surface is beyond it, for scans whose points do not use the other
+    (``docs/motion.md``, "The merge of scans triangulated from one coordinate").
 
     Examples
     --------

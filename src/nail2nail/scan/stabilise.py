@@ -152,9 +152,15 @@ def _fringe_frequency(c: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
 def _affine_basis_at(rows, cols, shape) -> np.ndarray:
     """``(3, …)``: the affine maps' basis ``(1, x̂, ŷ)`` at pixels ``rows, cols`` (any equal
     shapes) of an image of ``shape = (H, W)``: ``x̂ = (col − W/2) / W``, ``ŷ = (row − H/2) / H``
-    (the module's convention, one place for it)."""
+    (the module's convention; the compiled kernels take it from :func:`_basis_xy`)."""
     h, w = shape
     return np.stack([np.ones(np.shape(rows)), (cols - w / 2) / w, (rows - h / 2) / h])
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _basis_xy(r, c, h, w):  # pragma: no cover - compiled
+    """``(x̂, ŷ)`` of :func:`_affine_basis_at` at one pixel ``(r, c)`` of an ``(h, w)`` image."""
+    return (c - w / 2) / w, (r - h / 2) / h
 
 
 def _affine_basis(shape) -> np.ndarray:
@@ -179,9 +185,8 @@ def _warp_affine(image: np.ndarray, params: np.ndarray) -> np.ndarray:
 def _warp_affine_kernel(image, params, out):  # pragma: no cover - compiled
     h, w = image.shape
     for r in range(h):
-        yh = (r - h / 2) / h
         for c in range(w):
-            xh = (c - w / 2) / w
+            xh, yh = _basis_xy(r, c, h, w)
             dy = params[0, 0] + params[0, 1] * xh + params[0, 2] * yh
             dx = params[1, 0] + params[1, 1] * xh + params[1, 2] * yh
             # mode "nearest" of the bilinear warp: the position clamped into the image
@@ -234,8 +239,7 @@ def _normal_equations(moved, reference, weight, rows, cols, normal, rhs):  # pra
             gx = moved[r, w - 1] - moved[r, w - 2]
         else:
             gx = 0.5 * (moved[r, c + 1] - moved[r, c - 1])
-        xh = (c - w / 2) / w
-        yh = (r - h / 2) / h
+        xh, yh = _basis_xy(r, c, h, w)
         jac[0], jac[1], jac[2] = gy, gy * xh, gy * yh
         jac[3], jac[4], jac[5] = gx, gx * xh, gx * yh
         wk = weight[r, c]
