@@ -84,7 +84,6 @@ BEFORE = {
     "no-sharpen": {"sharpen": 0.0},
     "local-polarity": {"polarity": "local"},
     "deshade": {"deshade": True},
-    "no-feather-floor": {"ridge_options": {"feather_floor": 0.0}},
 }
 
 

@@ -21,12 +21,12 @@ import scipy.spatial
 sys.path.insert(0, str(Path(__file__).parent))
 from _synthetic import synthetic_scans
 
+from nail2nail._feather import feather
 from nail2nail._interpolate import bilinear
 from nail2nail.merge import valid_mask
 from nail2nail.merge.correspondence import grid_normals, view_cosine
 from nail2nail.merge.fusion import (
     _dedupe_kernel,
-    _feather,
     _fused_normals,
     _grid,
     _off_surface_kernel,
@@ -313,8 +313,10 @@ def test_feather_matches_distance_transform(scans, feather_px):
               > rng.uniform(0.05, 0.9) for _ in range(40)]
     masks += [np.ones((5, 7), bool), np.zeros((3, 3), bool)]
     for valid in masks:
-        np.testing.assert_array_equal(_feather(valid, feather_px),
-                                      _feather_reference(valid, feather_px))
+        got = feather(valid, feather_px)
+        np.testing.assert_array_equal(got, _feather_reference(valid, feather_px))
+        if feather_px > 0:  # positive on every valid pixel, 0 off them
+            assert (got[valid] >= 0.5 / feather_px).all() and (got[~valid] == 0).all()
 
 
 def test_view_weights_match_numpy(scans):

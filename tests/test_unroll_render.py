@@ -14,6 +14,7 @@ import scipy.ndimage as ndi
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from nail2nail._feather import feather
 from nail2nail.scan.results import Scan
 from nail2nail.unroll.quality import block_quality
 from nail2nail.unroll.render import (
@@ -24,13 +25,7 @@ from nail2nail.unroll.render import (
     print_grid,
     to_gray,
 )
-from nail2nail.unroll.ridges import (
-    _feather,
-    camera_layer,
-    local_normalize,
-    masked_gaussian,
-    ridge_signal,
-)
+from nail2nail.unroll.ridges import camera_layer, local_normalize, masked_gaussian, ridge_signal
 
 RELIEF_MM = 0.025  # ridge amplitude
 RIDGE_MM = 0.5  # ridge period
@@ -484,47 +479,21 @@ def test_ridge_signal_nan_off_valid():
     assert _corr(np.where(valid, sig, np.nan), h) > 0.98
 
 
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), reduce=st.integers(1, 6),
-       width=st.floats(4.0, 60.0), floor=st.floats(0.0, 1.0))
-def test_feather_floor_on_every_valid_pixel(seed, reduce, width, floor):
-    # an irregular outline: the reduced grid's blocks along it are not wholly valid
-    rng = np.random.default_rng(seed)
-    valid = ndi.gaussian_filter(rng.random((70, 90)), 4) > 0.5
-    ramp = _feather(valid, width, reduce, floor)
-    assert ramp.dtype == np.float32 and ramp.shape == valid.shape
-    assert (ramp[~valid] == 0).all()
-    assert (ramp[valid] >= np.float32(floor)).all() and (ramp <= 1).all()
-    # the floor only raises the ramp where it was below it
-    plain = _feather(valid, width, reduce)
-    np.testing.assert_array_equal(ramp, np.where(valid, np.maximum(plain, np.float32(floor)),
-                                                 plain))
-
-
 def test_camera_layer_weighs_every_valid_pixel_up_to_the_outline():
-    # a camera alone on a patch of skin: its outline, at any distance from the reduced grid's
-    # blocks, keeps a weight (a zero weight left the fingertip's last mm out of the print)
+    # a camera alone on a patch of skin: its outline keeps a weight (a zero weight along it
+    # left the fingertip's last mm out of the print), and the ramp is the merge's feather
     xyz, h = plane_with_relief()
     rr, cc = np.mgrid[0:h.shape[0], 0:h.shape[1]]
     valid = (rr - 80) ** 2 / 70**2 + (cc - 90) ** 2 / 83**2 < 1
     scan = grid_scan(xyz, (4.0, 4.0, 100.0), valid=valid)
-    signal, weight = camera_layer(scan, albedo_weight=0.0)
+    signal, weight = camera_layer(scan, albedo_weight=0.0, feather_px=40.0)
     ok = valid & np.isfinite(signal)
     assert ok.sum() > 0.95 * valid.sum()
     assert (weight[ok] > 0).all() and (weight[~valid] == 0).all()
-    # without the floor, the band along the outline had none
-    _, before = camera_layer(scan, albedo_weight=0.0, feather_floor=0.0)
-    assert (before[ok] == 0).sum() > 100
-    # inside, the ramp is as it was: the floor does not reorder overlapping cameras
-    inner = ndi.binary_erosion(valid, iterations=45)
-    np.testing.assert_array_equal(weight[inner], before[inner])
-
-
-@pytest.mark.parametrize("floor", [-0.1, 1.5, float("nan")])
-def test_camera_layer_bad_feather_floor(floor):
-    xyz, _ = plane_with_relief((30, 30))
-    with pytest.raises(ValueError, match="feather_floor"):
-        camera_layer(grid_scan(xyz, (0.0, 0.0, 100.0)), feather_floor=floor)
+    _, flat = camera_layer(scan, albedo_weight=0.0, feather_px=0.0)  # no ramp
+    # the ramp from the edge of the pixels with a relief (the valid ones less a rim where the
+    # smooth surface has no normal)
+    np.testing.assert_allclose(weight[ok] / flat[ok], feather(ok, 40.0)[ok], rtol=1e-6)
 
 
 def test_ridge_signal_no_valid_pixels():

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numba
 import numpy as np
-import scipy.ndimage
 
+from nail2nail._feather import feather
 from nail2nail._interpolate import bilinear_value
 from nail2nail._numba_cache import cache_enabled
 from nail2nail._timing import StepClock
@@ -184,63 +184,6 @@ def _spike_kernel(xyz, valid, spike_mm):  # pragma: no cover - compiled
                         break
             if not near:
                 out[r, c] = _is_spike(xyz, ok, r, c, spike_mm)
-    return out
-
-
-@numba.njit(**_JIT)
-def _feather_kernel(valid, feather_px):  # pragma: no cover - compiled
-    """:func:`_feather`: the exact Euclidean distance to the nearest invalid pixel (or beyond the
-    image edge) where it is below ``reach = ceil(feather_px + 0.5)``, the ramp's end.
-
-    A column sweep gives each pixel's distance along its column, capped at ``reach + 1``; the
-    row pass takes the least ``dc² + column²`` over ``|dc| ≤ reach``. Below `reach` the
-    nearest invalid pixel lies in that window with an uncapped column distance, so the result is
-    the exact distance (as ``scipy.ndimage.distance_transform_edt``); from `reach` on it is at
-    least `reach` and the ramp is 1 either way. Pixels whose window holds no column closer than
-    `reach` to an invalid pixel skip the row pass.
-    """
-    h, w = valid.shape
-    reach = int(np.ceil(feather_px + 0.5))
-    cap = reach + 1
-    column = np.empty((h, w), np.int32)
-    for c in range(w):  # down: distance to the invalid pixel above (row -1 is invalid)
-        column[0, c] = 1 if valid[0, c] else 0
-    for r in range(1, h):
-        for c in range(w):
-            column[r, c] = min(column[r - 1, c] + 1, cap) if valid[r, c] else 0
-    below = np.empty(w, np.int32)  # up: row h is invalid
-    for c in range(w):
-        below[c] = 0
-    for r in range(h - 1, -1, -1):
-        for c in range(w):
-            below[c] = min(below[c] + 1, cap) if valid[r, c] else 0
-            column[r, c] = min(column[r, c], below[c])
-    out = np.zeros((h, w))
-    left = np.empty(w, np.int64)
-    for r in range(h):
-        # a pixel farther than `reach` from every column closer than `reach` to an invalid
-        # pixel (and from the image edge) has none of them in its window: the ramp is 1
-        last = -1
-        for c in range(w):
-            if column[r, c] < reach:
-                last = c
-            left[c] = c - last
-        last = w
-        for c in range(w - 1, -1, -1):
-            if column[r, c] < reach:
-                last = c
-            if not valid[r, c]:
-                continue
-            if left[c] > reach and last - c > reach:
-                out[r, c] = 1.0
-                continue
-            best = cap * cap
-            for dc in range(-reach, reach + 1):
-                cc = c + dc
-                g = column[r, cc] if 0 <= cc < w else 0
-                best = min(best, dc * dc + g * g)
-            value = (np.sqrt(np.float64(best)) - 0.5) / feather_px
-            out[r, c] = min(max(value, 0.0), 1.0)
     return out
 
 
@@ -907,7 +850,7 @@ def view_weights(
     """
     _check_scan(scan, "scan")
     valid = valid_mask(scan)
-    return _view_weights(scan, valid, normals, _feather(valid, feather_px),
+    return _view_weights(scan, valid, normals, feather(valid, feather_px),
                          use_modulation=use_modulation, smooth_px=smooth_px)
 
 
@@ -930,19 +873,6 @@ def _view_weights(scan, valid, normals, feather, *, use_modulation, smooth_px) -
         np.ascontiguousarray(normals) if center is not None else np.zeros((1, 1, 3), np.float32),
         xyz, np.asarray(center if center is not None else (0, 0, 0), np.float64).reshape(3),
         feather, use_modulation, center is not None)
-
-
-def _feather(valid: np.ndarray, feather_px: float) -> np.ndarray:
-    """(H, W) float64 ramp from 0 at the edge of `valid` (or of the image) to 1 at `feather_px`
-    inside: ``clip((d − 0.5) / feather_px, 0, 1)``, d the Euclidean distance to the nearest
-    invalid pixel."""
-    valid = np.ascontiguousarray(valid, dtype=bool)
-    if not feather_px > 0:
-        return np.ones(valid.shape)
-    if feather_px > 64:  # the compiled window grows with the ramp: the full transform instead
-        distance = scipy.ndimage.distance_transform_edt(np.pad(valid, 1))[1:-1, 1:-1]
-        return np.clip((distance - 0.5) / feather_px, 0, 1)
-    return _feather_kernel(valid, float(feather_px))
 
 
 def spikes(xyz, valid, *, spike_mm: float = 0.05) -> np.ndarray:
@@ -1298,7 +1228,7 @@ def fuse_scans(
 
     # per scan, once: feather, fusion weights, and the smoothed view cosine that serves the
     # rejection test (through `quality`) and the ownership score
-    feathers = [_feather(v, feather_px) for v in valid]
+    feathers = [feather(v, feather_px) for v in valid]
     weights = [_view_weights(s, v, nm, f, use_modulation=True, smooth_px=0.0)
                for s, v, nm, f in zip(scans, valid, normals0, feathers, strict=True)]
     quality = {id(s): [_view_cosine(s, v, normals=nm, smooth_px=2.0),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.ndimage as ndi
 
+from nail2nail._feather import feather
 from nail2nail._quantile import weighted_quantiles
 from nail2nail.scan.results import Scan
 from nail2nail.unroll._kernels import (
@@ -273,26 +274,6 @@ def _surface_relief(smooth, xyz, camera_center):
     return cos, relief, finite_points(smooth) & finite_points(normals)
 
 
-def _feather(valid, width_px: float, reduce: int, floor: float = 0.0) -> np.ndarray:
-    """Ramp 0 → 1 over `width_px` from the edge of `valid` (distance on a reduced grid), at
-    least `floor` on `valid` (the reduced grid's blocks that are not wholly valid are at
-    distance 0: without a floor, a band of up to ``2 reduce − 1`` px along the edge)."""
-    if width_px <= 0:
-        return np.ones(valid.shape, np.float32)
-    h, w = valid.shape
-    f = max(1, int(reduce))
-    hp, wp = -(-h // f) * f, -(-w // f) * f
-    vp = np.zeros((hp, wp), bool)
-    vp[:h, :w] = valid
-    small = vp.reshape(hp // f, f, wp // f, f).all(axis=(1, 3))
-    dist = ndi.distance_transform_edt(np.pad(small, 1))[1:-1, 1:-1] * f
-    dist = np.repeat(np.repeat(dist, f, axis=0), f, axis=1)[:h, :w]
-    ramp = np.clip(dist.astype(np.float32) / width_px, 0, 1)
-    if floor > 0:
-        ramp = np.where(valid, np.maximum(ramp, np.float32(floor)), ramp)
-    return ramp
-
-
 def _without_fringes(relief, albedo, m, cos, spacing, scan, box, periods, harmonics):
     """Relief and albedo less their phase-locked error (:mod:`nail2nail.unroll.fringes`).
 
@@ -327,7 +308,6 @@ def camera_layer(
     contrast_sigma_mm: float = 1.0,
     albedo_weight: float = 0.3,
     feather_px: float = 40.0,
-    feather_floor: float | None = None,
     max_view_angle_deg: float = 75.0,
     valid: np.ndarray | None = None,
     feather_mask: np.ndarray | None = None,
@@ -363,13 +343,10 @@ def camera_layer(
         Weight of the normalised albedo contrast added to the normalised relief (0: relief
         only).
     feather_px : float
-        Width of the weight's ramp at the edge of the valid region, camera px (0: none).
-    feather_floor : float, optional
-        The ramp's least value on a valid pixel (default ``1 / feather_px``, one pixel's step;
-        0: none). The feather orders the cameras where they overlap; where one camera alone
-        sees the skin (the fingertip's cap and the finger's sides at grazing view, the last
-        millimetre or two of the scan's outline), any weight gives its data, and a zero weight
-        left that skin out of the print.
+        Width of the weight's ramp at the edge of the valid region, camera px (0: none): the
+        merge's feather (:func:`nail2nail._feather.feather`), positive on every valid pixel.
+        It orders the cameras where they overlap; where one camera alone sees the skin (the
+        fingertip's cap and the finger's sides at grazing view) its data stay in the print.
     max_view_angle_deg : float
         Pixels that see the smooth surface at a larger angle from its normal get no weight (at
         grazing view a camera pixel spreads over several ridges and the relief is smeared;
@@ -469,14 +446,11 @@ def camera_layer(
     floor = {"floor_fraction": floor_fraction, "level_weights": np.nan_to_num(cos) ** 2}
     signal = local_normalize(relief, m, csig, reduce=creduce, **floor)
     fm = m if feather_mask is None else np.asarray(feather_mask, bool)[box]
-    if feather_floor is None:
-        feather_floor = 1.0 / feather_px if feather_px > 0 else 0.0
-    elif not 0.0 <= feather_floor <= 1.0:
-        raise ValueError(f"feather_floor: expected 0..1, got {feather_floor!r}")
-    feather = _feather(fm, feather_px, max(1, reduce // 2), feather_floor)
+    # float32 as the compiled layer kernel takes it
+    ramp = feather(fm, feather_px).astype(np.float32)
     if separate:
         weight_args = (np.asarray(scan.modulation[box], np.float32), cos,
-                       feather, m)
+                       ramp, m)
         cos_min = np.cos(np.radians(max_view_angle_deg))
         relief_out, weight = layer_outputs(*weight_args, signal, cos_min, box, valid.shape)
         albedo_out = None
@@ -493,7 +467,7 @@ def camera_layer(
     # weight = clip(modulation, 0) · cos² · feather, 0 beyond the largest viewing angle; both
     # outputs on the full grid (compiled, one pass over the box)
     return layer_outputs(np.asarray(scan.modulation[box], np.float32), cos,
-                         feather, m, signal,
+                         ramp, m, signal,
                          np.cos(np.radians(max_view_angle_deg)), box, valid.shape)
 
 
