@@ -39,6 +39,7 @@ from nail2nail.io._json import write_json
 from nail2nail.io.capture import projector_captures, read_capture
 from nail2nail.io.rolled import ROLLED_LENGTH_MM, write_rolled_print
 from nail2nail.io.scans import save_scans
+from nail2nail.merge.correspondence import check_pair_by
 from nail2nail.merge.report import parse_pairs, write_merge
 from nail2nail.scan.capture import MAX_GRADIENT, motion_summary, scan_capture
 from nail2nail.unroll import DEFAULT_METHOD, METHODS, check_print_size, unroll_scans
@@ -171,8 +172,7 @@ def process_capture(
     if unroll and method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
     check_print_size(ppi, length_mm)  # the unroll's bounds, before the scan and merge run
-    if pair_by not in ("auto", "xpyp", "xp", "yp"):
-        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
+    check_pair_by(pair_by)
     out = check_output_directory(out, marker="process.json")
     times = StepClock()
 

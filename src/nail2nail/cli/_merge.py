@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from nail2nail._validation import as_int
+from nail2nail.cli._options import add_pair_by_option
 from nail2nail.io._json import dumps_json
 from nail2nail.io.scans import load_scan_dirs, read_scan_frame
 from nail2nail.merge.report import parse_pairs, write_merge
@@ -43,11 +44,7 @@ def add_parser(sub) -> None:
                    help="largest projector residual of a pair, panel px (decoding noise)")
     p.add_argument("--border", type=int, default=2,
                    help="erosion of each camera's valid region, px")
-    p.add_argument("--pair-by", choices=("auto", "xpyp", "xp", "yp"), default="auto",
-                   help="what pairs two cameras' pixels: both projector coordinates (xpyp, the "
-                   "thesis), or one and the surface along it (xp, yp); auto (default): the "
-                   "one the scans were triangulated from when it is one (a stabilised moving "
-                   "capture), else both")
+    add_pair_by_option(p)
     p.add_argument("--no-super", action="store_true", help="skip the super scan")
     p.add_argument("--seamless-mesh", action="store_true",
                    help="mesh super.ply as one surface, the seams between the cameras closed "

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-__all__ = ["as_option_error"]
+import argparse
+
+from nail2nail.merge.correspondence import PAIR_BY
+
+__all__ = ["add_pair_by_option", "as_option_error"]
 
 
 def as_option_error(exc: ValueError, names: dict[str, str]) -> ValueError:
@@ -17,3 +21,12 @@ def as_option_error(exc: ValueError, names: dict[str, str]) -> ValueError:
         if text.startswith(f"{name}: "):
             return type(exc)(flag + text[len(name):])
     return exc
+
+
+def add_pair_by_option(p: argparse.ArgumentParser) -> None:
+    """``--pair-by``: what pairs two cameras' pixels in the merge (``correspond``'s `pair_by`)."""
+    p.add_argument("--pair-by", choices=PAIR_BY, default="auto",
+                   help="what pairs two cameras' pixels: both projector coordinates (xpyp, the "
+                   "thesis), or one and the surface along it (xp, yp); auto (default): the "
+                   "one the scans were triangulated from when it is one (a stabilised moving "
+                   "capture), else both")

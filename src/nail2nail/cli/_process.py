@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nail2nail.cli._options import add_pair_by_option
 from nail2nail.cli._report import add_report_options, check_report_options
 from nail2nail.cli._scan import (
     add_scan_options,
@@ -57,11 +58,7 @@ def add_process_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pairs", default=None,
                    help="merge report camera pairs PARENT-CHILD, comma separated "
                    "(default: 0-1,1-2,…)")
-    p.add_argument("--pair-by", choices=("auto", "xpyp", "xp", "yp"), default="auto",
-                   help="what pairs two cameras' pixels: both projector coordinates (xpyp, the "
-                   "thesis), or one and the surface along it (xp, yp); auto (default): the "
-                   "one the scans were triangulated from when it is one (a stabilised moving "
-                   "capture), else both")
+    add_pair_by_option(p)
     p.add_argument("--figures", action=argparse.BooleanOptionalAction, default=False,
                    help="write the merge figures (default: off, the data only)")
     p.add_argument("--mat5", action="store_true",

@@ -31,6 +31,7 @@ from nail2nail.io._npz import read_npz
 from nail2nail.io.mat5 import write_mat5
 from nail2nail.io.ply import write_scan_ply
 from nail2nail.scan.results import Scan
+from nail2nail.scan.triangulation import USES
 
 __all__ = ["SCAN_FORMAT", "load_scan_dirs", "load_scan_npz", "load_scans", "read_scan_frame",
            "save_scan_npz", "save_scans"]
@@ -314,7 +315,7 @@ def _fringe_periods(value, where: str) -> dict | None:
 
 def _triangulated_from(value, where: str) -> str | None:
     """A manifest's ``triangulated_from`` (absent: None, as in scans written before it)."""
-    if value is None or value in ("xpyp", "xp", "yp"):
+    if value is None or value in USES:
         return value
     raise ValueError(f"{where}.triangulated_from: expected 'xpyp', 'xp' or 'yp', got {value!r}")
 

@@ -19,8 +19,10 @@ Modules, in the order the data flows through them:
 
 from nail2nail.merge.correspondence import (
     DROP_REASONS,
+    PAIR_BY,
     REJECT_REASONS,
     Correspondence,
+    check_pair_by,
     correspond,
     grid_normals,
     incidence_cosine,
@@ -41,10 +43,12 @@ from nail2nail.merge.statistics import local_outliers, merge_statistics
 
 __all__ = [
     "DROP_REASONS",
+    "PAIR_BY",
     "REJECT_REASONS",
     "Correspondence",
     "SuperScan",
     "boundary_figures",
+    "check_pair_by",
     "correspond",
     "fuse_scans",
     "grid_normals",

@@ -52,9 +52,11 @@ from nail2nail.scan.results import Scan
 
 __all__ = [
     "DROP_REASONS",
+    "PAIR_BY",
     "REJECT_REASONS",
     "Correspondence",
     "CorrespondenceCache",
+    "check_pair_by",
     "correspond",
     "grid_normals",
     "incidence_cosine",
@@ -78,6 +80,8 @@ DROP_REASONS = ("parent_border", "child_border", "residual", *REJECT_REASONS)
 
 _MAX_SHIFT_PX = 1.5  # a refined position further than this from the nearest pixel is not trusted
 _ALONG = {"xpyp": 0, "xp": 1, "yp": 2}  # pair_by → the pairs kernel's `along`
+#: What :func:`correspond`'s `pair_by` takes: ``"auto"`` or the coordinates that pair
+PAIR_BY = ("auto", *_ALONG)
 _SLIDE_STEPS = 3  # iterations of the slide along one coordinate's curve (pair_by "xp", "yp")
 _NEWTON_STEPS = 2  # Newton steps on the bilinear model after the affine step
 
@@ -1155,6 +1159,15 @@ def refine_subpixel(
 
 
 @numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
+def _step_within(r, c, dr, dc, r0, c0, max_shift, h, w):  # pragma: no cover - compiled
+    """``(r + dr, c + dc)`` kept within `max_shift` of the nearest pixel ``(r0, c0)`` and inside
+    the ``(h, w)`` image: the refinements' moves."""
+    r = min(max(r + dr, r0 - max_shift), r0 + max_shift)
+    c = min(max(c + dc, c0 - max_shift), c0 + max_shift)
+    return min(max(r, 0.0), h - 1.0), min(max(c, 0.0), w - 1.0)
+
+
+@numba.njit(cache=cache_enabled(), nogil=True, error_model="numpy")
 def _refine_one(xp, yp, r0, c0, tx, ty, iterations, max_shift):
     """:func:`refine_subpixel` of one pixel: ``(row, col, residual)``, ``bad`` where the
     refinement failed (residual NaN or infinite then). Every value read as float64."""
@@ -1178,10 +1191,7 @@ def _refine_one(xp, yp, r0, c0, tx, ty, iterations, max_shift):
         step_r = (ax * ey - ay * ex) / det
         if not (np.isfinite(step_r) and np.isfinite(step_c)):
             return r, c, np.nan, True
-        r = min(max(r + step_r, r0 - max_shift), r0 + max_shift)
-        c = min(max(c + step_c, c0 - max_shift), c0 + max_shift)
-        r = min(max(r, 0.0), h - 1.0)
-        c = min(max(c, 0.0), w - 1.0)
+        r, c = _step_within(r, c, step_r, step_c, r0, c0, max_shift, h, w)
     res = np.hypot(fx - tx, fy - ty)
     return r, c, res, not np.isfinite(res)
 
@@ -1209,10 +1219,7 @@ def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
         if not (np.isfinite(f) and np.isfinite(g2)) or g2 == 0.0:
             return r, c, np.nan, True
         step = (target - f) / g2
-        r = min(max(r + step * gr, r0 - max_shift), r0 + max_shift)
-        c = min(max(c + step * gc, c0 - max_shift), c0 + max_shift)
-        r = min(max(r, 0.0), h - 1.0)
-        c = min(max(c, 0.0), w - 1.0)
+        r, c = _step_within(r, c, step * gr, step * gc, r0, c0, max_shift, h, w)
         norm = np.sqrt(g2)
         tr, tc = -gc / norm, gr / norm  # the curve's direction, (row, col)
         num = den = 0.0
@@ -1224,10 +1231,7 @@ def _slide_one(p, xyz, r, c, r0, c0, target, point, iterations, max_shift):
         if not (np.isfinite(num) and np.isfinite(den)) or den == 0.0:
             return r, c, np.nan, True
         s = num / den
-        r = min(max(r + s * tr, r0 - max_shift), r0 + max_shift)
-        c = min(max(c + s * tc, c0 - max_shift), c0 + max_shift)
-        r = min(max(r, 0.0), h - 1.0)
-        c = min(max(c, 0.0), w - 1.0)
+        r, c = _step_within(r, c, s * tr, s * tc, r0, c0, max_shift, h, w)
     f, _, _ = bilinear_gradient(p, r, c)
     res = abs(f - target)
     return r, c, res, not np.isfinite(res)
@@ -1463,6 +1467,13 @@ class Correspondence:
         }
 
 
+def check_pair_by(pair_by) -> str:
+    """`pair_by` if it is one of :data:`PAIR_BY`; else ``ValueError`` naming it."""
+    if pair_by not in PAIR_BY:
+        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
+    return pair_by
+
+
 def pairing_coordinates(parent: Scan, child: Scan, pair_by: str = "auto") -> str:
     """The projector coordinates that pair two scans: ``"xpyp"``, ``"xp"`` or ``"yp"``.
 
@@ -1483,9 +1494,7 @@ def pairing_coordinates(parent: Scan, child: Scan, pair_by: str = "auto") -> str
     >>> pairing_coordinates(a, a), pairing_coordinates(a, a, "xpyp")
     ('yp', 'xpyp')
     """
-    if pair_by not in ("auto", *_ALONG):
-        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
-    if pair_by != "auto":
+    if check_pair_by(pair_by) != "auto":
         return pair_by
     used = parent.triangulated_from
     return used if used in ("xp", "yp") and child.triangulated_from == used else "xpyp"

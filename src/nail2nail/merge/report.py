@@ -25,6 +25,7 @@ from nail2nail.io._atomic import atomic_directory, relocate_paths, write_npz
 from nail2nail.io._json import write_json
 from nail2nail.merge.correspondence import (
     CorrespondenceCache,
+    check_pair_by,
     correspond,
     restrict_pairs,
     same_pixel_pairs,
@@ -225,8 +226,7 @@ def write_merge(
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px: expected a positive number, got {max_residual_px}")
     border_px = as_int(border_px, "border_px", minimum=1)  # as correspond: checked up front
-    if pair_by not in ("auto", "xpyp", "xp", "yp"):
-        raise ValueError(f"pair_by: expected 'auto', 'xpyp', 'xp' or 'yp', got {pair_by!r}")
+    check_pair_by(pair_by)
 
     transform = np.eye(4) if transform is None else _check_transform(transform)
     out = Path(out)

@@ -32,6 +32,7 @@ from nail2nail.scan.rays import _pack_ray, _ray_points_flat
 
 __all__ = [
     "BAND_PIXELS",
+    "USES",
     "RayTable",
     "TriangulationTable",
     "band_rows",
@@ -58,7 +59,9 @@ _AXES = {"x": 0, "y": 1}
 BAND_PIXELS = 1 << 17
 
 
-_USES = ("xpyp", "yp", "xp")
+#: The projector coordinates a point can be triangulated from (``use``; :attr:`Scan.
+#: triangulated_from <nail2nail.scan.results.Scan.triangulated_from>`)
+USES = ("xpyp", "yp", "xp")
 
 
 def _axis_row(axis: str) -> int:
@@ -439,7 +442,7 @@ def _reconstruct_rows(camera, projector, xp, yp, row0: int, *, projector_distort
 
 
 def _check_use(use) -> str:
-    if use not in _USES:
+    if use not in USES:
         raise ValueError(f"use: expected 'xpyp', 'yp' or 'xp', got {use!r}")
     return use
 
