@@ -227,7 +227,7 @@ def replot(results_json: Path, path: Path) -> None:
              {"threshold 40, default": (d["fmr_at_40"], d["fnmr_at_40"])})
 
 
-def score(results: list[dict], out: Path) -> dict:
+def score(results: list[dict], out: Path, *, imageio_grey: bool = False) -> dict:
     """Every SourceAFIS comparison, in one JVM run; the figures of the issue."""
     synthetic = [r for r in results if not r["print"].endswith(".png")]
     real = [r for r in results if r["print"].endswith(".png")]
@@ -249,13 +249,18 @@ def score(results: list[dict], out: Path) -> dict:
                 add(d / "truth.png", out / s["name"] / "truth.png", ("truths", i, j))
     for k, r in enumerate(real):
         d = out / r["name"]
+        # the real finger's ceiling: probe.png cut to the skin this rig saw, and through the
+        # default print's geometry and mask, against the other impression
+        add(d / "ideal.png", PRINTS / "matching.png", ("real", "ideal", k, "matching"))
+        add(d / "truth_through_print.png", PRINTS / "matching.png",
+            ("real", "through", k, "matching"))
         for tag in ("default", "before"):
             add(d / f"print_{tag}.png", PRINTS / "matching.png", ("real", tag, k, "matching"))
             add(d / f"print_{tag}.png", PRINTS / "nonmatching.png",
                 ("real", tag, k, "nonmatching"))
     add(PRINTS / "probe.png", PRINTS / "matching.png", ("probe",))
     t0 = time.perf_counter()
-    values = sourceafis.score_pairs(pairs)
+    values = sourceafis.score_pairs(pairs, imageio_grey=imageio_grey)
     scores = dict(zip(keys, (float(v) for v in values), strict=True))
     summary: dict = {"matcher_s": round(time.perf_counter() - t0, 1),
                      "probe_vs_matching": scores[("probe",)]}
@@ -280,6 +285,9 @@ def score(results: list[dict], out: Path) -> dict:
             r[tag]["ratio_to_ceiling"] = round(g / ceiling, 4) if ceiling > 0 else None
             r[tag]["impostor_max"] = max(imp) if imp else None
     for k, r in enumerate(real):
+        probe = scores[("probe",)]
+        r["ceiling_to_probe"] = round(scores[("real", "ideal", k, "matching")] / probe, 4)
+        r["through_print_to_probe"] = round(scores[("real", "through", k, "matching")] / probe, 4)
         for tag in ("default", "before"):
             m = scores[("real", tag, k, "matching")]
             r[tag]["vs_matching"] = m
@@ -316,6 +324,9 @@ def score(results: list[dict], out: Path) -> dict:
             ratios = np.array([r[tag]["ratio_to_probe"] for r in real])
             summary[f"real_{tag}"] = {
                 "fingers": len(real), "ratio_to_probe_min": float(ratios.min()),
+                "ceiling_to_probe_min": float(min(r["ceiling_to_probe"] for r in real)),
+                "through_print_to_probe_min": float(min(r["through_print_to_probe"]
+                                                        for r in real)),
                 "ratio_to_probe_median": float(np.median(ratios)),
                 "nonmatching_max": max(r[tag]["vs_nonmatching"] for r in real)}
     return summary
@@ -360,10 +371,30 @@ def markdown(summary: dict, results: list[dict], before: str = "fixed-blend") ->
                          f": min {s['ratio_to_probe_min']:.3f}, median "
                          f"{s['ratio_to_probe_median']:.3f}; vs nonmatching max "
                          f"{s['nonmatching_max']:.1f}")
+    real = [r for r in results if "ceiling_to_probe" in r]
+    if real:
+        lines += ["", "| real finger | ideal crop / probe | true print through the print / "
+                  "probe | default / probe | before / probe |", "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {r['name']} | {r['ceiling_to_probe']:.3f} | "
+                  f"{r['through_print_to_probe']:.3f} | {r['default']['ratio_to_probe']:.3f} | "
+                  f"{r['before']['ratio_to_probe']:.3f} |" for r in real]
     for tag in ("default", "before"):
         lines.append(f"\ngeometry ({tag}, max and median over fingers): "
                      f"{json.dumps(geometry_summary(results, tag))}")
     return "\n".join(lines)
+
+
+def rescore(out: Path, *, imageio_grey: bool, before: str) -> int:
+    """Score the prints an earlier run left under `out` again; print the summary (the run's
+    ``results.json`` is left as it is)."""
+    path = out / "results.json"
+    if not path.is_file():
+        print(f"--rescore: no {path} (run the bench first)", file=sys.stderr)
+        return 2
+    results = json.loads(path.read_text())["fingers"]
+    summary = {"fingers": len(results), **score(results, out, imageio_grey=imageio_grey)}
+    print(markdown(summary, results, before))
+    return 0
 
 
 def main(argv=None) -> int:
@@ -380,7 +411,14 @@ def main(argv=None) -> int:
     p.add_argument("--no-matcher", action="store_true")
     p.add_argument("--before", choices=sorted(BEFORE), default="fixed-blend",
                    help="what the default is compared with (default: fixed-blend)")
+    p.add_argument("--rescore", action="store_true",
+                   help="score the prints of an earlier run under --out again (no scanning)")
+    p.add_argument("--imageio-grey", action="store_true",
+                   help="let SourceAFIS read grey PNGs through ImageIO, brightened, as this "
+                        "bench did before 2026-12-08 (bench/sourceafis.py)")
     args = p.parse_args(argv)
+    if args.rescore:
+        return rescore(args.out, imageio_grey=args.imageio_grey, before=args.before)
     from nail2nail.simulation.rig import default_rig
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -404,7 +442,7 @@ def main(argv=None) -> int:
             results.append(r)
     summary = {"fingers": len(results), "wall_s": None}
     if not args.no_matcher and sourceafis.available():
-        summary.update(score(results, args.out))
+        summary.update(score(results, args.out, imageio_grey=args.imageio_grey))
         if args.det and "default" in summary:
             d, b = summary["default"], summary["before"]
             plot_det(args.det, {"default": (d["_genuine"], d["_impostor"]),

@@ -6,6 +6,16 @@ Maven (``bench/matcher``, built once and cached in ``bench/matcher/target``). It
 open-ended (not probabilities); SourceAFIS puts the threshold for a 0.01 % false match rate at
 40. Images are passed as files (PNG, 8-bit grayscale, ridges dark on white).
 
+Grey images are read as their samples say (grey level = sample value), as SourceAFIS takes raw
+pixels and as it reads an RGB or palette file. SourceAFIS's own file decoder goes through Java
+``ImageIO`` and ``BufferedImage.getRGB``, which takes the samples of an 8-bit grey PNG for linear
+light and converts them to sRGB: every grey level but 0 and 255 reads brighter (128 as 188).
+The real prints of ``../shared/data/prints`` are RGBA files, read unchanged, so a print stored
+as grey would be compared with them through a different tone curve: ``probe.png`` saved as
+8-bit grey scores 203.4 against ``matching.png`` that way instead of its 235.6.
+``imageio_grey=True`` (``--imageio-grey``) scores grey files through ImageIO, as this harness
+did before 2026-12-08 (every SourceAFIS figure of the README up to then).
+
 Library use (from ``bench/`` scripts or tests, after putting ``bench`` on ``sys.path``)::
 
     import sourceafis
@@ -15,6 +25,7 @@ Library use (from ``bench/`` scripts or tests, after putting ``bench`` on ``sys.
 Usage as a script::
 
     .venv/bin/python bench/sourceafis.py PROBE CANDIDATE [CANDIDATE ...] [--dpi 500]
+        [--imageio-grey]
     .venv/bin/python bench/sourceafis.py            # self-check on synthetic prints
 
 The self-check scores a few synthetic fingers against mildly re-rendered copies of themselves
@@ -148,10 +159,15 @@ def _check_dpi(dpi) -> float:
 
 
 def score_pairs(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
-                dpi: float = 500) -> np.ndarray:
+                dpi: float = 500, imageio_grey: bool = False) -> np.ndarray:
     """Score (probe, candidate) image pairs with SourceAFIS, all in one JVM run.
 
     Templates are extracted once per distinct path, so repeated images cost one extraction.
+    An 8-bit grey image is read as its samples say (grey level = sample), as an RGB or palette
+    image is: SourceAFIS's own file decoder (Java ``ImageIO``, ``getRGB``) takes grey PNG
+    samples for linear light and brightens them to sRGB (128 reads as 188), which costs a print
+    part of its score against one stored in colour (``probe.png`` saved as 8-bit grey scores 203.4
+    against ``matching.png`` instead of 235.6).
 
     Parameters
     ----------
@@ -159,6 +175,9 @@ def score_pairs(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
         Probe and candidate image files (PNG, 8-bit grayscale, ridges dark).
     dpi : float
         Resolution of all the images, pixels per inch (SourceAFIS rescales to 500 ppi).
+    imageio_grey : bool
+        Read grey images through SourceAFIS's decoder instead, brightened (the figures of
+        this harness before 2026-12-08 were measured that way).
 
     Returns
     -------
@@ -188,7 +207,8 @@ def score_pairs(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
     if not lines:
         return np.zeros(0)
     jar = build()
-    cmd = ["java", "-jar", str(jar), "--dpi", repr(dpi)]
+    cmd = ["java", "-jar", str(jar), "--dpi", repr(dpi), *(["--imageio-grey"] if imageio_grey
+                                                           else [])]
     proc = subprocess.run(cmd, input="".join(lines), capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"score_pairs: the SourceAFIS matcher failed (exit "
@@ -201,7 +221,7 @@ def score_pairs(pairs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
 
 
 def score_matrix(probes: Sequence[str | os.PathLike], candidates: Sequence[str | os.PathLike],
-                 *, dpi: float = 500) -> np.ndarray:
+                 *, dpi: float = 500, imageio_grey: bool = False) -> np.ndarray:
     """Score every probe against every candidate (one JVM run).
 
     Parameters
@@ -210,6 +230,8 @@ def score_matrix(probes: Sequence[str | os.PathLike], candidates: Sequence[str |
         Image files (PNG, 8-bit grayscale, ridges dark).
     dpi : float
         Resolution of all the images, pixels per inch.
+    imageio_grey : bool
+        As :func:`score_pairs`.
 
     Returns
     -------
@@ -225,7 +247,8 @@ def score_matrix(probes: Sequence[str | os.PathLike], candidates: Sequence[str |
         raise TypeError("probes, candidates: expected sequences of paths, got a single path")
     probes, candidates = list(probes), list(candidates)
     pairs = [(p, c) for p in probes for c in candidates]
-    return score_pairs(pairs, dpi=dpi).reshape(len(probes), len(candidates))
+    return score_pairs(pairs, dpi=dpi, imageio_grey=imageio_grey).reshape(len(probes),
+                                                                          len(candidates))
 
 
 def _check_image(image) -> np.ndarray:
@@ -359,13 +382,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("candidates", nargs="*", help="candidate images")
     parser.add_argument("--dpi", type=float, default=500.0, help="image resolution (500)")
     parser.add_argument("--fingers", type=int, default=5, help="self-check: number of fingers")
+    parser.add_argument("--imageio-grey", action="store_true",
+                        help="read grey images through ImageIO, brightened (earlier figures)")
     args = parser.parse_args(argv)
     if args.probe is None:
         _self_check(args.fingers, args.dpi)
         return
     if not args.candidates:
         parser.error("give at least one candidate image after the probe")
-    scores = score_matrix([args.probe], args.candidates, dpi=args.dpi)[0]
+    scores = score_matrix([args.probe], args.candidates, dpi=args.dpi,
+                          imageio_grey=args.imageio_grey)[0]
     for path, score in zip(args.candidates, scores, strict=True):
         print(f"{score:.3f}\t{path}")
 

@@ -182,3 +182,29 @@ def test_cli_prints_scores(prints, capsys):
     score, path = capsys.readouterr().out.strip().split("\t")
     assert float(score) > 100
     assert path == str(prints["copy0"])
+
+
+@needs_java
+def test_grey_png_read_as_its_samples(tmp_path, prints):
+    """A grey PNG scores as the same picture stored as RGB; SourceAFIS's own decoder (ImageIO)
+    reads grey samples as linear light, as the sRGB encoding of ``v / 255`` stored as RGB."""
+    from PIL import Image
+
+    def as_rgb(grey, name):
+        path = tmp_path / name
+        Image.fromarray(np.stack([grey] * 3, axis=-1)).save(path, dpi=(500, 500))
+        return path
+
+    grey = np.asarray(Image.open(prints["copy0"]))
+    assert grey.ndim == 2
+    truth = as_rgb(np.asarray(Image.open(prints["truth0"])), "truth0_rgb.png")
+    rgb = as_rgb(grey, "copy0_rgb.png")
+    lin = grey / 255.0
+    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    brighter = as_rgb(np.clip(np.rint(255 * srgb), 0, 255).astype(np.uint8), "brighter.png")
+    pairs = [(prints["copy0"], truth), (rgb, truth), (brighter, truth)]
+    literal = sourceafis.score_pairs(pairs)
+    imageio = sourceafis.score_pairs(pairs, imageio_grey=True)
+    assert literal[0] == literal[1] == imageio[1]  # the grey file reads as its RGB copy
+    assert literal[2] != literal[0]
+    assert imageio[0] == literal[2]  # through ImageIO the grey file reads as the brighter copy
