@@ -5,8 +5,9 @@ against ``matching.png`` at least 0.9 of what ``probe.png`` itself scores (235.6
 3.18.1), on each of ≥ 10 random conditions. This bench measures how far that ratio moves when
 nothing but nuisances that no scanner avoids touch ``probe.png`` itself, with no scan at all:
 
-- ``rerender``: a mild re-rendering (rotation ±5°, scale ±2 %, Gaussian blur 0.3–1.0 px,
-  sub-pixel shift), the whole image kept;
+- ``resample``: the image resampled onto another grid (rotation ±5°, scale ±2 %, sub-pixel
+  shift; cubic spline), what any unroll does to the skin's pattern, the whole image kept;
+- ``rerender``: the same and a Gaussian blur of 0.3–1.0 px (a camera's or a print's softness);
 - ``side cut``: the same, and a band cut off one side (left, right or bottom: where a rig's
   view ends on a finger), keeping 75–100 % of the image's area, as the rig's view keeps 76–97
   % of it (``bench/interop.py``'s ideal crops of held-out conditions);
@@ -18,7 +19,7 @@ Usage::
 
     .venv/bin/python bench/probe_scatter.py [--copies 60] [--seed 0] [--out DIR] [--json]
 
-Cost: one JVM run of 2 × `copies` comparisons, about 20 s for 60 copies.
+Cost: one JVM run of 3 × `copies` comparisons, about 30 s for 60 copies.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import sourceafis
 
 PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
+#: (name, blurred, a side cut off)
+FAMILIES = (("resample", False, False), ("rerender", True, False), ("side cut", True, True))
 
 
 def grey(path: Path) -> np.ndarray:
@@ -47,22 +50,24 @@ def grey(path: Path) -> np.ndarray:
     return image
 
 
-def nuisance(image: np.ndarray, rng: np.random.Generator, *, cut: bool) -> tuple[np.ndarray,
-                                                                                   dict]:
+def nuisance(image: np.ndarray, rng: np.random.Generator, *, blur: bool,
+             cut: bool) -> tuple[np.ndarray, dict]:
     """One mildly re-rendered copy of `image` (white 255 background), and what was drawn."""
     angle = float(rng.uniform(-5.0, 5.0))
     scale = float(rng.uniform(0.98, 1.02))
-    blur = float(rng.uniform(0.3, 1.0))
+    sigma = float(rng.uniform(0.3, 1.0)) if blur else 0.0
     shift = rng.uniform(-0.5, 0.5, 2)
     h, w = image.shape
-    work = ndi.gaussian_filter(image.astype(np.float64), blur, mode="nearest")
+    work = image.astype(np.float64)
+    if sigma > 0:
+        work = ndi.gaussian_filter(work, sigma, mode="nearest")
     # output pixel o samples the input at c + R(−angle)(o − c) / scale + shift
     a = np.deg2rad(angle)
     rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) / scale
     centre = (np.array([h, w], dtype=np.float64) - 1) / 2
     offset = centre - rot @ centre + shift
     work = ndi.affine_transform(work, rot, offset=offset, order=3, mode="constant", cval=255.0)
-    drawn = {"angle_deg": round(angle, 2), "scale": round(scale, 4), "blur_px": round(blur, 2)}
+    drawn = {"angle_deg": round(angle, 2), "scale": round(scale, 4), "blur_px": round(sigma, 2)}
     if cut:
         keep = float(rng.uniform(0.75, 1.0))
         side = str(rng.choice(["left", "right", "bottom"]))
@@ -104,9 +109,9 @@ def main(argv=None) -> int:
         out.mkdir(parents=True, exist_ok=True)
         probe_path = sourceafis.save_png(out / "probe.png", probe)
         pairs, drawn = [(probe_path, PRINTS / "matching.png")], []
-        for family, cut in (("rerender", False), ("side cut", True)):
+        for family, blur, cut in FAMILIES:
             for i in range(args.copies):
-                image, d = nuisance(probe, rng, cut=cut)
+                image, d = nuisance(probe, rng, blur=blur, cut=cut)
                 path = sourceafis.save_png(out / f"{family.replace(' ', '_')}_{i:03d}.png",
                                            image)
                 pairs.append((path, PRINTS / "matching.png"))
@@ -114,7 +119,7 @@ def main(argv=None) -> int:
         scores = sourceafis.score_pairs(pairs)
     reference = float(scores[0])
     result = {"probe_vs_matching": reference, "families": {}}
-    for family in ("rerender", "side cut"):
+    for family, _, _ in FAMILIES:
         idx = [i for i, d in enumerate(drawn) if d["family"] == family]
         ratios = scores[1:][idx] / reference
         result["families"][family] = summary(ratios)
