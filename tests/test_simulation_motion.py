@@ -174,6 +174,42 @@ def test_estimate_motion_still_frames_under_a_gamma_mismatch():
     assert est.to_dict()["moving"] is False
 
 
+def _flat_skin_frames(seed: int, *, lit_rows: int = 170):
+    """Phase frames of still, flat skin (no texture, camera noise of 1.5 grey levels) whose
+    projector light ends at row `lit_rows` (a 3 px ramp); the valid mask reaches into the ramp,
+    as a decoder's modulation test lets it."""
+    rng = np.random.default_rng(seed)
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    lit = ndi.gaussian_filter((yy < lit_rows).astype(float), 3.0)
+    frames = []
+    for label, idx in dc_groups(SHORT):
+        periods = float(label.split("/")[1])
+        axis = xx if label.startswith("x") else yy
+        for k in range(len(idx)):
+            phase = 2 * np.pi * periods * axis / w + 2 * np.pi * k / len(idx)
+            light = (0.5 + 0.5 * np.cos(phase)) ** 2.2
+            frame = 0.5 * (0.05 + 0.85 * light * lit) * 255 + 1.5 * rng.standard_normal((h, w))
+            frames.append(np.clip(frame, 0, 255))
+    return np.asarray(frames), yy < lit_rows + 2
+
+
+def test_estimate_motion_ignores_a_static_edge_on_flat_skin(monkeypatch):
+    """Where the lit area ends on skin without ridges, the band-passed edge does not move with
+    the skin and leaves the shift along it free: the window keeps clear of it, no motion is
+    read (with the window 0.3 mm inside the valid pixels, as before, 2–11 px were)."""
+    from nail2nail.scan import motion
+
+    for seed in range(4):
+        frames, mask = _flat_skin_frames(seed)
+        est = estimate_motion(frames, SHORT, mask, mm_per_px=0.05, tiles=2)
+        assert not est.max_spread_px > 0.1  # NaN: no texture to register anywhere
+        assert est.to_dict()["moving"] is not True  # None: nothing measured, not flagged
+    monkeypatch.setattr(motion, "EDGE_MM", 0.3)
+    est = estimate_motion(frames, SHORT, mask, mm_per_px=0.05, tiles=2)
+    assert est.max_spread_px > 1.0
+
+
 def test_estimate_motion_needs_two_groups_and_pixels():
     one = PatternSet(x=(Frequency(1, 4),), gamma=2.2)
     frames = np.zeros((4, 100, 100), np.uint8)
