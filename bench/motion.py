@@ -18,13 +18,18 @@ measure motion, not calibration):
    and SourceAFIS score(unrolled print, true print) as a fraction of the still finger's under
    the same strategy.
 2. **No false alarm.** Still captures under random conditions (seeds that no tuning used,
-   :func:`nail2nail.simulation.conditions.draw_conditions`): the largest motion the check reads,
+   :func:`nail2nail.simulation.conditions.draw_conditions`), wearing synthetic prints and
+   (``--still-real``) the real impression ``probe.png`` of ``../shared/data/prints``, whose
+   skin below and beside the impression has no ridges: the largest motion the check reads,
    against its threshold (0.02 mm).
 
 Usage::
 
     .venv/bin/python bench/motion.py [--scale 0.5] [--amplitudes 0,25,50,100,200]
-        [--still 20] [--workers 2] [--out bench-output/motion] [--plot docs/img/motion.png]
+        [--still 20] [--still-real 10] [--workers 2] [--out bench-output/motion]
+        [--plot docs/img/motion.png]
+
+``--amplitudes none`` runs the still captures alone (about 15 s each).
 
 Cost (half resolution, two cores): every moving frame is intersected anew (3 cameras × 24
 frames × 2 sub-steps, about 1.5 s each), about 4 minutes of one core per amplitude; the jobs
@@ -52,6 +57,8 @@ from _measure import log
 FINGER_SEED = 3
 MOTION_SEED = 7
 STILL_SEED0 = 500
+STILL_REAL_SEED0 = 540
+PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
 
 
 def strategies() -> dict:
@@ -231,9 +238,16 @@ def run_still(job: dict) -> dict:
     seed = job["seed"]
     cond = draw_conditions(seed)
     rig = cond.rig(job["scale"])
-    capture_dir = Path(job["out"]) / f"still{seed}"
+    real = bool(job.get("real"))
+    capture_dir = Path(job["out"]) / f"still{'_real' if real else ''}{seed}"
     if not (capture_dir / "capture.json").is_file():
-        scene = make_scene("finger", rig=rig, seed=seed, **cond.finger_options())
+        image = None
+        if real:
+            from nail2nail.io.prints import read_print_image
+
+            image, _ = read_print_image(PRINTS / "probe.png")
+        scene = make_scene("finger", rig=rig, seed=seed,
+                           **cond.finger_options(print_image=image))
         simulate_capture(capture_dir, scene, rig=rig, seed=seed, write_truth=False)
     import warnings
 
@@ -242,7 +256,7 @@ def run_still(job: dict) -> dict:
         scans = scan_capture(read_capture(capture_dir, load=False),
                              RigCalibration.from_dict(ideal_calibration(rig)))
     summary = motion_summary(scans) or {}
-    return {"seed": seed, **summary,
+    return {"seed": seed, "print": "probe.png" if real else "synthetic", **summary,
             "cameras": {s.name: (s.motion or {}).get("motion_mm") for s in scans}}
 
 
@@ -319,11 +333,14 @@ def markdown(rows: list[dict], still: list[dict]) -> str:
             f"({', '.join(r['pair_by'])}) "
             f"| {max(r['merge_xpyp_median_um']):.1f} / {max(r['merge_xpyp_p95_um']):.1f} "
             f"| {r.get('score', '—')} ({r.get('score_fraction', '—')}) |")
-    if still:
-        mm = [s.get("motion_mm") or 0.0 for s in still]
-        flagged = sum(bool(s.get("moving")) for s in still)
-        lines += ["", f"Still captures under {len(still)} random conditions (seeds "
-                  f"{still[0]['seed']}–{still[-1]['seed']}): motion read median "
+    for kind in ("synthetic", "probe.png"):
+        group = [s for s in still if s.get("print", "synthetic") == kind]
+        if not group:
+            continue
+        mm = [s.get("motion_mm") or 0.0 for s in group]
+        flagged = sum(bool(s.get("moving")) for s in group)
+        lines += ["", f"Still captures wearing {kind} under {len(group)} random conditions "
+                  f"(seeds {group[0]['seed']}–{group[-1]['seed']}): motion read median "
                   f"{1000 * float(np.median(mm)):.1f} µm, largest {1000 * max(mm):.1f} µm "
                   f"(threshold 20 µm); flagged {flagged}."]
     return "\n".join(lines)
@@ -334,6 +351,8 @@ def main(argv=None) -> int:
     p.add_argument("--scale", type=float, default=0.5)
     p.add_argument("--amplitudes", default="0,25,50,100,200", help="tremor RMS, µm")
     p.add_argument("--still", type=int, default=20, help="still captures under random conditions")
+    p.add_argument("--still-real", type=int, default=10,
+                   help="still captures wearing probe.png under random conditions")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     p.add_argument("--out", type=Path, default=Path("bench-output/motion"))
     p.add_argument("--plot", type=Path, help="write the figure here (PNG)")
@@ -343,13 +362,16 @@ def main(argv=None) -> int:
     if args.replot:
         plot(args.plot, json.loads((args.out / "results.json").read_text())["rows"])
         return 0
-    amplitudes = [int(a) for a in args.amplitudes.split(",")]
+    amplitudes = [] if args.amplitudes.strip().lower() in ("", "none") \
+        else [int(a) for a in args.amplitudes.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     jobs = [{"amplitude_um": a, "scale": args.scale, "out": str(args.out)}
             for a in sorted(amplitudes, reverse=True)]  # the slowest first
     still_jobs = [{"seed": STILL_SEED0 + i, "scale": args.scale, "out": str(args.out)}
                   for i in range(args.still)]
+    still_jobs += [{"seed": STILL_REAL_SEED0 + i, "scale": args.scale, "out": str(args.out),
+                    "real": True} for i in range(args.still_real)]
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=max(1, args.workers), mp_context=context) as pool:
         futures = [pool.submit(run_amplitude, j) for j in jobs]
@@ -360,7 +382,7 @@ def main(argv=None) -> int:
     result = {"rows": rows, "still": still, "seconds": round(time.perf_counter() - t0, 1),
               "scale": args.scale}
     (args.out / "results.json").write_text(json.dumps(result, indent=1))
-    if args.plot:
+    if args.plot and rows:
         plot(args.plot, rows)
     print(markdown(rows, still))
     print(f"\n{result['seconds']:.0f} s in all; results in {args.out / 'results.json'}")
