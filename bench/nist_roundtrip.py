@@ -92,7 +92,7 @@ def blank_space(image: np.ndarray, rate: float) -> dict:
             "ridge_box_bpp": round(8 * size / crop.size, 3)}
 
 
-def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
+def wsq_rates(print_dir: Path, rates, tmp: Path, *, imageio_grey: bool = False) -> dict:
     import sourceafis
     from test_interchange import _independent_read
 
@@ -122,7 +122,7 @@ def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
     pairs = [(tmp / "original.png", tmp / "original.png")]
     pairs += [(pngs[r], tmp / "original.png") for r in rates]
     start = time.perf_counter()
-    scores = sourceafis.score_pairs(pairs, dpi=500)
+    scores = sourceafis.score_pairs(pairs, dpi=500, imageio_grey=imageio_grey)
     self_score = float(scores[0])
     for row, score in zip(rows, scores[1:], strict=True):
         row["score_vs_original"] = round(float(score), 1)
@@ -133,7 +133,7 @@ def wsq_rates(print_dir: Path, rates, tmp: Path) -> dict:
     return result
 
 
-def real_print_rates(prints: Path, rates, tmp: Path) -> dict:
+def real_print_rates(prints: Path, rates, tmp: Path, *, imageio_grey: bool = False) -> dict:
     """WSQ ratio, RMS and SourceAFIS score against itself of each real print at each rate."""
     import sourceafis
 
@@ -157,7 +157,7 @@ def real_print_rates(prints: Path, rates, tmp: Path) -> dict:
     result = {"prints": str(prints), "rates": rows, "blank_space": blank, "sourceafis": None}
     if not rows or not sourceafis.available():
         return result
-    scores = sourceafis.score_pairs(pairs, dpi=500)
+    scores = sourceafis.score_pairs(pairs, dpi=500, imageio_grey=imageio_grey)
     per_print = len(rates) + 1
     for k, row in enumerate(rows):
         block, offset = divmod(k, len(rates))
@@ -220,13 +220,18 @@ def main(argv=None) -> dict:
                         help="directory of real 500 ppi prints (PNG) to measure the codec on; "
                              "'' skips them")
     parser.add_argument("--no-batch", action="store_true")
+    parser.add_argument("--imageio-grey", action="store_true",
+                        help="SourceAFIS reads the grey PNGs through ImageIO, brightened, as "
+                             "before 2026-12-08 (bench/sourceafis.py)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="nist_roundtrip_") as tmp_name:
         tmp = Path(tmp_name)
-        results = {"wsq": wsq_rates(demo_print_dir(args, tmp), args.rates, tmp)}
+        results = {"wsq": wsq_rates(demo_print_dir(args, tmp), args.rates, tmp,
+                                    imageio_grey=args.imageio_grey)}
         if args.real_prints and Path(args.real_prints).is_dir():
-            results["real_prints"] = real_print_rates(Path(args.real_prints), args.rates, tmp)
+            results["real_prints"] = real_print_rates(Path(args.real_prints), args.rates, tmp,
+                                                      imageio_grey=args.imageio_grey)
         if not args.no_batch:
             (tmp / "batch").mkdir()
             results["ten_fingers"] = ten_fingers(args.scale, tmp / "batch")
