@@ -3,6 +3,7 @@ subsurface spread, tapered and posed fingers (issue 22)."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -182,6 +183,11 @@ def test_tapered_finger_widens_below_the_cap():
         make_scene("finger", rotation_deg=(1.0, 2.0))
 
 
+@functools.lru_cache(maxsize=1)
+def _widest_print():
+    return make_scene("finger", taper=0.02).fingerprint
+
+
 @settings(max_examples=40, deadline=None)
 @given(taper=st.floats(0.002, 0.02), below=st.floats(0.05, 3.0),
        azimuth=st.floats(-60.0, 60.0), elevation=st.floats(15.0, 60.0))
@@ -191,7 +197,9 @@ def test_tapered_finger_is_hit_first_from_above_the_cap(taper, below, azimuth, e
     the rays entering the tapered body's grown cylinder through the plane of the cap's base,
     so their march began past the skin and the simulator printed a false shadow band across
     the finger below the cap."""
-    finger = make_scene("finger", taper=taper)
+    # the print of the most tapered finger (the widest) serves every taper: growing one per
+    # taper cost a second each, and the ridges do not change the march being tested
+    finger = make_scene("finger", taper=taper, fingerprint=_widest_print())
     a = np.radians(azimuth)
     y = finger.y0 - below
     k = 1 + taper * below
