@@ -195,7 +195,7 @@ BAND_MM = (0.05, 0.2)
 SAMPLING_MM = 0.05
 #: How far inside the valid pixels the registration window starts, mm: the band-pass of a
 #: static edge (the finger's silhouette, the end of the projector's lit area, a shadow) reaches
-#: about three times its wider σ into them (1 % of the step at 0.6 mm), and an edge that does
+#: about three times its wider σ into them (0.1 % of the step at 0.6 mm), and an edge that does
 #: not move with the skin pins a region's correlation at no shift across it and leaves the
 #: shift along it free: on a still finger wearing a real impression (condition 2505, flat skin
 #: below the ridges) a corner region reached a normalised correlation of 0.9 on the end of the
