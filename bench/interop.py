@@ -65,8 +65,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import sourceafis
 import unroll_matcher as um
 from _measure import log
+from sourceafis import PRINTS
 
-PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
 SYNTHETIC_SEED0 = 100
 REAL_SEED0 = 200
 THRESHOLD = 40.0

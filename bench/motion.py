@@ -53,12 +53,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sourceafis
 from _measure import log
+from sourceafis import PRINTS
 
 FINGER_SEED = 3
 MOTION_SEED = 7
 STILL_SEED0 = 500
 STILL_REAL_SEED0 = 540
-PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
 
 
 def strategies() -> dict:

@@ -31,57 +31,45 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage as ndi
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sourceafis
+from sourceafis import PRINTS
 
-PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
 #: (name, blurred, a side cut off)
 FAMILIES = (("resample", False, False), ("rerender", True, False), ("side cut", True, True))
 
 
-def grey(path: Path) -> np.ndarray:
-    """A print image as 8-bit grey (the alpha channel of the RGBA files dropped)."""
-    from nail2nail.io.prints import read_print_image
-
-    image, _ = read_print_image(path)
-    return image
-
-
 def nuisance(image: np.ndarray, rng: np.random.Generator, *, blur: bool,
              cut: bool) -> tuple[np.ndarray, dict]:
-    """One mildly re-rendered copy of `image` (white 255 background), and what was drawn."""
+    """One mildly re-rendered copy of `image` (:func:`sourceafis.rerender`: rotation, scale,
+    sub-pixel shift, blur if `blur`; white 255 brought in) with, if `cut`, a band of one side
+    made white; and what was drawn."""
     angle = float(rng.uniform(-5.0, 5.0))
     scale = float(rng.uniform(0.98, 1.02))
     sigma = float(rng.uniform(0.3, 1.0)) if blur else 0.0
     shift = rng.uniform(-0.5, 0.5, 2)
-    h, w = image.shape
-    work = image.astype(np.float64)
-    if sigma > 0:
-        work = ndi.gaussian_filter(work, sigma, mode="nearest")
-    # output pixel o samples the input at c + R(−angle)(o − c) / scale + shift
-    a = np.deg2rad(angle)
-    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) / scale
-    centre = (np.array([h, w], dtype=np.float64) - 1) / 2
-    offset = centre - rot @ centre + shift
-    work = ndi.affine_transform(work, rot, offset=offset, order=3, mode="constant", cval=255.0)
+    work = sourceafis.rerender(image, blur_px=sigma, scale=scale, angle_deg=angle,
+                               shift_px=(float(shift[0]), float(shift[1])))
     drawn = {"angle_deg": round(angle, 2), "scale": round(scale, 4), "blur_px": round(sigma, 2)}
     if cut:
+        h, w = image.shape
         keep = float(rng.uniform(0.75, 1.0))
         side = str(rng.choice(["left", "right", "bottom"]))
         if side == "bottom":
-            work[round(keep * h):, :] = 255.0
+            work[round(keep * h):, :] = 255
         elif side == "left":
-            work[:, : round((1 - keep) * w)] = 255.0
+            work[:, : round((1 - keep) * w)] = 255
         else:
-            work[:, round(keep * w):] = 255.0
+            work[:, round(keep * w):] = 255
         drawn.update(keep=round(keep, 3), side=side)
-    return np.clip(np.rint(work), 0, 255).astype(np.uint8), drawn
+    return work, drawn
 
 
 def summary(ratios: np.ndarray) -> dict:
+    """Median, 10th percentile, extremes of the ratios; the share at 0.9 or more and its tenth
+    power (ten independent copies all at 0.9)."""
     at_least = float((ratios >= 0.9).mean())
     return {"copies": int(ratios.size), "median": round(float(np.median(ratios)), 3),
             "p10": round(float(np.percentile(ratios, 10)), 3),
@@ -102,7 +90,9 @@ def main(argv=None) -> int:
     if not sourceafis.available():  # a line, not a failure: `make bench` goes on
         print("probe_scatter: SourceAFIS needs java and mvn on PATH; skipped", file=sys.stderr)
         return 0
-    probe = grey(PRINTS / "probe.png")
+    from nail2nail.io.prints import read_print_image
+
+    probe, _ = read_print_image(PRINTS / "probe.png")  # grey: the RGBA file's alpha dropped
     rng = np.random.default_rng(args.seed)
     with tempfile.TemporaryDirectory(prefix="nail2nail-scatter-") as tmp:
         out = args.out or Path(tmp)

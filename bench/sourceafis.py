@@ -50,6 +50,10 @@ from pathlib import Path
 import numpy as np
 import scipy.ndimage as ndi
 
+#: The real prints shared with the project (``../shared/data/prints``: a genuine pair
+#: ``probe.png``/``matching.png``, another finger ``nonmatching.png``; Apache-2.0)
+PRINTS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "prints"
+
 __all__ = [
     "JAR_PATH",
     "MATCHER_DIR",
@@ -261,8 +265,10 @@ def _check_image(image) -> np.ndarray:
     return image
 
 
-def rerender(image: np.ndarray, *, blur_px: float = 1.0, scale: float = 1.02) -> np.ndarray:
-    """A mildly re-rendered copy of a print: Gaussian blur, then a scale change about the centre.
+def rerender(image: np.ndarray, *, blur_px: float = 1.0, scale: float = 1.02,
+             angle_deg: float = 0.0, shift_px: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """A mildly re-rendered copy of a print: Gaussian blur, then a scale change (and a rotation,
+    a sub-pixel shift) about the centre.
 
     The reference for "as good as a re-rendering of the truth" in issue 9: the score of a print
     against its own re-rendered copy bounds what any faithful reproduction can reach.
@@ -276,6 +282,12 @@ def rerender(image: np.ndarray, *, blur_px: float = 1.0, scale: float = 1.02) ->
     scale : float
         Magnification about the image centre (``1.02``: 2 % larger); pixels brought in from
         outside the image are white.
+    angle_deg : float
+        Rotation about the image centre, degrees: output pixel ``o`` (row, col) samples the
+        blurred input at ``c + R(angle)(o − c) / scale + shift``, ``c`` the centre and ``R``
+        the rotation of (row, col) vectors by `angle_deg`.
+    shift_px : (float, float)
+        ``shift`` above, (row, col) px: the picture moves by about ``−shift``.
 
     Returns
     -------
@@ -287,7 +299,8 @@ def rerender(image: np.ndarray, *, blur_px: float = 1.0, scale: float = 1.02) ->
     TypeError
         If `image` is not a uint8 array.
     ValueError
-        If `image` is not 2D, `blur_px` is negative or `scale` is not positive.
+        If `image` is not 2D, `blur_px` is negative, `scale` is not positive or `angle_deg`,
+        `shift_px` are not finite.
 
     Examples
     --------
@@ -301,12 +314,21 @@ def rerender(image: np.ndarray, *, blur_px: float = 1.0, scale: float = 1.02) ->
         raise ValueError(f"blur_px: expected a finite value >= 0, got {blur_px}")
     if not (math.isfinite(scale) and scale > 0):
         raise ValueError(f"scale: expected a finite value > 0, got {scale}")
+    shift = np.asarray(shift_px, dtype=np.float64)
+    if not math.isfinite(angle_deg) or shift.shape != (2,) or not np.isfinite(shift).all():
+        raise ValueError(f"angle_deg, shift_px: expected a finite angle and two finite numbers, "
+                         f"got {angle_deg}, {shift_px}")
     work = image.astype(np.float64)
     if blur_px > 0:
         work = ndi.gaussian_filter(work, blur_px, mode="nearest")
-    if scale != 1:
-        # output pixel o samples the input at c + (o − c) / scale, c the image centre
-        centre = (np.array(image.shape, dtype=np.float64) - 1) / 2
+    centre = (np.array(image.shape, dtype=np.float64) - 1) / 2
+    if angle_deg != 0 or shift.any():
+        a = np.deg2rad(angle_deg)
+        matrix = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) / scale
+        work = ndi.affine_transform(work, matrix, offset=centre - matrix @ centre + shift,
+                                    order=3, mode="constant", cval=255.0)
+    elif scale != 1:
+        # output pixel o samples the input at c + (o − c) / scale
         work = ndi.affine_transform(work, np.full(2, 1 / scale), offset=centre - centre / scale,
                                     order=3, mode="constant", cval=255.0)
     return np.clip(np.rint(work), 0, 255).astype(np.uint8)

@@ -102,6 +102,8 @@ def test_rerender_blur_preserves_mean():
         (np.zeros((4, 4), np.uint8), {"blur_px": -1}, ValueError, "blur_px"),
         (np.zeros((4, 4), np.uint8), {"scale": 0}, ValueError, "scale"),
         (np.zeros((4, 4), np.uint8), {"scale": float("nan")}, ValueError, "scale"),
+        (np.zeros((4, 4), np.uint8), {"angle_deg": float("inf")}, ValueError, "angle_deg"),
+        (np.zeros((4, 4), np.uint8), {"shift_px": (0.0,)}, ValueError, "shift_px"),
     ],
 )
 def test_rerender_bad_input(image, kwargs, error, match):
